@@ -1,0 +1,106 @@
+"""Small vectorised vector helpers: every function works on arrays of 3-vectors with any leading shape."""
+
+import numpy as np
+
+from .errors import SolverInputError
+
+# Norms at or below this count as zero-length. Absolute: callers pass directions of scene-unit vectors and
+# only need to tell "no direction at all" from "a direction".
+TINY = 1e-300
+
+
+def dot(a, b):
+    """Row-wise dot product (...,3)·(...,3) -> (...). Written out so batched and single calls round the same."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
+def norm(v):
+    """Row-wise Euclidean length (...,3) -> (...)."""
+    return np.sqrt(dot(v, v))
+
+
+def cross(a, b):
+    """Row-wise cross product; np.cross is several times slower for small arrays."""
+    a, b = np.broadcast_arrays(np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64))
+    out = np.empty(a.shape)
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
+
+
+def normalize(v, fallback=None):
+    """Unit vectors of v (...,3). Zero vectors become `fallback` (broadcast to v's shape, normalised itself);
+    without a fallback a zero vector raises SolverInputError."""
+    v = np.asarray(v, dtype=np.float64)
+    n = norm(v)
+    zero = ~(n > TINY)
+    if not np.any(zero):
+        return v / n[..., None]
+    if fallback is None:
+        raise SolverInputError("cannot normalise a zero-length vector")
+    fb = np.broadcast_to(np.asarray(fallback, dtype=np.float64), v.shape)
+    safe = np.where(zero[..., None], fb, v)
+    n = norm(safe)
+    if np.any(~(n > TINY)):
+        raise SolverInputError("cannot normalise a zero-length vector (fallback is zero too)")
+    return safe / n[..., None]
+
+
+def any_perpendicular(v):
+    """A unit vector perpendicular to each (non-zero) v (...,3): crossed with the coordinate axis least
+    aligned with v, so the result is well conditioned and deterministic."""
+    v = np.asarray(v, dtype=np.float64)
+    a = np.abs(v)
+    axis_idx = np.argmin(a, axis=-1)
+    e = np.zeros(v.shape)
+    np.put_along_axis(e, axis_idx[..., None], 1.0, axis=-1)
+    p = cross(v, e)
+    return p / norm(p)[..., None]
+
+
+def swing_rotation(old_dirs, new_dirs):
+    """Minimal rotation matrices (...,3,3) taking the directions old_dirs to new_dirs (need not be unit).
+
+    Built in the orthonormal frame e1 = old, e2 = the part of new perpendicular to old (Gram-Schmidt twice so
+    e2 stays perpendicular to e1 to rounding even when old and new are nearly antiparallel):
+        R = I + (cos t - 1)(e1 e1' + e2 e2') + sin t (e2 e1' - e1 e2'),
+    a rotation by t = angle(old, new) in the e1-e2 plane. cos and sin come from one atan2 angle so R is
+    orthonormal to ~1e-15. Parallel input gives I; exactly antiparallel input a half turn about a
+    deterministic axis perpendicular to old."""
+    a = normalize(old_dirs)
+    b = normalize(new_dirs)
+    a, b = np.broadcast_arrays(a, b)
+    c = dot(a, b)
+    w = b - c[..., None] * a
+    s = norm(w)
+    degenerate = ~(s > 1e-14)
+    w = np.where(degenerate[..., None], any_perpendicular(a), w)
+    w = w - dot(w, a)[..., None] * a
+    e2 = w / norm(w)[..., None]
+    t = np.arctan2(np.where(degenerate, 0.0, s), c)
+    cos_t, sin_t = np.cos(t), np.sin(t)
+    e1 = a
+    outer11 = e1[..., :, None] * e1[..., None, :]
+    outer22 = e2[..., :, None] * e2[..., None, :]
+    outer21 = e2[..., :, None] * e1[..., None, :]
+    outer12 = e1[..., :, None] * e2[..., None, :]
+    eye = np.eye(3)
+    return (eye + (cos_t - 1.0)[..., None, None] * (outer11 + outer22)
+            + sin_t[..., None, None] * (outer21 - outer12))
+
+
+def rotate_about_axis(v, axis, angle):
+    """Rotate vectors v (...,3) about `axis` (...,3, need not be unit) by `angle` (...) radians,
+    right-handed (Rodrigues)."""
+    v = np.asarray(v, dtype=np.float64)
+    k = normalize(axis)
+    angle = np.asarray(angle, dtype=np.float64)
+    cos_a = np.cos(angle)[..., None]
+    sin_a = np.sin(angle)[..., None]
+    return v * cos_a + cross(k, v) * sin_a + k * (dot(k, v)[..., None] * (1.0 - cos_a))
+
+
+def apply_matrix(m, v):
+    """Row-wise matrix @ vector: (...,3,3) @ (...,3) -> (...,3)."""
+    return np.einsum("...ij,...j->...i", m, v)

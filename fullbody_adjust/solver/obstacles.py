@@ -1,0 +1,127 @@
+"""Axis-aligned obstacle boxes and the collision tests the solver and the quality measures use (paper §4.1.1)."""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import SolverInputError
+
+
+@dataclass(frozen=True)
+class Boxes:
+    """K closed axis-aligned boxes: mins, maxs (K,3) shared by every problem of a batch, or (B,K,3) per
+    problem (moving obstacles: one box set per frame)."""
+
+    mins: np.ndarray
+    maxs: np.ndarray
+
+    def __post_init__(self):
+        mins = np.array(self.mins, dtype=np.float64)
+        maxs = np.array(self.maxs, dtype=np.float64)
+        if mins.shape != maxs.shape or mins.ndim not in (2, 3) or mins.shape[-1] != 3:
+            raise SolverInputError(
+                f"boxes need mins and maxs of the same shape (K,3) or (B,K,3), got {mins.shape} and {maxs.shape}")
+        if not (np.all(np.isfinite(mins)) and np.all(np.isfinite(maxs))):
+            raise SolverInputError("obstacle boxes have NaN/inf")
+        bad = np.nonzero(np.any(mins > maxs, axis=-1))
+        if bad[0].size:
+            raise SolverInputError(f"obstacle box {int(bad[-1][0])} has min > max")
+        mins.setflags(write=False)
+        maxs.setflags(write=False)
+        object.__setattr__(self, "mins", mins)
+        object.__setattr__(self, "maxs", maxs)
+
+    @classmethod
+    def from_corners(cls, corners):
+        """Boxes bounding corner points: (K,8,3) or (K,2,3), or per problem (B,K,8,3) / (B,K,2,3)."""
+        corners = np.asarray(corners, dtype=np.float64)
+        if corners.ndim not in (3, 4) or corners.shape[-1] != 3 or corners.shape[-2] < 1:
+            raise SolverInputError(f"box corners must have shape (K,8,3), (K,2,3) or (B,K,...,3), got {corners.shape}")
+        if not np.all(np.isfinite(corners)):
+            raise SolverInputError("obstacle box corners have NaN/inf")
+        return cls(corners.min(axis=-2), corners.max(axis=-2))
+
+    @classmethod
+    def empty(cls):
+        return cls(np.zeros((0, 3)), np.zeros((0, 3)))
+
+    def __len__(self):
+        return self.mins.shape[-2]
+
+    @property
+    def batched(self):
+        return self.mins.ndim == 3
+
+    def corners(self):
+        """The 8 corners of every box: (K,8,3) or (B,K,8,3)."""
+        bits = np.array([[(c >> 0) & 1, (c >> 1) & 1, (c >> 2) & 1] for c in range(8)], dtype=bool)
+        return np.where(bits, self.maxs[..., None, :], self.mins[..., None, :])
+
+    def select(self, rows):
+        """Per-problem boxes of the problems `rows` (index array); shared boxes are returned unchanged."""
+        if not self.batched:
+            return self
+        return Boxes(self.mins[rows], self.maxs[rows])
+
+
+def _box_arrays(boxes, lead_ndim):
+    """mins, maxs shaped to broadcast against points with `lead_ndim` leading axes, giving (..., K, 3).
+    Per-problem boxes pair their B axis with the points' first axis."""
+    mins, maxs = boxes.mins, boxes.maxs
+    if boxes.batched:
+        if lead_ndim < 1:
+            raise SolverInputError("per-problem boxes need points with a leading batch axis")
+        shape = (mins.shape[0],) + (1,) * (lead_ndim - 1) + mins.shape[1:]
+        return mins.reshape(shape), maxs.reshape(shape)
+    return mins, maxs
+
+
+def points_inside(points, boxes):
+    """(...,3) points, K boxes -> (..., K) bool: point lies in the closed box."""
+    p = np.asarray(points, dtype=np.float64)
+    mins, maxs = _box_arrays(boxes, p.ndim - 1)
+    q = p[..., None, :]
+    return np.all((q >= mins) & (q <= maxs), axis=-1)
+
+
+def segments_cross(a, b, boxes):
+    """Segments a->b (...,3), K boxes -> (..., K) bool: the closed segment meets the closed box (slab test).
+    A segment with an end inside a box counts as crossing it."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    a, b = np.broadcast_arrays(a, b)
+    mins, maxs = _box_arrays(boxes, a.ndim - 1)
+    p = a[..., None, :]
+    d = (b - a)[..., None, :]
+    flat = d == 0.0
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        t1 = (mins - p) / d
+        t2 = (maxs - p) / d
+    lo = np.minimum(t1, t2)
+    hi = np.maximum(t1, t2)
+    # An axis the segment does not move along: inside the slab -> no constraint, outside -> empty interval.
+    in_slab = (p >= mins) & (p <= maxs)
+    lo = np.where(flat, np.where(in_slab, -np.inf, np.inf), lo)
+    hi = np.where(flat, np.where(in_slab, np.inf, -np.inf), hi)
+    t_enter = np.maximum(np.max(lo, axis=-1), 0.0)
+    t_exit = np.minimum(np.min(hi, axis=-1), 1.0)
+    return t_enter <= t_exit
+
+
+def penetrations(positions, segments, boxes):
+    """Collision counts of posed chains/trees.
+
+    positions (..., n, 3); segments (m, 2) int joint index pairs. Returns (joints_inside, segments_crossing),
+    each (...) int: joints lying in some box, segments meeting some box."""
+    p = np.asarray(positions, dtype=np.float64)
+    segments = np.asarray(segments, dtype=np.int64).reshape(-1, 2)
+    lead = p.shape[:-2]
+    if len(boxes) == 0:
+        z = np.zeros(lead, dtype=np.int64)
+        return z, z.copy()
+    inside = points_inside(p, boxes).any(axis=-1).sum(axis=-1)
+    if segments.shape[0] == 0:
+        return inside, np.zeros(lead, dtype=np.int64)
+    # The point axes sit between B and K, so per-problem boxes still pair with the first axis.
+    crossing = segments_cross(p[..., segments[:, 0], :], p[..., segments[:, 1], :], boxes).any(axis=-1).sum(axis=-1)
+    return inside, crossing

@@ -1,0 +1,74 @@
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from fullbody_adjust.solver import SolverInputError, normalize, rotate_about_axis, swing_rotation
+from fullbody_adjust.solver.geometry import any_perpendicular, cross
+
+from .strategies import unit_vectors
+
+
+def test_normalize_gives_unit_vectors_and_uses_the_fallback_for_zero_rows():
+    v = np.array([[3.0, 4.0, 0.0], [0.0, 0.0, 0.0], [0.0, -2.0, 0.0]])
+    out = normalize(v, fallback=[0.0, 0.0, 5.0])
+    np.testing.assert_allclose(out, [[0.6, 0.8, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+
+
+def test_normalize_without_fallback_rejects_zero_vectors():
+    with pytest.raises(SolverInputError, match="zero-length"):
+        normalize(np.zeros(3))
+
+
+@settings(deadline=None, max_examples=300)
+@given(unit_vectors(), unit_vectors(), st.floats(0.1, 10.0), st.floats(0.1, 10.0))
+def test_swing_rotation_takes_old_to_new_and_is_a_rotation(a, b, sa, sb):
+    r = swing_rotation(a * sa, b * sb)
+    np.testing.assert_allclose(r @ a, b, atol=1e-12)
+    np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(r) == pytest.approx(1.0, abs=1e-12)
+    # Minimal: it leaves the common normal of old and new alone.
+    n = np.cross(a, b)
+    if np.linalg.norm(n) > 1e-6:
+        np.testing.assert_allclose(r @ n, n, atol=1e-12)
+
+
+@settings(deadline=None, max_examples=200)
+@given(unit_vectors(), st.floats(-1e-7, 1e-7), st.floats(-1e-7, 1e-7))
+def test_swing_rotation_is_robust_near_antiparallel(a, e1, e2):
+    p = any_perpendicular(a)
+    q = np.cross(a, p)
+    b = -a + e1 * p + e2 * q
+    r = swing_rotation(a, b)
+    np.testing.assert_allclose(r @ a, b / np.linalg.norm(b), atol=1e-12)
+    np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
+    assert np.linalg.det(r) == pytest.approx(1.0, abs=1e-12)
+
+
+def test_swing_rotation_parallel_is_identity_and_batches():
+    a = np.array([[1.0, 0.0, 0.0], [0.0, 2.0, 0.0]])
+    r = swing_rotation(a, a * 3.0)
+    np.testing.assert_allclose(r, np.broadcast_to(np.eye(3), (2, 3, 3)), atol=1e-15)
+    r = swing_rotation(a, -a)
+    np.testing.assert_allclose(np.einsum("bij,bj->bi", r, a), -a, atol=1e-15)
+
+
+@settings(deadline=None, max_examples=200)
+@given(unit_vectors(), unit_vectors(), st.floats(-math.pi, math.pi))
+def test_rotate_about_axis_keeps_length_axis_part_and_turns_by_the_angle(v, k, angle):
+    w = rotate_about_axis(v, k * 2.0, angle)
+    assert np.linalg.norm(w) == pytest.approx(1.0, abs=1e-12)
+    assert np.dot(w, k) == pytest.approx(np.dot(v, k), abs=1e-12)
+    # The perpendicular parts differ by exactly `angle`, right-handed about k.
+    pv, pw = v - np.dot(v, k) * k, w - np.dot(w, k) * k
+    if np.linalg.norm(pv) > 1e-6:
+        measured = math.atan2(np.dot(np.cross(pv, pw), k), np.dot(pv, pw))
+        assert math.remainder(measured - angle, 2 * math.pi) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_cross_matches_numpy():
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=(5, 3)), rng.normal(size=(5, 3))
+    np.testing.assert_allclose(cross(a, b), np.cross(a, b), atol=1e-15)
