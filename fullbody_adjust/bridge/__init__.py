@@ -1,0 +1,1 @@
+"""Blender-side code: the only layer that reads and writes Blender data."""

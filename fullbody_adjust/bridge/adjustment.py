@@ -1,0 +1,322 @@
+"""The one way through: active armature → bone mapping → targets and obstacles → the solver → bone channels
+→ keyframes. Operators and the command line call only ``adjust_pose`` and ``adjust_frames`` here.
+
+The solve runs in the armature's own space (its object transform undone): bone lengths are rigid there
+even under non-uniform object scale, targets map into it exactly, and world obstacle boxes are enclosed
+in armature-space boxes (the same boxes when the armature is not rotated).
+"""
+
+from dataclasses import dataclass, replace
+
+import bpy
+import numpy as np
+
+from ..solver import Boxes, ChainSettings, SolverInputError
+from ..solver.adjust import AdjustSettings, adjust_frames as solve_frames
+from ..solver.body import CHAIN, END, ROOT, BodyModel
+from ..solver.obstacles import penetrations
+from . import keyframes, mapping, obstacles, pose, targets
+from .errors import AdjustError
+
+# UI names of the sub-base variants -> the solver's.
+VARIANTS = {'FABRIK': "fabrik", 'WEIGHTED': "weighted", 'PRIORITY': "priority"}
+
+# A bone counts as moved when its rotation changed by more than this (radians, about) or its head moved by
+# more than this fraction of the rig's size: below it, a key would only record float noise.
+_MOVED = 1e-9
+
+# A pose scale (or a bone length relative to the rig's size) at or below this counts as zero.
+_FLAT = 1e-6
+
+
+@dataclass(frozen=True)
+class Options:
+    """What a run may override of the settings stored on the armature (None: use the stored value)."""
+
+    variant: str = None  # 'FABRIK' | 'WEIGHTED' | 'PRIORITY'
+    margin: float = None
+    tolerance: float = None
+    max_iterations: int = None
+    use_joint_limits: bool = None
+    keep_hand_orientation: bool = None
+    new_action: str = None  # write keys into a new action of this name (the original stays intact)
+    insert_keys: bool = True
+
+
+@dataclass
+class Outcome:
+    """What a run did, in world units: per frame and effector (EFFECTORS order) residuals (NaN: no target)."""
+
+    frames: np.ndarray  # (F,)
+    effectors: tuple
+    residuals: np.ndarray  # (F,E) world distance effector -> target (adjust_pose: as Blender evaluates the result)
+    status: np.ndarray  # (F,E)
+    reasons: np.ndarray  # (F,E)
+    moved_bones: tuple
+    joints_inside: np.ndarray  # (F,) joints inside an obstacle box after the solve
+    segments_crossing: np.ndarray  # (F,) bone segments crossing a box after the solve
+    action: object = None
+
+    @property
+    def constrained(self):
+        return np.isfinite(self.residuals)
+
+    @property
+    def met(self):
+        return self.status == "reached"
+
+    def summary(self):
+        """One line for the operator's report."""
+        tasks = int(self.constrained.sum())
+        met = int((self.met & self.constrained).sum())
+        largest = float(np.nanmax(self.residuals)) if tasks else 0.0
+        frames = len(self.frames)
+        where = f" over {frames} frames" if frames > 1 else ""
+        line = (f"{met} of {tasks} targets met{where}, largest residual {largest:.4g}; "
+                f"{len(self.moved_bones)} bones keyed")
+        inside, crossing = int(np.sum(self.joints_inside)), int(np.sum(self.segments_crossing))
+        if inside or crossing:
+            line += f"; obstacles: {inside} joints inside, {crossing} bones crossing"
+        unmet = [(f, e) for f, e in zip(*np.nonzero(self.constrained & ~self.met))]
+        if unmet:
+            f, e = unmet[0]
+            line += f"; {self.effectors[e]}: {self.reasons[f, e]}"
+        return line
+
+
+def check_armature(obj):
+    """AdjustError (one line) unless ``obj`` is an armature whose pose and keys may be changed."""
+    if obj is None:
+        raise AdjustError("No active object: select an armature")
+    if obj.type != 'ARMATURE':
+        raise AdjustError(f"'{obj.name}' is not an armature")
+    if obj.library is not None:
+        raise AdjustError(f"Armature '{obj.name}' is linked from library '{obj.library.name}' and cannot be edited")
+    if not obj.is_editable:
+        raise AdjustError(f"Armature '{obj.name}' is not editable (a library override the file does not own)")
+    action = obj.animation_data.action if obj.animation_data is not None else None
+    if action is not None and not action.is_editable:
+        where = f"linked from library '{action.library.name}'" if action.library is not None else "not editable"
+        raise AdjustError(f"Action '{action.name}' of '{obj.name}' is {where} and cannot be keyed")
+    if obj.matrix_world.to_3x3().determinant() <= 0.0:
+        raise AdjustError(f"Armature '{obj.name}' has a negative or zero scale: fix its scale first")
+
+
+def settings_of(obj, options=Options()):
+    """The solver settings from the armature's stored settings, with ``options`` overriding."""
+    stored = obj.fullbody_adjust
+
+    def pick(name):
+        value = getattr(options, name)
+        return getattr(stored, name) if value is None else value
+
+    chain = ChainSettings(tolerance=float(pick("tolerance")), max_iterations=int(pick("max_iterations")),
+                          margin=float(pick("margin")))
+    return AdjustSettings(chain=chain, variant=VARIANTS[pick("variant")], use_limits=bool(pick("use_joint_limits")))
+
+
+def adjust_pose(context, obj, options=Options()):
+    """Adjust the armature's pose at the current frame, apply it, and key the bones that moved."""
+    frame = context.scene.frame_current
+    return _run(context, obj, [frame], options, apply_pose=True)
+
+
+def adjust_frames(context, obj, frame_start, frame_end, options=Options(), progress=None):
+    """Adjust every frame of [frame_start, frame_end] in one vectorised solve and key the moved bones."""
+    if frame_end < frame_start:
+        raise AdjustError(f"Frame range {frame_start}..{frame_end} is empty")
+    frames = np.arange(frame_start, frame_end + 1, dtype=np.float64)
+    return _run(context, obj, frames, options, apply_pose=False, progress=progress)
+
+
+def _run(context, obj, frames, options, *, apply_pose, progress=None):
+    progress = progress or (lambda stage, fraction: None)
+    check_armature(obj)
+    bone_map = mapping.ensure_map(obj)
+    settings = settings_of(obj, options)
+    keep_hands = options.keep_hand_orientation
+    keep_hands = obj.fullbody_adjust.keep_hand_orientation if keep_hands is None else keep_hands
+
+    # Read and check everything before anything is changed, so a bad input leaves the file as it was.
+    progress("reading", 0.0)
+    if apply_pose:
+        # The current frame as the user sees it. Stepping to it with frame_set would evaluate the animation
+        # again and throw away pose changes not keyed yet, even when the run then fails.
+        world_targets = _current_targets(obj, context)
+        corners = obstacles.obstacle_boxes(obj, context)[None]
+        snapshot = pose._as_batch(pose.read_pose(obj))
+    else:
+        world_targets = targets.read_target_frames(obj, frames, context)  # (F,E,3), NaN: no target
+        corners = obstacles.obstacle_box_frames(obj, context, frames)
+        snapshot = pose.read_pose_frames(obj, frames)
+    priorities = _priorities(obj)
+    _check_object_scale(obj, snapshot)
+    model = _model(snapshot, bone_map)
+    _check_driven_bones(model, snapshot)
+    progress("solving", 0.3)
+
+    to_arm = np.linalg.inv(snapshot.matrix_world)  # (F,4,4)
+    heads = _apply(to_arm, snapshot.heads)
+    tails = _apply(to_arm, snapshot.tails)
+    arm_targets = _apply(to_arm, world_targets)
+    boxes = _armature_boxes(corners, to_arm)
+    try:
+        result = solve_frames(model, heads, tails, arm_targets, targets.EFFECTORS, priorities, obstacles=boxes,
+                              settings=_in_armature_units(settings, snapshot.matrix_world),
+                              bone_x_axes=snapshot.pose_matrices[..., :3, 0])
+    except SolverInputError as ex:
+        raise AdjustError(f"Cannot adjust '{obj.name}': {ex}") from None
+    progress("writing", 0.8)
+
+    written = _bones_to_write(model, snapshot, result, keep_hands)
+    names = tuple(snapshot.names[j] for j in written)
+    new_pose = np.zeros(snapshot.pose_matrices[:, written].shape)
+    new_pose[..., :3, :3] = result.rotations[:, written] @ snapshot.pose_matrices[:, written, :3, :3]
+    new_pose[..., :3, 3] = result.heads[:, written]
+    new_pose[..., 3, 3] = 1.0
+    new_world = snapshot.matrix_world[:, None] @ new_pose
+    action = None
+    if names:
+        # Both writers check all their input before writing any of it; the channels come from the snapshot
+        # just read, so once keying has started the pose write cannot fail.
+        channels = pose.world_rotations_to_channels(obj, snapshot, new_world, names)
+        if options.insert_keys:
+            action = keyframes.key_bones_frames(obj, None, frames, channels, action_name=options.new_action)
+        if apply_pose:
+            pose.apply_channels(obj, {bone: {prop: v[0] for prop, v in props.items()}
+                                      for bone, props in channels.items()})
+    progress("done", 1.0)
+
+    if apply_pose:
+        # What the user sees is the pose Blender evaluates from the written channels (float32, constraints):
+        # report the residuals of that pose rather than the solver's.
+        applied = pose.read_pose(obj)
+        world_effectors = _effector_positions(model, applied.heads[None], np.eye(4)[None])
+    else:
+        world_effectors = _effector_positions(model, result.heads, snapshot.matrix_world)
+    residuals = np.linalg.norm(world_effectors - world_targets, axis=-1)
+    inside, crossing = _penetrations(model, result.heads, result.tails, boxes)
+    return Outcome(frames=np.asarray(frames, dtype=np.float64), effectors=tuple(targets.EFFECTORS),
+                   residuals=residuals, status=result.status, reasons=result.reasons, moved_bones=names,
+                   joints_inside=inside, segments_crossing=crossing, action=action)
+
+
+def _in_armature_units(settings, matrix_world):
+    """``settings`` (world units) for a solve in armature space: the tolerance shrunk by the largest object
+    scale, so a target met in armature space is met in the world; the obstacle margin grown by the smallest,
+    so the clearance kept in the world is at least the margin."""
+    scales = np.linalg.norm(matrix_world[:, :3, :3], axis=-2)  # (F,3): the object's axis scales per frame
+    chain = settings.chain
+    chain = replace(chain, tolerance=chain.tolerance / float(scales.max()), margin=chain.margin / float(scales.min()))
+    return replace(settings, chain=chain)
+
+
+def _current_targets(obj, context):
+    """World positions (1,E,3) of the enabled targets at the current frame as evaluated; NaN: no target."""
+    out = np.full((1, len(targets.EFFECTORS), 3), np.nan)
+    for spec in targets.read_targets(obj, context.evaluated_depsgraph_get()):
+        out[0, targets.EFFECTORS.index(spec.effector)] = spec.position
+    return out
+
+
+def _priorities(obj):
+    by_effector = {slot.effector: int(slot.priority) for slot in obj.fullbody_adjust.targets}
+    return np.array([by_effector.get(e, targets.DEFAULT_PRIORITY[e]) for e in targets.EFFECTORS], dtype=np.float64)
+
+
+def _model(snapshot, bone_map):
+    try:
+        return BodyModel.from_description(snapshot.names, snapshot.parents,
+                                          {group: list(bones) for group, bones in bone_map.groups.items()})
+    except SolverInputError as ex:
+        raise AdjustError(f"Bone mapping does not fit the rig: {ex}") from None
+
+
+def _check_object_scale(obj, snapshot):
+    """A mirrored or flattened object transform (on some frame, or through a parent) cannot be solved in."""
+    det = np.linalg.det(snapshot.matrix_world[:, :3, :3])
+    if np.any(det <= 0.0):
+        frame = snapshot.frame[int(np.argmax(det <= 0.0))]
+        raise AdjustError(f"Armature '{obj.name}' has a negative or zero scale at frame {frame:g}: "
+                          f"fix its scale first")
+
+
+def _check_driven_bones(model, snapshot):
+    """Each bone the solver may move, and each parent it is posed relative to, needs a length and an
+    invertible pose matrix: a bone scaled to 0 in Pose Mode (on any axis) has neither."""
+    driven = np.isin(model.roles, (ROOT, CHAIN, END))
+    needed = driven.copy()
+    needed[snapshot.parents[driven & (snapshot.parents >= 0)]] = True
+    axis_scales = np.linalg.norm(snapshot.pose_matrices[..., :3, :3], axis=-2)  # (F,J,3)
+    size = max(float(np.ptp(snapshot.heads.reshape(-1, 3), axis=0).max()), 1e-12)
+    flat = (axis_scales.min(axis=-1) <= _FLAT) | (snapshot.lengths <= _FLAT * size)  # (F,J)
+    bad = np.nonzero(needed & np.any(flat, axis=0))[0]
+    if len(bad):
+        raise AdjustError(f"Bone '{snapshot.names[bad[0]]}' has zero length or scale (scaled to 0 in Pose Mode?): "
+                          f"fix it before adjusting")
+
+
+def _apply(matrices, points):
+    """points (F,...,3) through (F,4,4) matrices."""
+    m = matrices.reshape(matrices.shape[0], *([1] * (points.ndim - 2)), 4, 4)
+    return np.einsum("...ij,...j->...i", m[..., :3, :3], points) + m[..., :3, 3]
+
+
+def _armature_boxes(world_corners, to_arm):
+    """Boxes in armature space enclosing the world axis-aligned boxes of ``world_corners`` (F,K,8,3)."""
+    if world_corners.shape[1] == 0:
+        return None
+    lo, hi = world_corners.min(axis=2), world_corners.max(axis=2)  # (F,K,3): world AABBs
+    pick = np.array([[(i >> a) & 1 for a in range(3)] for i in range(8)], dtype=bool)  # the 8 corners
+    aabb_corners = np.where(pick[None, None], hi[:, :, None], lo[:, :, None])  # (F,K,8,3)
+    arm = _apply(to_arm, aabb_corners)
+    return Boxes(mins=arm.min(axis=2), maxs=arm.max(axis=2))
+
+
+def _bones_to_write(model, snapshot, result, keep_hands):
+    """Indices of the bones the solver drives whose transform changed on some frame, parents first."""
+    driven = np.isin(model.roles, (ROOT, CHAIN, END) if keep_hands else (ROOT, CHAIN))
+    turn = np.abs(result.rotations - np.eye(3)).max(axis=(-1, -2))  # (F,J)
+    old_heads = snapshot.pose_matrices[..., :3, 3]
+    size = max(float(np.ptp(old_heads.reshape(-1, 3), axis=0).max()), 1e-12)
+    shift = np.linalg.norm(result.heads - old_heads, axis=-1) / size
+    changed = np.any((turn > _MOVED) | (shift > _MOVED), axis=0)
+    return np.nonzero(driven & changed)[0]
+
+
+def _effector_positions(model, heads, matrix_world):
+    """World positions (F,E,3) of the effector joints (the heads of the hand, foot and head bones)."""
+    out = np.full(heads.shape[:1] + (len(targets.EFFECTORS), 3), np.nan)
+    for limb in model.limbs.values():
+        if limb.effector in targets.EFFECTORS:
+            out[:, targets.EFFECTORS.index(limb.effector)] = heads[:, limb.end_bone]
+    return _apply(matrix_world, out)
+
+
+def _penetrations(model, heads, tails, boxes):
+    """Chain joints inside, and chain segments crossing, an obstacle box: (F,) counts each."""
+    inside = crossing = np.zeros(heads.shape[0], dtype=np.int64)
+    if boxes is None:
+        return inside, crossing
+    for limb in model.limbs.values():
+        n = limb.n_joints
+        joints_in, segments_in = penetrations(limb.joints(heads, tails), np.c_[np.arange(n - 1), np.arange(1, n)],
+                                              boxes)
+        inside, crossing = inside + joints_in, crossing + segments_in
+    return inside, crossing
+
+
+def create_targets(context, obj, *, reset=False):
+    """Empties at the current wrists and ankles (and head, when mapped), linked in the armature's target slots.
+    Returns {effector: empty}."""
+    check_armature(obj)
+    bone_map = mapping.ensure_map(obj)
+    snapshot = pose.read_pose(obj)
+    positions = {}
+    for effector in targets.EFFECTORS:
+        bones = bone_map.bones(effector)  # the hand, foot and head groups are named after their effectors
+        if bones:
+            positions[effector] = snapshot.heads[snapshot.index(bones[-1])]
+    size = 0.04 * max(float(np.ptp(snapshot.heads, axis=0).max()), 1e-3)
+    targets.ensure_slots(obj)
+    return targets.create_targets(context, obj, positions, size, reset=reset)

@@ -1,0 +1,453 @@
+"""Pose in, rotations out: an armature's pose as world-space numpy arrays, and solved world transforms
+turned back into each pose bone's own channels (location, rotation in its rotation mode).
+
+Reading: ``read_pose`` / ``read_pose_frames`` give a ``PoseSnapshot`` — per bone (in ``obj.data.bones``
+order, parents before children) world heads, tails, 4x4 matrices and lengths, plus what writing needs
+(rest matrices, parents, current channel values).
+
+Writing (DESIGN.md §2.6): the caller gives, for the bones it moved, new world matrices (rotation +
+translation; the bone's scale unchanged) — ``swing_world_matrices`` builds them the DESIGN way (the
+minimal swing of each segment applied to the bone's old rotation, so twist/roll is kept).
+``world_rotations_to_channels`` converts them top-down with ``Bone.convert_local_to_pose``, never
+touching the scene; ``apply_channels`` writes the result. Bones not passed keep their local channels.
+
+Object transform: the object may be moved, rotated and scaled, uniformly or not (negative scale is for
+the caller to reject). Under uniform scale every requested world matrix is reproduced (to float32
+rounding) as long as the rig allows it: a connected bone's head stays on its parent's tail. Under
+non-uniform scale a rigid bone turning in world space changes its world length, so not every world
+matrix is reachable: the conversion then honours each bone's world head and world direction (its Y
+axis) exactly, takes its roll from the requested Z axis, and keeps the rig's bone lengths (fixed in
+armature space). ``swing_world_matrices`` computes the swing in armature space, so its matrices are
+always reachable. A caller that needs exact world lengths under non-uniform scale solves in armature
+space (``snapshot.matrix_world`` maps between the two).
+
+Bone constraints are not evaluated by the conversion: channels are computed as if the moved bones had
+none (their evaluated pose is read, but a constraint still acts on the written channels).
+"""
+
+from dataclasses import dataclass, replace
+import math
+
+import bpy
+import numpy as np
+from mathutils import Euler, Matrix, Vector
+
+from ..solver.geometry import swing_rotation
+from .errors import AdjustError
+
+EULER_ORDERS = ("XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX")
+
+# Pose bone property holding the rotation of each rotation mode.
+ROTATION_PROPERTY = {"QUATERNION": "rotation_quaternion", "AXIS_ANGLE": "rotation_axis_angle",
+                     **{order: "rotation_euler" for order in EULER_ORDERS}}
+
+# Channel properties read per bone, with their sizes.
+CHANNEL_SIZES = {"location": 3, "rotation_quaternion": 4, "rotation_euler": 3, "rotation_axis_angle": 4,
+                 "scale": 3}
+
+# An unconnected bone's location is rewritten only when its head moved by more than this (armature units,
+# relative to the rig's size): mathutils works in float32, so an unmoved head comes back ~1e-7 off.
+_HEAD_MOVED_TOLERANCE = 1e-5
+
+
+@dataclass(frozen=True, eq=False)
+class PoseSnapshot:
+    """An armature's evaluated pose, world space, float64. B bones in ``obj.data.bones`` order (parents
+    first). Single-frame arrays have the shapes shown; ``read_pose_frames`` adds a leading frame axis F
+    to every per-frame field (marked *)."""
+
+    names: tuple  # (B,) bone names
+    parents: np.ndarray  # (B,) int, parent's index or -1
+    use_connect: np.ndarray  # (B,) bool
+    rotation_modes: tuple  # (B,) str, e.g. 'QUATERNION', 'XYZ', 'AXIS_ANGLE'
+    rest_matrices: np.ndarray  # (B,4,4) Bone.matrix_local (armature space, rest)
+    frame: object  # * float (scene frame + subframe); (F,) array when batched
+    matrix_world: np.ndarray  # * (4,4) the object's world matrix
+    pose_matrices: np.ndarray  # * (B,4,4) PoseBone.matrix (armature space)
+    matrices: np.ndarray  # * (B,4,4) world: matrix_world @ pose_matrices
+    heads: np.ndarray  # * (B,3) world
+    tails: np.ndarray  # * (B,3) world
+    lengths: np.ndarray  # * (B,) world |tail - head|
+    channels: dict  # * property -> (B,k): location, rotation_quaternion, rotation_euler, rotation_axis_angle,
+    #                   scale, and 'matrix_basis' (B,4,4)
+
+    @property
+    def batched(self):
+        return self.pose_matrices.ndim == 4
+
+    def index(self, name):
+        """Index of bone ``name``; AdjustError when the armature has no such bone."""
+        try:
+            return self._index_of()[name]
+        except KeyError:
+            raise AdjustError(f"The armature has no bone named '{name}'") from None
+
+    def indices(self, bones):
+        """(k,) int indices for bone names or indices."""
+        return np.array([b if isinstance(b, (int, np.integer)) else self.index(b) for b in bones], dtype=int)
+
+    def at_frame(self, i):
+        """The single-frame snapshot of frame row ``i`` of a batched snapshot."""
+        if not self.batched:
+            raise ValueError("at_frame needs a snapshot from read_pose_frames")
+        return replace(self, frame=float(self.frame[i]), matrix_world=self.matrix_world[i],
+                       pose_matrices=self.pose_matrices[i], matrices=self.matrices[i], heads=self.heads[i],
+                       tails=self.tails[i], lengths=self.lengths[i],
+                       channels={key: value[i] for key, value in self.channels.items()})
+
+    def _index_of(self):
+        cached = self.__dict__.get("_names_index")
+        if cached is None:
+            cached = {name: i for i, name in enumerate(self.names)}
+            object.__setattr__(self, "_names_index", cached)
+        return cached
+
+
+def read_pose(obj):
+    """The evaluated pose of armature ``obj`` at the current frame (the caller sets it) as a PoseSnapshot."""
+    static = _read_static(obj)
+    return PoseSnapshot(**static, **_read_frame(obj))
+
+
+def read_pose_frames(obj, frames):
+    """A batched PoseSnapshot (leading axis F) of ``obj`` at each of ``frames`` (scene frames, may be
+    fractional). Sets each frame in turn and restores the scene's current frame afterwards."""
+    scene = bpy.context.scene
+    frames = np.asarray(frames, dtype=np.float64).reshape(-1)
+    if len(frames) == 0 or not np.all(np.isfinite(frames)):
+        raise ValueError("read_pose_frames needs at least one finite frame")
+    static = _read_static(obj)
+    rows = []
+    start_frame, start_subframe = scene.frame_current, scene.frame_subframe
+    try:
+        for frame in frames:
+            whole = math.floor(frame)
+            scene.frame_set(whole, subframe=float(frame - whole))
+            rows.append(_read_frame(obj))
+    finally:
+        scene.frame_set(start_frame, subframe=start_subframe)
+    stacked = {key: np.stack([row[key] for row in rows]) for key in rows[0] if key != "channels"}
+    stacked["channels"] = {key: np.stack([row["channels"][key] for row in rows]) for key in rows[0]["channels"]}
+    stacked["frame"] = frames.copy()
+    return PoseSnapshot(**static, **stacked)
+
+
+def swing_world_matrices(snapshot, bones, old_dirs, new_dirs, new_heads):
+    """New world matrices (..., k, 4, 4) for ``bones`` (names or indices): each bone's old rotation turned by
+    the minimal swing taking its segment's old direction to the new one (twist kept), its head moved to
+    ``new_heads``, its scale unchanged. old_dirs, new_dirs, new_heads: (k,3), or (F,k,3) for a batched
+    snapshot. The swing is taken in armature space, so the result is reachable under any object scale
+    (under uniform scale it is the same as swinging in world space)."""
+    idx = snapshot.indices(bones)
+    lead = snapshot.pose_matrices.shape[:-3]
+    shape = lead + (len(idx), 3)
+    old_dirs, new_dirs, new_heads = (_array(a, shape, name) for a, name in
+                                     ((old_dirs, "old_dirs"), (new_dirs, "new_dirs"), (new_heads, "new_heads")))
+    world = snapshot.matrix_world[..., None, :, :]
+    to_armature = np.linalg.inv(snapshot.matrix_world)[..., None, :, :]
+    linear_inv = to_armature[..., :3, :3]
+    swing = swing_rotation(_apply(linear_inv, old_dirs), _apply(linear_inv, new_dirs))
+    old = snapshot.pose_matrices[..., idx, :, :]
+    new = np.zeros(old.shape)
+    new[..., :3, :3] = swing @ old[..., :3, :3]
+    new[..., :3, 3] = _apply(linear_inv, new_heads) + to_armature[..., :3, 3]
+    new[..., 3, 3] = 1.0
+    return world @ new
+
+
+def world_rotations_to_channels(obj, snapshot, new_world, bones):
+    """Local channels that put ``bones`` (k names or indices) at the world matrices ``new_world`` ((k,4,4),
+    or (F,k,4,4) for a batched snapshot): translation = the bone's new head; of the linear part only the
+    orientation counts (each bone keeps its scale; under non-uniform object scale see the module notes).
+
+    Works top-down from the snapshot alone (no scene update in between): parents' solved matrices feed
+    their children's conversion; bones between moved ones that are not listed keep their local channels
+    and are carried along. Returns {bone name: {property: value}} with value an (n,) array (n = the
+    property's size), (F,n) when batched:
+      - the rotation property of the bone's rotation mode, continuous with the snapshot's current value
+        (and, when batched, frame to frame): quaternion in the same hemisphere, Euler via compatible
+        angles, axis-angle with the nearest axis sign and angle turn;
+      - 'location' only for an unconnected bone whose head moved relative to its parent (the root bone when
+        the pelvis moves). Connected bones ignore location; scale is never written.
+    """
+    idx = snapshot.indices(bones)
+    if len(set(idx.tolist())) != len(idx):
+        raise ValueError("world_rotations_to_channels: a bone is listed twice")
+    lead = snapshot.pose_matrices.shape[:-3]
+    new_world = _array(new_world, lead + (len(idx), 4, 4), "new_world")
+    if not snapshot.batched:
+        return {name: {prop: values[0] for prop, values in props.items()}
+                for name, props in _channels_per_frame(obj, _as_batch(snapshot), new_world[None], idx).items()}
+    return _channels_per_frame(obj, snapshot, new_world, idx)
+
+
+def apply_channels(obj, channels):
+    """Write single-frame ``channels`` ({bone name: {property: (k,) values}}, as returned by
+    world_rotations_to_channels) into obj's pose bones. Rotations are kept continuous with each bone's
+    current value (quaternion hemisphere, compatible Euler, nearest axis-angle); a rotation property that
+    does not match the bone's rotation mode is an error."""
+    pose_bones = obj.pose.bones
+    writes = []
+    for name, props in channels.items():  # check everything before writing anything
+        pose_bone = pose_bones.get(name)
+        if pose_bone is None:
+            raise AdjustError(f"The armature has no bone named '{name}'")
+        for prop, value in props.items():
+            value = np.asarray(value, dtype=np.float64)
+            if prop not in CHANNEL_SIZES or value.shape != (CHANNEL_SIZES[prop],):
+                raise ValueError(f"apply_channels: bone '{name}': {prop} needs {CHANNEL_SIZES.get(prop, '?')} "
+                                 f"values, got shape {value.shape}")
+            if not np.all(np.isfinite(value)):
+                raise ValueError(f"apply_channels: bone '{name}': {prop} has NaN/inf")
+            if prop.startswith("rotation_") and ROTATION_PROPERTY[pose_bone.rotation_mode] != prop:
+                raise ValueError(f"apply_channels: bone '{name}' rotates in mode {pose_bone.rotation_mode}, "
+                                 f"not by {prop}")
+            writes.append((pose_bone, prop, value))
+    for pose_bone, prop, value in writes:
+        if prop.startswith("rotation_"):
+            value = continuous_rotation(prop, pose_bone.rotation_mode, value, np.array(getattr(pose_bone, prop)))
+        setattr(pose_bone, prop, tuple(float(v) for v in value))
+
+
+def continuous_rotation(prop, mode, value, reference):
+    """``value`` (a rotation stored in ``prop`` for rotation ``mode``) re-expressed as the representation of
+    the same rotation nearest ``reference``. Already-continuous values come back unchanged (bit for bit)."""
+    value = np.asarray(value, dtype=np.float64)
+    if prop == "rotation_quaternion":
+        return -value if np.dot(value, reference) < 0.0 else value
+    if prop == "rotation_axis_angle":
+        return _nearest_axis_angle(value[0], value[1:], reference)
+    if np.all(np.abs(value - reference) <= math.pi):
+        return value
+    return np.array(Euler(value, mode).to_matrix().to_euler(mode, Euler(reference, mode)))
+
+
+# --- reading --------------------------------------------------------------------------------------------
+
+
+def _read_static(obj):
+    if obj is None or obj.type != 'ARMATURE':
+        raise AdjustError(f"'{getattr(obj, 'name', obj)}' is not an armature")
+    if obj.mode == 'EDIT':
+        raise AdjustError(f"Armature '{obj.name}' is in Edit Mode: leave it to read or write the pose")
+    bones = obj.data.bones
+    count = len(bones)
+    if count == 0:
+        raise AdjustError(f"Armature '{obj.name}' has no bones")
+    names = tuple(bone.name for bone in bones)
+    if tuple(pb.name for pb in obj.pose.bones) != names:
+        # Blender keeps both in the same (depth-first) order; the snapshot relies on it.
+        raise AdjustError(f"Armature '{obj.name}': pose bones out of step with its bones (enter and leave "
+                          f"edit mode to rebuild the pose)")
+    index = {name: i for i, name in enumerate(names)}
+    parents = np.array([index[bone.parent.name] if bone.parent else -1 for bone in bones], dtype=int)
+    if np.any(parents >= np.arange(count)):
+        raise AdjustError(f"Armature '{obj.name}': a bone is listed before its parent")
+    return {
+        "names": names,
+        "parents": parents,
+        "use_connect": _get(bones, "use_connect", count, (), bool),
+        "rotation_modes": tuple(pb.rotation_mode for pb in obj.pose.bones),
+        "rest_matrices": _get_matrices(bones, "matrix_local", count),
+    }
+
+
+def _read_frame(obj):
+    evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    pose_bones = evaluated.pose.bones
+    count = len(pose_bones)
+    scene = bpy.context.scene
+    matrix_world = np.array(evaluated.matrix_world, dtype=np.float64)
+    pose_matrices = _get_matrices(pose_bones, "matrix", count)
+    heads = _to_world(matrix_world, _get(pose_bones, "head", count, (3,)))
+    tails = _to_world(matrix_world, _get(pose_bones, "tail", count, (3,)))
+    channels = {prop: _get(pose_bones, prop, count, (size,)) for prop, size in CHANNEL_SIZES.items()}
+    channels["matrix_basis"] = _get_matrices(pose_bones, "matrix_basis", count)
+    return {
+        "frame": scene.frame_current + scene.frame_subframe,
+        "matrix_world": matrix_world,
+        "pose_matrices": pose_matrices,
+        "matrices": matrix_world @ pose_matrices,
+        "heads": heads,
+        "tails": tails,
+        "lengths": np.linalg.norm(tails - heads, axis=-1),
+        "channels": channels,
+    }
+
+
+def _get(collection, prop, count, shape, dtype=np.float32):
+    # float32 buffers: Blender stores these as float32, so the values arrive unrounded; then float64.
+    buffer = np.empty(count * int(np.prod(shape, dtype=int)), dtype=dtype)
+    collection.foreach_get(prop, buffer)
+    return buffer.reshape((count,) + shape).astype(np.float64 if dtype is np.float32 else dtype)
+
+
+def _get_matrices(collection, prop, count):
+    # foreach_get gives matrices column-major.
+    return _get(collection, prop, count, (4, 4)).transpose(0, 2, 1).copy()
+
+
+def _to_world(matrix_world, points):
+    return points @ matrix_world[:3, :3].T + matrix_world[:3, 3]
+
+
+# --- writing --------------------------------------------------------------------------------------------
+
+
+def _channels_per_frame(obj, snapshot, new_world, idx):
+    """The batched core of world_rotations_to_channels: snapshot batched (F,...), new_world (F,k,4,4)."""
+    frames = new_world.shape[0]
+    parents = snapshot.parents
+    listed = {int(i): j for j, i in enumerate(idx)}
+    # Bones whose pose matrix may change: the listed ones and their unlisted ancestors (such a bone keeps
+    # its local channels but is carried along when a listed bone above it moved, e.g. a hip bone between
+    # the pelvis and the thigh). Parents come first in index order, so one ascending pass is top-down.
+    carried = set()
+    for i in listed:
+        p = parents[i]
+        while p >= 0 and p not in listed and p not in carried:
+            carried.add(int(p))
+            p = parents[p]
+    order = sorted(set(listed) | carried)
+
+    bones = obj.data.bones
+    data_bones = {i: bones[snapshot.names[i]] for i in order}
+    rest = {i: Matrix(snapshot.rest_matrices[i]) for i in order}
+    for i in order:
+        if parents[i] >= 0 and parents[i] not in rest:
+            rest[int(parents[i])] = Matrix(snapshot.rest_matrices[parents[i]])
+    size = max(1.0, float(np.abs(snapshot.rest_matrices[:, :3, 3]).max()))
+    head_tolerance = _HEAD_MOVED_TOLERANCE * size
+
+    target = _reachable_armature_matrices(snapshot, new_world, idx)  # (F,k,4,4) armature space
+    result = {snapshot.names[i]: {} for i in listed}
+    rotation_values = {i: np.empty((frames, CHANNEL_SIZES[ROTATION_PROPERTY[snapshot.rotation_modes[i]]]))
+                       for i in listed}
+    location_values = {i: np.empty((frames, 3)) for i in listed if not snapshot.use_connect[i]}
+    location_moved = {i: False for i in location_values}
+
+    for f in range(frames):
+        solved = {}  # bone index -> new armature-space Matrix, for bones that changed
+        for i in order:
+            p = int(parents[i])
+            parent_kwargs = {}
+            if p >= 0:
+                parent_matrix = solved.get(p)
+                if parent_matrix is None:
+                    parent_matrix = Matrix(snapshot.pose_matrices[f, p])
+                parent_kwargs = {"parent_matrix": parent_matrix, "parent_matrix_local": rest[p]}
+            bone = data_bones[i]
+            if i not in listed:
+                if p in solved:
+                    basis = Matrix(snapshot.channels["matrix_basis"][f, i])
+                    solved[i] = bone.convert_local_to_pose(basis, rest[i], **parent_kwargs)
+                continue
+            pose_matrix = Matrix(target[f, listed[i]])
+            solved[i] = pose_matrix
+            local = bone.convert_local_to_pose(pose_matrix, rest[i], **parent_kwargs, invert=True)
+            location, rotation, _scale = local.decompose()
+            mode = snapshot.rotation_modes[i]
+            prop = ROTATION_PROPERTY[mode]
+            reference = rotation_values[i][f - 1] if f else snapshot.channels[prop][0, i]
+            rotation_values[i][f] = _rotation_value(rotation, local, mode, reference)
+            if i in location_values:
+                current = snapshot.channels["location"][f, i]
+                location_values[i][f] = current
+                if _head_moved(bone, local, location, current, rest[i], pose_matrix, parent_kwargs,
+                               head_tolerance):
+                    location_values[i][f] = location
+                    location_moved[i] = True
+
+    for i in listed:
+        props = result[snapshot.names[i]]
+        if location_moved.get(i):
+            props["location"] = location_values[i]
+        props[ROTATION_PROPERTY[snapshot.rotation_modes[i]]] = rotation_values[i]
+    return result
+
+
+def _reachable_armature_matrices(snapshot, new_world, idx):
+    """new_world mapped to armature space and reduced to what a rigid bone can do: its Y axis (the bone's
+    direction) exactly, X/Z re-orthogonalised around it (Z's roll kept), each axis with the length of the
+    bone's current pose matrix axis (its scale unchanged). A no-op (to rounding) for reachable input."""
+    armature = np.linalg.inv(snapshot.matrix_world)[:, None] @ new_world
+    linear = armature[..., :3, :3]
+    y = linear[..., :, 1]
+    z = linear[..., :, 2]
+    y = y / _norm(y, "a bone's Y axis")[..., None]
+    z = z - np.sum(z * y, axis=-1)[..., None] * y
+    z = z / _norm(z, "a bone's Z axis (parallel to its Y axis)")[..., None]
+    x = np.cross(y, z)
+    scale = np.linalg.norm(snapshot.pose_matrices[:, idx, :3, :3], axis=-2)  # (F,k,3) column lengths
+    armature[..., :3, :3] = np.stack([x, y, z], axis=-1) * scale[..., None, :]
+    armature[..., 3, :] = (0.0, 0.0, 0.0, 1.0)
+    return armature
+
+
+def _head_moved(bone, local, location, current, rest, pose_matrix, parent_kwargs, tolerance):
+    """Whether keeping the bone's current location would leave its head off the requested one, compared in
+    armature space (location is in the parent's possibly scaled space)."""
+    if np.array_equal(np.asarray(location), current):
+        return False
+    kept = local.copy()
+    kept.translation = Vector(current)
+    head = bone.convert_local_to_pose(kept, rest, **parent_kwargs).translation
+    return (head - pose_matrix.translation).length > tolerance
+
+
+def _rotation_value(quaternion, local, mode, reference):
+    """The rotation of ``local`` (quaternion = its decomposed rotation) in ``mode``, nearest ``reference``."""
+    if mode == "QUATERNION":
+        value = np.array(quaternion.normalized())
+        return -value if np.dot(value, reference) < 0.0 else value
+    if mode == "AXIS_ANGLE":
+        # In float64 from the quaternion: mathutils' float32 acos loses small angles (~1e-3 rad near 0).
+        q = np.array(quaternion.normalized())
+        half_sin = np.linalg.norm(q[1:])
+        angle = 2.0 * math.atan2(half_sin, q[0])
+        axis = q[1:] / half_sin if half_sin > 0.0 else np.zeros(3)
+        return _nearest_axis_angle(angle, axis, reference)
+    return np.array(local.to_3x3().normalized().to_euler(mode, Euler(reference, mode)))
+
+
+def _nearest_axis_angle(angle, axis, reference):
+    """(angle, x, y, z) of the rotation (angle about axis) whose axis sign and whole turns are nearest the
+    reference (angle, x, y, z): (a, n) == (-a, -n) == (a + 2πk, n)."""
+    reference = np.asarray(reference, dtype=np.float64)
+    axis = np.asarray(axis, dtype=np.float64)
+    if not np.any(axis):  # no rotation: any axis will do, keep the reference's
+        axis, angle = reference[1:], 0.0
+    elif np.dot(axis, reference[1:]) < 0.0:
+        axis, angle = -axis, -angle
+    turns = round((reference[0] - angle) / (2.0 * math.pi))
+    return np.concatenate(([angle + 2.0 * math.pi * turns], axis))
+
+
+# --- helpers --------------------------------------------------------------------------------------------
+
+
+def _as_batch(snapshot):
+    return replace(snapshot, frame=np.array([snapshot.frame]), matrix_world=snapshot.matrix_world[None],
+                   pose_matrices=snapshot.pose_matrices[None], matrices=snapshot.matrices[None],
+                   heads=snapshot.heads[None], tails=snapshot.tails[None], lengths=snapshot.lengths[None],
+                   channels={key: value[None] for key, value in snapshot.channels.items()})
+
+
+def _array(value, shape, name):
+    value = np.asarray(value, dtype=np.float64)
+    if value.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {value.shape}")
+    if not np.all(np.isfinite(value)):
+        raise ValueError(f"{name} has NaN/inf")
+    return value
+
+
+def _apply(matrix, vectors):
+    return np.einsum("...ij,...j->...i", matrix, vectors)
+
+
+def _norm(v, what):
+    n = np.linalg.norm(v, axis=-1)
+    if np.any(n < 1e-12):
+        raise ValueError(f"new_world: {what} has zero length")
+    return n

@@ -1,0 +1,182 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Operators: thin wrappers around bridge.adjustment. Each catches the bridge's AdjustError and reports it as
+one line, so a bad input never shows a traceback and changes nothing."""
+
+import bpy
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
+
+from .bridge import adjustment, mapping
+from .bridge.errors import AdjustError
+
+
+def armature_poll_message(context):
+    """None when the active object can be adjusted, else why not (shown as the greyed-out tooltip)."""
+    obj = context.active_object
+    if obj is None:
+        return "No active object: select an armature"
+    if obj.type != 'ARMATURE':
+        return f"'{obj.name}' is not an armature"
+    if context.mode not in {'POSE', 'OBJECT'}:
+        return "Switch to Object or Pose Mode"
+    return None
+
+
+class _ArmatureOperator:
+    @classmethod
+    def poll(cls, context):
+        reason = armature_poll_message(context)
+        if reason is not None:
+            cls.poll_message_set(reason)
+        return reason is None
+
+    def run(self, context, action):
+        try:
+            return action()
+        except AdjustError as ex:
+            self.report({'ERROR'}, str(ex))
+            return None
+
+
+class _SolverOptions:
+    """Solver settings shown in the redo panel; invoke() fills them from the armature's stored settings."""
+
+    variant: EnumProperty(
+        name="Variant",
+        items=(('FABRIK', "Plain FABRIK", "Unweighted centroid of the groups' proposals (the baseline)"),
+               ('WEIGHTED', "Weighted", "Priority-weighted mean of the groups' proposals (paper variant 1)"),
+               ('PRIORITY', "Priority", "The highest priority target is met whenever reachable (paper variant 2)")),
+        default='PRIORITY',
+    )
+    margin: FloatProperty(name="Margin", description="Clearance kept from obstacle boxes", default=0.01, min=0.0,
+                          soft_max=0.5, subtype='DISTANCE', unit='LENGTH')
+    use_joint_limits: BoolProperty(name="Joint Limits", default=True,
+                                   description="Keep elbows and knees from bending backwards")
+    keep_hand_orientation: BoolProperty(name="Keep Hand Orientation", default=True,
+                                        description="Hands and feet keep their world orientation")
+
+    _OPTION_NAMES = ("variant", "margin", "use_joint_limits", "keep_hand_orientation")
+
+    def invoke(self, context, event):
+        stored = context.active_object.fullbody_adjust
+        for name in self._OPTION_NAMES:
+            if not self.properties.is_property_set(name):
+                setattr(self, name, getattr(stored, name))
+        return self.execute(context)
+
+    def solver_options(self, **extra):
+        chosen = {name: getattr(self, name) for name in self._OPTION_NAMES if self.properties.is_property_set(name)}
+        return adjustment.Options(**chosen, **extra)
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        for name in self._OPTION_NAMES:
+            layout.prop(self, name)
+
+
+class FULLBODY_ADJUST_OT_map_bones(_ArmatureOperator, bpy.types.Operator):
+    """Map the armature's bones onto the body model again (presets, then detection from the hierarchy)"""
+    bl_idname = "fullbody_adjust.map_bones"
+    bl_label = "Map Bones"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    def execute(self, context):
+        obj = context.active_object
+        def remap():
+            bone_map = mapping.map_rig(mapping.describe_armature(obj))
+            mapping.store_map(obj, bone_map)
+            return bone_map
+        bone_map = self.run(context, remap)
+        if bone_map is None:
+            return {'CANCELLED'}
+        self.report({'INFO'}, f"Mapped {len(bone_map.items())} bones ({bone_map.source})")
+        return {'FINISHED'}
+
+
+class FULLBODY_ADJUST_OT_create_targets(_ArmatureOperator, bpy.types.Operator):
+    """Create an empty at each wrist and ankle (and the head) and use them as the targets"""
+    bl_idname = "fullbody_adjust.create_targets"
+    bl_label = "Create Targets"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    reset: BoolProperty(name="Reset", default=False,
+                        description="Move existing target empties back to the current wrists and ankles")
+
+    def execute(self, context):
+        created = self.run(context, lambda: adjustment.create_targets(context, context.active_object,
+                                                                        reset=self.reset))
+        if created is None:
+            return {'CANCELLED'}
+        self.report({'INFO'}, f"{len(created)} targets ready: " + ", ".join(sorted(created)))
+        return {'FINISHED'}
+
+
+class FULLBODY_ADJUST_OT_adjust_pose(_SolverOptions, _ArmatureOperator, bpy.types.Operator):
+    """Adjust the whole body so hands and feet reach their targets, and key the bones that moved"""
+    bl_idname = "fullbody_adjust.adjust_pose"
+    bl_label = "Adjust Pose"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    def execute(self, context):
+        outcome = self.run(context, lambda: adjustment.adjust_pose(context, context.active_object, self.solver_options()))
+        if outcome is None:
+            return {'CANCELLED'}
+        self.report({'INFO'}, outcome.summary())
+        return {'FINISHED'}
+
+
+class FULLBODY_ADJUST_OT_adjust_frames(_SolverOptions, _ArmatureOperator, bpy.types.Operator):
+    """Adjust every frame of a range in one solve and key the bones that moved"""
+    bl_idname = "fullbody_adjust.adjust_frames"
+    bl_label = "Adjust Frames"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    frame_start: IntProperty(name="Start", description="First frame (default: the scene's start)")
+    frame_end: IntProperty(name="End", description="Last frame (default: the scene's end)")
+    new_action: StringProperty(name="New Action",
+                               description="Write the keys into a new action of this name, keeping the original")
+
+    _OPTION_NAMES = _SolverOptions._OPTION_NAMES
+
+    def execute(self, context):
+        scene = context.scene
+        start = self.frame_start if self.properties.is_property_set("frame_start") else scene.frame_start
+        end = self.frame_end if self.properties.is_property_set("frame_end") else scene.frame_end
+        wm = context.window_manager
+        wm.progress_begin(0, 100)
+        try:
+            outcome = self.run(context, lambda: adjustment.adjust_frames(
+                context, context.active_object, start, end, self.solver_options(new_action=self.new_action or None),
+                progress=lambda stage, fraction: wm.progress_update(int(100 * fraction))))
+        finally:
+            wm.progress_end()
+        if outcome is None:
+            return {'CANCELLED'}
+        self.report({'INFO'}, outcome.summary())
+        return {'FINISHED'}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        layout.prop(self, "frame_start")
+        layout.prop(self, "frame_end")
+        layout.prop(self, "new_action")
+        super().draw(context)
+
+
+classes = (
+    FULLBODY_ADJUST_OT_map_bones,
+    FULLBODY_ADJUST_OT_create_targets,
+    FULLBODY_ADJUST_OT_adjust_pose,
+    FULLBODY_ADJUST_OT_adjust_frames,
+)
+
+
+def register():
+    for cls in classes:
+        bpy.utils.register_class(cls)
+
+
+def unregister():
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)

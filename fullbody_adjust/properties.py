@@ -1,0 +1,164 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""Settings stored on the armature object as `obj.fullbody_adjust` (DESIGN.md §3).
+
+They live on every Object (the contract is `obj.fullbody_adjust`) but only mean something on armatures.
+"""
+
+import bpy
+from bpy.props import (
+    BoolProperty,
+    CollectionProperty,
+    EnumProperty,
+    FloatProperty,
+    IntProperty,
+    PointerProperty,
+    StringProperty,
+)
+
+# The effector vocabulary and default priorities belong to the bridge, which reads these slots.
+from .bridge.targets import DEFAULT_PRIORITY, EFFECTORS
+
+_EFFECTOR_LABELS = {
+    'hand.L': ("Left Hand", "Left wrist (head of the left hand bone)"),
+    'hand.R': ("Right Hand", "Right wrist (head of the right hand bone)"),
+    'foot.L': ("Left Foot", "Left ankle (head of the left foot bone)"),
+    'foot.R': ("Right Foot", "Right ankle (head of the right foot bone)"),
+    'head': ("Head", "Head bone"),
+}
+EFFECTOR_ITEMS = tuple((effector, *_EFFECTOR_LABELS[effector]) for effector in EFFECTORS)
+
+
+def _is_not_owner(slot, obj):
+    # A character cannot chase itself.
+    return obj is not slot.id_data
+
+
+class FULLBODY_ADJUST_PG_target(bpy.types.PropertyGroup):
+    effector: EnumProperty(
+        name="Effector",
+        description="The body part that reaches for the target",
+        items=EFFECTOR_ITEMS,
+        default='hand.L',
+    )
+    target: PointerProperty(
+        name="Target",
+        description="Object (normally an empty) whose location the effector reaches for",
+        type=bpy.types.Object,
+        poll=_is_not_owner,
+    )
+    priority: IntProperty(
+        name="Priority",
+        description="When targets conflict, the higher priority is met first (by default feet 3, hands 2, head 1)",
+        default=DEFAULT_PRIORITY['hand.L'],
+        min=0,
+        soft_max=10,
+    )
+    enabled: BoolProperty(
+        name="Enabled",
+        description="Use this target when adjusting",
+        default=True,
+    )
+
+
+class FULLBODY_ADJUST_PG_bone_map_item(bpy.types.PropertyGroup):
+    group: StringProperty(
+        name="Group",
+        description="Body model group: root, trunk, arm.L, arm.R, hand.L, hand.R, leg.L, leg.R, foot.L, foot.R "
+                    "or head",
+    )
+    bone: StringProperty(
+        name="Bone",
+        description="Name of the rig bone in that group (items of one group are in chain order, parent first)",
+    )
+
+
+class FULLBODY_ADJUST_PG_settings(bpy.types.PropertyGroup):
+    targets: CollectionProperty(
+        name="Targets",
+        type=FULLBODY_ADJUST_PG_target,
+    )
+    active_target_index: IntProperty(
+        name="Active Target",
+        description="Target slot selected in the list",
+    )
+    obstacles: PointerProperty(
+        name="Obstacles",
+        description="Collection whose meshes are obstacles. Empty: every visible mesh that this armature "
+                    "neither deforms nor parents",
+        type=bpy.types.Collection,
+    )
+    bone_map: CollectionProperty(
+        name="Bone Map",
+        description="Which rig bones form each body model group",
+        type=FULLBODY_ADJUST_PG_bone_map_item,
+    )
+    active_bone_map_index: IntProperty(
+        name="Active Bone Map Item",
+        description="Bone map row selected in the list",
+    )
+    variant: EnumProperty(
+        name="Variant",
+        description="How the groups meeting at the chest and at the pelvis settle conflicting targets",
+        items=(
+            ('FABRIK', "Plain FABRIK", "Unweighted centroid of the groups' proposals (the baseline)"),
+            ('WEIGHTED', "Weighted", "Priority-weighted mean of the groups' proposals (paper variant 1)"),
+            ('PRIORITY', "Priority", "Groups solved from lowest to highest priority, so the highest priority "
+                                     "target is met whenever it is reachable (paper variant 2)"),
+        ),
+        default='PRIORITY',
+    )
+    margin: FloatProperty(
+        name="Margin",
+        description="Clearance kept between joints and obstacle boxes (the paper's Δd)",
+        default=0.01,
+        min=0.0,
+        soft_max=0.5,
+        subtype='DISTANCE',
+        unit='LENGTH',
+    )
+    tolerance: FloatProperty(
+        name="Tolerance",
+        description="A target counts as reached within this distance",
+        default=1e-5,
+        min=1e-9,
+        soft_max=0.01,
+        precision=6,
+        subtype='DISTANCE',
+        unit='LENGTH',
+    )
+    max_iterations: IntProperty(
+        name="Max Iterations",
+        description="Iteration limit per solve",
+        default=200,
+        min=1,
+        soft_max=1000,
+    )
+    use_joint_limits: BoolProperty(
+        name="Joint Limits",
+        description="Keep elbows and knees from bending backwards and respect the rig's IK limits",
+        default=True,
+    )
+    keep_hand_orientation: BoolProperty(
+        name="Keep Hand Orientation",
+        description="Hands keep their world orientation while the arms move",
+        default=True,
+    )
+
+
+classes = (
+    FULLBODY_ADJUST_PG_target,
+    FULLBODY_ADJUST_PG_bone_map_item,
+    FULLBODY_ADJUST_PG_settings,
+)
+
+
+def register():
+    for cls in classes:
+        bpy.utils.register_class(cls)
+    bpy.types.Object.fullbody_adjust = PointerProperty(type=FULLBODY_ADJUST_PG_settings)
+
+
+def unregister():
+    del bpy.types.Object.fullbody_adjust
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)
