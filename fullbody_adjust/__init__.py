@@ -13,6 +13,7 @@ _MODULE_NAMES = (
     "properties",
     "operators",
     "panel",
+    "cli",
 )
 
 

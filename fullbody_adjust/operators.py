@@ -37,8 +37,14 @@ class _ArmatureOperator:
             return None
 
 
+# The solver settings an adjust operator shows in its redo panel (same names as the stored settings).
+SOLVER_OPTIONS = ("variant", "margin", "use_joint_limits", "keep_hand_orientation")
+
+
 class _SolverOptions:
-    """Solver settings shown in the redo panel; invoke() fills them from the armature's stored settings."""
+    """Solver settings shown in the redo panel; invoke() fills them from the armature's stored settings, and
+    settings not passed to execute() come from there too. SKIP_SAVE: Blender would otherwise start each run
+    with the last run's values, marked as set, and the stored settings would never count again."""
 
     variant: EnumProperty(
         name="Variant",
@@ -46,31 +52,30 @@ class _SolverOptions:
                ('WEIGHTED', "Weighted", "Priority-weighted mean of the groups' proposals (paper variant 1)"),
                ('PRIORITY', "Priority", "The highest priority target is met whenever reachable (paper variant 2)")),
         default='PRIORITY',
+        options={'SKIP_SAVE'},
     )
     margin: FloatProperty(name="Margin", description="Clearance kept from obstacle boxes", default=0.01, min=0.0,
-                          soft_max=0.5, subtype='DISTANCE', unit='LENGTH')
-    use_joint_limits: BoolProperty(name="Joint Limits", default=True,
+                          soft_max=0.5, subtype='DISTANCE', unit='LENGTH', options={'SKIP_SAVE'})
+    use_joint_limits: BoolProperty(name="Joint Limits", default=True, options={'SKIP_SAVE'},
                                    description="Keep elbows and knees from bending backwards")
-    keep_hand_orientation: BoolProperty(name="Keep Hand Orientation", default=True,
+    keep_hand_orientation: BoolProperty(name="Keep Hand Orientation", default=True, options={'SKIP_SAVE'},
                                         description="Hands and feet keep their world orientation")
-
-    _OPTION_NAMES = ("variant", "margin", "use_joint_limits", "keep_hand_orientation")
 
     def invoke(self, context, event):
         stored = context.active_object.fullbody_adjust
-        for name in self._OPTION_NAMES:
+        for name in SOLVER_OPTIONS:
             if not self.properties.is_property_set(name):
                 setattr(self, name, getattr(stored, name))
         return self.execute(context)
 
     def solver_options(self, **extra):
-        chosen = {name: getattr(self, name) for name in self._OPTION_NAMES if self.properties.is_property_set(name)}
+        chosen = {name: getattr(self, name) for name in SOLVER_OPTIONS if self.properties.is_property_set(name)}
         return adjustment.Options(**chosen, **extra)
 
     def draw(self, context):
         layout = self.layout
         layout.use_property_split = True
-        for name in self._OPTION_NAMES:
+        for name in SOLVER_OPTIONS:
             layout.prop(self, name)
 
 
@@ -99,7 +104,7 @@ class FULLBODY_ADJUST_OT_create_targets(_ArmatureOperator, bpy.types.Operator):
     bl_label = "Create Targets"
     bl_options = {'REGISTER', 'UNDO'}
 
-    reset: BoolProperty(name="Reset", default=False,
+    reset: BoolProperty(name="Reset", default=False, options={'SKIP_SAVE'},
                         description="Move existing target empties back to the current wrists and ankles")
 
     def execute(self, context):
@@ -118,7 +123,8 @@ class FULLBODY_ADJUST_OT_adjust_pose(_SolverOptions, _ArmatureOperator, bpy.type
     bl_options = {'REGISTER', 'UNDO'}
 
     def execute(self, context):
-        outcome = self.run(context, lambda: adjustment.adjust_pose(context, context.active_object, self.solver_options()))
+        outcome = self.run(context, lambda: adjustment.adjust_pose(context, context.active_object,
+                                                                    self.solver_options()))
         if outcome is None:
             return {'CANCELLED'}
         self.report({'INFO'}, outcome.summary())
@@ -131,12 +137,18 @@ class FULLBODY_ADJUST_OT_adjust_frames(_SolverOptions, _ArmatureOperator, bpy.ty
     bl_label = "Adjust Frames"
     bl_options = {'REGISTER', 'UNDO'}
 
-    frame_start: IntProperty(name="Start", description="First frame (default: the scene's start)")
-    frame_end: IntProperty(name="End", description="Last frame (default: the scene's end)")
-    new_action: StringProperty(name="New Action",
+    frame_start: IntProperty(name="Start", description="First frame (default: the scene's start)",
+                             options={'SKIP_SAVE'})
+    frame_end: IntProperty(name="End", description="Last frame (default: the scene's end)", options={'SKIP_SAVE'})
+    new_action: StringProperty(name="New Action", options={'SKIP_SAVE'},
                                description="Write the keys into a new action of this name, keeping the original")
 
-    _OPTION_NAMES = _SolverOptions._OPTION_NAMES
+    def invoke(self, context, event):
+        scene = context.scene
+        for name, value in (("frame_start", scene.frame_start), ("frame_end", scene.frame_end)):
+            if not self.properties.is_property_set(name):
+                setattr(self, name, value)  # so the redo panel shows the range that was adjusted
+        return super().invoke(context, event)
 
     def execute(self, context):
         scene = context.scene

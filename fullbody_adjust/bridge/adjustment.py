@@ -6,9 +6,9 @@ even under non-uniform object scale, targets map into it exactly, and world obst
 in armature-space boxes (the same boxes when the armature is not rotated).
 """
 
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 
-import bpy
 import numpy as np
 
 from ..solver import Boxes, ChainSettings, SolverInputError
@@ -27,6 +27,9 @@ _MOVED = 1e-9
 
 # A pose scale (or a bone length relative to the rig's size) at or below this counts as zero.
 _FLAT = 1e-6
+
+# A target further than this many rig sizes away is an error (see _check_target_distances).
+_FAR = 1e6
 
 
 @dataclass(frozen=True)
@@ -144,15 +147,17 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None):
         # again and throw away pose changes not keyed yet, even when the run then fails.
         world_targets = _current_targets(obj, context)
         corners = obstacles.obstacle_boxes(obj, context)[None]
-        snapshot = pose._as_batch(pose.read_pose(obj))
+        snapshot = pose._as_batch(pose.read_pose(obj))  # the one-frame batch read_pose_frames would give
     else:
-        world_targets = targets.read_target_frames(obj, frames, context)  # (F,E,3), NaN: no target
-        corners = obstacles.obstacle_box_frames(obj, context, frames)
-        snapshot = pose.read_pose_frames(obj, frames)
-    priorities = _priorities(obj)
+        with _pose_kept(obj):  # stepping through the frames evaluates the animation into the pose bones
+            world_targets = targets.read_target_frames(obj, frames, context)  # (F,E,3), NaN: no target
+            corners = obstacles.obstacle_box_frames(obj, context, frames)
+            snapshot = pose.read_pose_frames(obj, frames)
     _check_object_scale(obj, snapshot)
     model = _model(snapshot, bone_map)
     _check_driven_bones(model, snapshot)
+    _check_target_distances(obj, world_targets, snapshot)
+    priorities = _priorities(obj)
     progress("solving", 0.3)
 
     to_arm = np.linalg.inv(snapshot.matrix_world)  # (F,4,4)
@@ -211,6 +216,40 @@ def _in_armature_units(settings, matrix_world):
     return replace(settings, chain=chain)
 
 
+@contextmanager
+def _pose_kept(obj):
+    """Put the pose bones' channels back as they were on leaving (also on error): a frame change evaluates the
+    animation into them, which would throw away what the user posed at the current frame and has not keyed."""
+    bones = obj.pose.bones
+    saved = {prop: _channel_values(bones, prop, size) for prop, size in pose.CHANNEL_SIZES.items()}
+    try:
+        yield
+    finally:
+        for prop, size in pose.CHANNEL_SIZES.items():
+            now = _channel_values(bones, prop, size)
+            for index in np.nonzero(np.any(now != saved[prop], axis=1))[0]:
+                setattr(bones[int(index)], prop, saved[prop][index].tolist())  # RNA set: tags the update
+
+
+def _channel_values(bones, prop, size):
+    values = np.empty(len(bones) * size, dtype=np.float32)
+    bones.foreach_get(prop, values)
+    return values.reshape(-1, size)
+
+
+def _check_target_distances(obj, world_targets, snapshot):
+    """A target further from the rig than _FAR times its size is an error, not a goal: Blender's float32
+    positions cannot place anything that far to better than a tenth of the rig (typing inf into a location
+    field stores the largest float, 3.4e38)."""
+    distance = np.linalg.norm(world_targets - snapshot.heads[:, :1], axis=-1)  # (F,E), NaN: no target
+    far = np.nonzero(np.any(distance > _FAR * _size(snapshot.heads), axis=0))[0]
+    if len(far):
+        effector = targets.EFFECTORS[far[0]]
+        name = next(s.target.name for s in obj.fullbody_adjust.targets if s.enabled and s.effector == effector)
+        raise AdjustError(f"Target '{name}' for {effector} is {np.nanmax(distance[:, far[0]]):.3g} units away, "
+                          f"too far to reach for (a location set to inf?)")
+
+
 def _current_targets(obj, context):
     """World positions (1,E,3) of the enabled targets at the current frame as evaluated; NaN: no target."""
     out = np.full((1, len(targets.EFFECTORS), 3), np.nan)
@@ -248,12 +287,16 @@ def _check_driven_bones(model, snapshot):
     needed = driven.copy()
     needed[snapshot.parents[driven & (snapshot.parents >= 0)]] = True
     axis_scales = np.linalg.norm(snapshot.pose_matrices[..., :3, :3], axis=-2)  # (F,J,3)
-    size = max(float(np.ptp(snapshot.heads.reshape(-1, 3), axis=0).max()), 1e-12)
-    flat = (axis_scales.min(axis=-1) <= _FLAT) | (snapshot.lengths <= _FLAT * size)  # (F,J)
+    flat = (axis_scales.min(axis=-1) <= _FLAT) | (snapshot.lengths <= _FLAT * _size(snapshot.heads))  # (F,J)
     bad = np.nonzero(needed & np.any(flat, axis=0))[0]
     if len(bad):
         raise AdjustError(f"Bone '{snapshot.names[bad[0]]}' has zero length or scale (scaled to 0 in Pose Mode?): "
                           f"fix it before adjusting")
+
+
+def _size(points):
+    """The rig's size: the largest extent of its points (..., 3) along an axis."""
+    return max(float(np.ptp(points.reshape(-1, 3), axis=0).max()), 1e-12)
 
 
 def _apply(matrices, points):
@@ -278,8 +321,7 @@ def _bones_to_write(model, snapshot, result, keep_hands):
     driven = np.isin(model.roles, (ROOT, CHAIN, END) if keep_hands else (ROOT, CHAIN))
     turn = np.abs(result.rotations - np.eye(3)).max(axis=(-1, -2))  # (F,J)
     old_heads = snapshot.pose_matrices[..., :3, 3]
-    size = max(float(np.ptp(old_heads.reshape(-1, 3), axis=0).max()), 1e-12)
-    shift = np.linalg.norm(result.heads - old_heads, axis=-1) / size
+    shift = np.linalg.norm(result.heads - old_heads, axis=-1) / _size(old_heads)
     changed = np.any((turn > _MOVED) | (shift > _MOVED), axis=0)
     return np.nonzero(driven & changed)[0]
 
