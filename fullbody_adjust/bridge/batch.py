@@ -128,10 +128,12 @@ def action_name(obj):
 
 
 def stored_settings(obj):
-    """The solver settings stored on the armature, by Options field name."""
+    """The solver settings stored on the armature, by Options field name (floats as the float32 Blender stores,
+    printed short: 0.01, not 0.009999999776)."""
     stored = obj.fullbody_adjust
-    return {name: getattr(stored, name) for name in ("variant", "margin", "tolerance", "max_iterations",
-                                                     "use_joint_limits", "keep_hand_orientation")}
+    values = {name: getattr(stored, name) for name in ("variant", "margin", "tolerance", "max_iterations",
+                                                       "use_joint_limits", "keep_hand_orientation")}
+    return {name: float(f"{value:.7g}") if isinstance(value, float) else value for name, value in values.items()}
 
 
 # --- for the preview -----------------------------------------------------------------------------------------

@@ -1,0 +1,40 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""``python -m fullbody_adjust SUBCOMMAND FILE.blend [options]`` with the bpy module: registers the extension's
+classes in this Python, then runs the same command as ``blender -b FILE.blend -c fullbody_adjust SUBCOMMAND
+[options]`` (cli.main). ``--help`` lists the subcommands and exit codes."""
+
+import os
+import shutil
+import sys
+
+
+def run(argv):
+    import bpy  # noqa: F401  (the bpy module must be importable: this is for the bpy wheel)
+
+    from . import cli, register
+
+    register()
+    return cli.main(argv, prog="python -m fullbody_adjust")
+
+
+def _leave(code):
+    """Exit without the bpy module's own teardown, which is unreliable once Python shuts down (Blender 4.2
+    crashes, 4.5 can hang: see tests/conftest.py), removing the temporary folder Blender would have removed."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    bpy = sys.modules.get("bpy")
+    if bpy is not None:
+        shutil.rmtree(bpy.app.tempdir, ignore_errors=True)
+    os._exit(code)
+
+
+if __name__ == "__main__":
+    try:
+        code = run(sys.argv[1:])
+    except ModuleNotFoundError as ex:
+        if ex.name != "bpy":
+            raise
+        print("python -m fullbody_adjust: error: the bpy module is not installed in this Python "
+              "(pip install bpy, or run `blender -b FILE.blend -c fullbody_adjust ...`)", file=sys.stderr)
+        code = 3
+    _leave(code)
