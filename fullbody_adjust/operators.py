@@ -7,6 +7,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, St
 
 from .bridge import adjustment, mapping
 from .bridge.errors import AdjustError
+from .properties import VARIANT_ITEMS
 
 
 def armature_poll_message(context):
@@ -48,9 +49,7 @@ class _SolverOptions:
 
     variant: EnumProperty(
         name="Variant",
-        items=(('FABRIK', "Plain FABRIK", "Unweighted centroid of the groups' proposals (the baseline)"),
-               ('WEIGHTED', "Weighted", "Priority-weighted mean of the groups' proposals (paper variant 1)"),
-               ('PRIORITY', "Priority", "The highest priority target is met whenever reachable (paper variant 2)")),
+        items=VARIANT_ITEMS,
         default='PRIORITY',
         options={'SKIP_SAVE'},
     )
@@ -183,12 +182,4 @@ classes = (
     FULLBODY_ADJUST_OT_adjust_frames,
 )
 
-
-def register():
-    for cls in classes:
-        bpy.utils.register_class(cls)
-
-
-def unregister():
-    for cls in reversed(classes):
-        bpy.utils.unregister_class(cls)
+register, unregister = bpy.utils.register_classes_factory(classes)

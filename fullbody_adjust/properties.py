@@ -27,6 +27,14 @@ _EFFECTOR_LABELS = {
 }
 EFFECTOR_ITEMS = tuple((effector, *_EFFECTOR_LABELS[effector]) for effector in EFFECTORS)
 
+# How the groups meeting at the chest and pelvis settle conflicting targets; the adjust operators offer the same.
+VARIANT_ITEMS = (
+    ('FABRIK', "Plain FABRIK", "Unweighted centroid of the groups' proposals (the baseline)"),
+    ('WEIGHTED', "Weighted", "Priority-weighted mean of the groups' proposals (paper variant 1)"),
+    ('PRIORITY', "Priority", "Groups solved from lowest to highest priority, so the highest priority "
+                             "target is met whenever it is reachable (paper variant 2)"),
+)
+
 
 def _is_not_owner(slot, obj):
     # A character cannot chase itself.
@@ -99,12 +107,7 @@ class FULLBODY_ADJUST_PG_settings(bpy.types.PropertyGroup):
     variant: EnumProperty(
         name="Variant",
         description="How the groups meeting at the chest and at the pelvis settle conflicting targets",
-        items=(
-            ('FABRIK', "Plain FABRIK", "Unweighted centroid of the groups' proposals (the baseline)"),
-            ('WEIGHTED', "Weighted", "Priority-weighted mean of the groups' proposals (paper variant 1)"),
-            ('PRIORITY', "Priority", "Groups solved from lowest to highest priority, so the highest priority "
-                                     "target is met whenever it is reachable (paper variant 2)"),
-        ),
+        items=VARIANT_ITEMS,
         default='PRIORITY',
     )
     margin: FloatProperty(

@@ -147,7 +147,7 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None):
         # again and throw away pose changes not keyed yet, even when the run then fails.
         world_targets = _current_targets(obj, context)
         corners = obstacles.obstacle_boxes(obj, context)[None]
-        snapshot = pose._as_batch(pose.read_pose(obj))  # the one-frame batch read_pose_frames would give
+        snapshot = pose.as_batch(pose.read_pose(obj))
     else:
         with _pose_kept(obj):  # stepping through the frames evaluates the animation into the pose bones
             world_targets = targets.read_target_frames(obj, frames, context)  # (F,E,3), NaN: no target

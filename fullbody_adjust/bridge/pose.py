@@ -177,7 +177,7 @@ def world_rotations_to_channels(obj, snapshot, new_world, bones):
     new_world = _array(new_world, lead + (len(idx), 4, 4), "new_world")
     if not snapshot.batched:
         return {name: {prop: values[0] for prop, values in props.items()}
-                for name, props in _channels_per_frame(obj, _as_batch(snapshot), new_world[None], idx).items()}
+                for name, props in _channels_per_frame(obj, as_batch(snapshot), new_world[None], idx).items()}
     return _channels_per_frame(obj, snapshot, new_world, idx)
 
 
@@ -426,7 +426,8 @@ def _nearest_axis_angle(angle, axis, reference):
 # --- helpers --------------------------------------------------------------------------------------------
 
 
-def _as_batch(snapshot):
+def as_batch(snapshot):
+    """A single-frame snapshot as the one-frame batch read_pose_frames would give."""
     return replace(snapshot, frame=np.array([snapshot.frame]), matrix_world=snapshot.matrix_world[None],
                    pose_matrices=snapshot.pose_matrices[None], matrices=snapshot.matrices[None],
                    heads=snapshot.heads[None], tails=snapshot.tails[None], lengths=snapshot.lengths[None],
