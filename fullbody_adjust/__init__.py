@@ -12,6 +12,7 @@ import importlib
 _MODULE_NAMES = (
     "properties",
     "operators",
+    "retarget_operator",
     "panel",
     "cli",
 )

@@ -70,6 +70,7 @@ class FULLBODY_ADJUST_PT_main(bpy.types.Panel):
         column.scale_y = 1.4
         column.operator("fullbody_adjust.adjust_pose", icon='ARMATURE_DATA')
         column.operator("fullbody_adjust.adjust_frames", icon='ACTION')
+        layout.operator("fullbody_adjust.retarget", text="Retarget from Selected", icon='ARMATURE_DATA')
 
 
 class _SubPanel:

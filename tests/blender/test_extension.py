@@ -289,7 +289,8 @@ def test_panel_draws_the_armatures_targets_obstacles_and_variant():
     assert layout.enabled
     # Every button runs a registered operator of ours.
     assert set(layout.all_operators()) == {"fullbody_adjust.map_bones", "fullbody_adjust.create_targets",
-                                           "fullbody_adjust.adjust_pose", "fullbody_adjust.adjust_frames"}
+                                           "fullbody_adjust.adjust_pose", "fullbody_adjust.adjust_frames",
+                                           "fullbody_adjust.retarget"}
     for idname in layout.all_operators():
         module, name = idname.split(".")
         assert getattr(getattr(bpy.ops, module), name).get_rna_type() is not None

@@ -1,0 +1,644 @@
+"""Motion retargeting, numpy side (solver/retarget.py): rotation channels, kinematics, the rotation transfer
+between two bone mappings, contacts and effector targets, and the whole plan -> adjust_frames -> channels
+path on CMU clips, with targets built from the same clips (scaled, A-posed, rolled, re-proportioned,
+another trunk).
+
+Every expectation is computed here from the rigs' own geometry; the CMU skeletons are built the way
+Blender's BVH importer builds them (Z up), from tests/helpers/bvh.py."""
+
+from functools import lru_cache
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from fullbody_adjust.solver import retarget as rt
+from fullbody_adjust.solver.adjust import adjust_frames
+from fullbody_adjust.solver.errors import SolverInputError
+from tests.helpers.bvh import CMU_GROUPS, read_cmu
+
+FPS = 120.0  # the CMU clips
+Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])  # BVH Y up -> Blender Z up
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Rigs built from CMU clips
+
+
+def _bone_frame(direction, roll):
+    """A rotation whose Y axis is ``direction``, turned by ``roll`` about it (as a bone's rest matrix)."""
+    y = direction / np.linalg.norm(direction)
+    helper = np.array([0.0, 0.0, 1.0]) if abs(y[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    x = np.cross(y, helper)
+    x /= np.linalg.norm(x)
+    z = np.cross(x, y)
+    frame = np.stack([x, y, z], axis=1)
+    c, s = np.cos(roll), np.sin(roll)
+    return frame @ np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+@lru_cache(maxsize=None)
+def _clip(name):
+    return read_cmu(name)
+
+
+def cmu_rig(clip_name, *, scale=1.0, group_scales=None, rolls=0.0, arm_drop=0.0, merge_spine=False,
+            world=None):
+    """(Rig, rest heads) of a CMU clip's skeleton, Z up. scale: every offset; group_scales: {group: factor}
+    for the offsets of that group's bones; rolls: radians added to every bone's roll (bone i gets i*rolls);
+    arm_drop: the upper arms' rest turned down by this angle about the body's forward axis (an A-pose);
+    merge_spine: 'Spine' dropped (its child hangs from LowerBack), a 2-bone trunk; world: object matrix."""
+    clip = _clip(clip_name)
+    names, parents = list(clip.names), clip.parents.tolist()
+    offsets = clip.offsets @ Z_UP.T * scale
+    tails_local = clip.tail_offsets() @ Z_UP.T * scale
+    index = {n: i for i, n in enumerate(names)}
+    factor = np.ones(len(names))
+    for group, f in (group_scales or {}).items():
+        for bone in CMU_GROUPS[group]:
+            factor[index[bone]] = f
+    offsets = offsets * factor[:, None]
+    if merge_spine:
+        s = index["Spine"]
+        for j, p in enumerate(parents):
+            if p == s:
+                parents[j] = parents[s]
+                offsets[j] = offsets[j] + offsets[s]
+        keep = [j for j in range(len(names)) if j != s]
+        renumber = {old: new for new, old in enumerate(keep)}
+        names = [names[j] for j in keep]
+        parents = [renumber[parents[j]] if parents[j] >= 0 else -1 for j in keep]
+        offsets, tails_local = offsets[keep], tails_local[keep]
+        index = {n: i for i, n in enumerate(names)}
+    heads = np.zeros((len(names), 3))
+    for j, p in enumerate(parents):
+        heads[j] = offsets[j] + (heads[p] if p >= 0 else 0.0)
+    # Tails as the importer makes them: the children's mean head, else the clip's own tail offset.
+    tails = heads + tails_local
+    for j in range(len(names)):
+        children = [c for c, p in enumerate(parents) if p == j]
+        if children and np.linalg.norm(heads[children].mean(axis=0) - heads[j]) > 1e-6:
+            tails[j] = heads[children].mean(axis=0)
+    if arm_drop:
+        for side, sign in (("L", 1.0), ("R", -1.0)):
+            shoulder = index[CMU_GROUPS[f"arm.{side}"][1]]
+            below = _descendants(parents, shoulder)
+            turn = _rotation_about(np.array([0.0, -1.0, 0.0]), -sign * arm_drop)
+            heads[below] = heads[shoulder] + (heads[below] - heads[shoulder]) @ turn.T
+            tails[below] = heads[shoulder] + (tails[below] - heads[shoulder]) @ turn.T
+    rest = np.tile(np.eye(4), (len(names), 1, 1))
+    for j in range(len(names)):
+        rest[j, :3, :3] = _bone_frame(tails[j] - heads[j], j * rolls)
+        rest[j, :3, 3] = heads[j]
+    groups = {g: tuple(index[b] for b in bones if b in index) for g, bones in CMU_GROUPS.items()}
+    rig = rt.Rig(names=tuple(names), parents=parents, rest=rest, lengths=np.linalg.norm(tails - heads, axis=1),
+                 connected=np.zeros(len(names), dtype=bool), groups=groups,
+                 matrix_world=np.eye(4) if world is None else world)
+    return rig
+
+
+def _descendants(parents, bone):
+    out = [bone]
+    for j in range(bone + 1, len(parents)):
+        if parents[j] in out:
+            out.append(j)
+    return out
+
+
+def _rotation_about(axis, angle):
+    axis = axis / np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+
+
+def source_pose(clip_name, rig, frames):
+    """Armature-space pose matrices (F,J,4,4) of the clip on its own rig (a BVH joint's world rotation is
+    identity at rest, so pose = [C R C^T @ rest rotation, C position])."""
+    positions, rotations = _clip(clip_name).forward_kinematics(frames)
+    pose = np.tile(np.eye(4), (len(frames), len(rig), 1, 1))
+    pose[..., :3, :3] = Z_UP @ rotations @ Z_UP.T @ rig.rest[:, :3, :3]
+    pose[..., :3, 3] = positions @ Z_UP.T
+    return pose
+
+
+def world_heads(rig, pose):
+    return rig.world_points(pose)[0]
+
+
+def mapped(rig):
+    return sorted({b for bones in rig.groups.values() for b in bones})
+
+
+def world_rotations(rig, pose):
+    return rig.rotation @ pose[..., :3, :3] / np.linalg.norm(pose[..., :3, :3], axis=-2, keepdims=True)
+
+
+def angle_between(a, b):
+    cos = np.sum(a * b, axis=-1) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1))
+    return np.arccos(np.clip(cos, -1.0, 1.0))
+
+
+WALK = "cmu_07_01_walk.bvh"
+PICKUP = "cmu_02_06_pickup_f0-1349.bvh"
+CLIMB = "cmu_01_06_climb_sit_f360-1559.bvh"
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Rotation channels
+
+
+def _axis_matrix(axis, angle):
+    c, s = np.cos(angle), np.sin(angle)
+    return {0: np.array([[1, 0, 0], [0, c, -s], [0, s, c]]), 1: np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]]),
+            2: np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])}[axis]
+
+
+angles3 = arrays(np.float64, 3, elements=st.floats(-3.1, 3.1))
+
+
+@settings(deadline=None, max_examples=60)
+@given(angles3, st.sampled_from(rt.EULER_ORDERS))
+def test_euler_composes_in_the_order_of_its_mode(angles, order):
+    """'XYZ' turns about X first: Rz @ Ry @ Rx, angles stored per axis (Blender's Euler)."""
+    first, second, third = ("XYZ".index(a) for a in order)
+    expected = (_axis_matrix(third, angles[third]) @ _axis_matrix(second, angles[second])
+                @ _axis_matrix(first, angles[first]))
+    np.testing.assert_allclose(rt.euler_to_matrices(angles, order), expected, atol=1e-12)
+
+
+def smooth_rotations(seed, frames=200, speed=0.25):
+    """A rotation sequence turning up to ``speed`` radians a frame about wandering axes (so Euler angles
+    wrap and quaternions would flip hemisphere if taken independently)."""
+    rng = np.random.default_rng(seed)
+    out = np.empty((frames, 3, 3))
+    current = _rotation_about(rng.normal(size=3), rng.uniform(0, np.pi))
+    for f in range(frames):
+        current = _rotation_about(rng.normal(size=3), rng.uniform(0, speed)) @ current
+        out[f] = current
+    return out
+
+
+@pytest.mark.parametrize("mode", rt.EULER_ORDERS + ("QUATERNION", "AXIS_ANGLE"))
+def test_rotation_channels_round_trip_continuously_from_the_reference(mode):
+    matrices = smooth_rotations(7)
+    size = {"QUATERNION": 4, "AXIS_ANGLE": 4}.get(mode, 3)
+    reference = np.array([0.3, -0.2, 0.5, 0.1][:size]) + (2 * np.pi * np.array([2, -1, 0, 0][:size])
+                                                          if size == 3 else 0.0)
+    values = rt.rotation_channel(mode, matrices, reference)
+    np.testing.assert_allclose(rt.rotation_matrices(mode, values), matrices, atol=1e-9)
+    steps = np.abs(np.diff(values, axis=0))
+    if mode == "QUATERNION":
+        assert np.all(np.sum(values[1:] * values[:-1], axis=1) >= 0.0)  # never the long way round
+        assert np.dot(values[0], reference) >= 0.0
+    elif mode == "AXIS_ANGLE":
+        assert np.all(steps[:, 0] < np.pi)
+        assert np.all(np.sum(values[1:, 1:] * values[:-1, 1:], axis=1) > -0.5)  # the axis does not flip
+    else:
+        # Away from gimbal lock an Euler angle changes about as fast as the rotation; never by whole turns.
+        assert np.all(steps < np.pi)
+        assert np.all(np.abs(values[0] - reference) <= np.pi)
+
+
+def test_rotation_channels_of_many_bones_at_once_equal_one_at_a_time():
+    matrices = np.stack([smooth_rotations(s, frames=50) for s in range(3)], axis=1)  # (F,3 bones,3,3)
+    for mode, size in (("QUATERNION", 4), ("ZXY", 3), ("AXIS_ANGLE", 4)):
+        reference = np.linspace(-0.5, 0.5, 3 * size).reshape(3, size)
+        together = rt.rotation_channel(mode, matrices, reference)
+        for b in range(3):
+            np.testing.assert_allclose(together[:, b], rt.rotation_channel(mode, matrices[:, b], reference[b]),
+                                       atol=1e-12)
+
+
+def test_unknown_rotation_mode_is_a_clear_error():
+    with pytest.raises(SolverInputError, match="rotation mode"):
+        rt.rotation_matrices("XXY", np.zeros(3))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Kinematics
+
+
+def random_rig(seed, bones=12):
+    rng = np.random.default_rng(seed)
+    parents = [-1] + [int(rng.integers(0, j)) for j in range(1, bones)]
+    rest = np.tile(np.eye(4), (bones, 1, 1))
+    for j in range(bones):
+        rest[j, :3, :3] = _rotation_about(rng.normal(size=3), rng.uniform(0, np.pi))
+        rest[j, :3, 3] = rng.normal(size=3)
+    connected = rng.random(bones) < 0.4
+    connected[0] = False
+    return rt.Rig(names=tuple(f"b{j}" for j in range(bones)), parents=parents, rest=rest,
+                  lengths=rng.uniform(0.1, 1.0, bones), connected=connected,
+                  groups={g: (0,) for g in ("root", "trunk", "arm.L", "arm.R", "hand.L", "hand.R", "leg.L",
+                                            "leg.R", "foot.L", "foot.R")}), rng
+
+
+def test_basis_from_pose_inverts_forward_kinematics():
+    rig, rng = random_rig(3)
+    frames = 5
+    basis = np.tile(np.eye(4), (frames, len(rig), 1, 1))
+    for f in range(frames):
+        for j in range(len(rig)):
+            basis[f, j, :3, :3] = _rotation_about(rng.normal(size=3), rng.uniform(0, 3)) * rng.uniform(0.5, 2, 3)
+            basis[f, j, :3, 3] = rng.normal(size=3)
+    pose = rt.forward_kinematics(rig, basis)
+    expected = basis.copy()
+    expected[:, rig.connected, :3, 3] = 0.0  # a connected bone ignores its location
+    np.testing.assert_allclose(rt.basis_from_pose(rig, pose, np.arange(len(rig))), expected, atol=1e-9)
+    # Composition as Blender: pose = parent pose @ parent_rest^-1 @ rest @ basis.
+    j = int(np.nonzero(rig.parents >= 0)[0][-1])
+    p = rig.parents[j]
+    np.testing.assert_allclose(pose[:, j], pose[:, p] @ np.linalg.inv(rig.rest[p]) @ rig.rest[j] @ expected[:, j],
+                               atol=1e-9)
+
+
+def test_affine_inverse_matches_numpy():
+    rng = np.random.default_rng(0)
+    m = np.tile(np.eye(4), (50, 1, 1))
+    m[:, :3, :] = rng.normal(size=(50, 3, 4))
+    np.testing.assert_allclose(rt.affine_inverse(m), np.linalg.inv(m), atol=1e-9)
+
+
+def test_non_uniform_object_scale_is_refused():
+    rig, _ = random_rig(1)
+    with pytest.raises(SolverInputError, match="uniform"):
+        rt.Rig(rig.names, rig.parents, rig.rest, rig.lengths, rig.connected, rig.groups, np.diag([1, 2, 1, 1.0]))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Rotation transfer
+
+
+FRAMES = np.arange(1, 151)  # frame 0 is the T-pose
+
+
+def scaled_about(points, anchor_from, anchor_to, ratio):
+    return anchor_to + ratio * (points - anchor_from)
+
+
+def anchors(source, target, ground):
+    a_s = rt.hip_centres(source, rt.rest_points(source)[0])
+    a_t = rt.hip_centres(target, rt.rest_points(target)[0])
+    a_s[2] = a_t[2] = ground
+    return a_s, a_t
+
+
+def test_a_scaled_copy_moves_exactly_as_the_source_scaled():
+    """Same skeleton, 1.2 times the size, other bone rolls, its object moved, turned and scaled: every
+    target joint follows the source's world trajectory, scaled by 1.2 about the ground below the hips (the
+    motion is world space: the target faces where the source faces, whatever its object's turn)."""
+    source = cmu_rig(WALK)
+    world = np.eye(4)
+    world[:3, :3] = _rotation_about(np.array([0.0, 0.0, 1.0]), 0.7) * 0.5
+    world[:3, 3] = (2.0, -1.0, 0.0)
+    target = cmu_rig(WALK, scale=2.4, rolls=0.37, world=world)  # 2.4 armature units x 0.5 object scale
+    pose = source_pose(WALK, source, FRAMES)
+    s_heads = world_heads(source, pose)
+    ground = 0.0
+    a_s, a_t = anchors(source, target, ground)
+    ratio = rt.leg_length(target) / rt.leg_length(source)
+    assert ratio == pytest.approx(1.2)
+    hips = scaled_about(rt.hip_centres(source, s_heads), a_s, a_t, ratio)
+    moved = rt.transfer_pose(source, pose, target, np.tile(np.eye(4), (len(target), 1, 1)), hips)
+    s_tails = source.world_points(pose)[1]
+    t_heads, t_tails = target.world_points(moved)
+    body = mapped(target)
+    # Unmapped bones (toes, fingers) keep their rest pose: only their heads ride along with a mapped parent.
+    riding = [j for j in range(len(target)) if j in body or target.parents[j] in body]
+    np.testing.assert_allclose(t_heads[:, riding], a_t + ratio * (s_heads[:, riding] - a_s), atol=1e-9)
+    np.testing.assert_allclose(t_tails[:, body], a_t + ratio * (s_tails[:, body] - a_s), atol=1e-9)
+
+
+def test_an_a_pose_target_points_its_limbs_where_the_source_points():
+    """Target arms at rest 40 degrees lower (A-pose) and other rolls: each limb segment still points along
+    its source segment on every frame; the spine and pelvis turn as the source's do."""
+    source = cmu_rig(WALK)
+    target = cmu_rig(WALK, scale=0.9, rolls=0.2, arm_drop=np.radians(40))
+    pose = source_pose(WALK, source, FRAMES)
+    moved = rt.transfer_pose(source, pose, target, np.tile(np.eye(4), (len(target), 1, 1)),
+                             np.zeros((len(FRAMES), 3)))
+    s_heads, s_tails = source.world_points(pose)
+    t_heads, t_tails = target.world_points(moved)
+    for group in ("arm.L", "arm.R", "leg.L", "leg.R"):
+        s_joints = rt.chain_joints(source, group, s_heads, s_tails)
+        t_joints = rt.chain_joints(target, group, t_heads, t_tails)
+        limb = slice(-2, None)  # upper arm and forearm; thigh and shin
+        angles = angle_between(np.diff(s_joints, axis=1)[:, limb], np.diff(t_joints, axis=1)[:, limb])
+        assert angles.max() < 1e-7, group
+    # Rest-relative world rotation change of the trunk: the same as the source's.
+    s_rot, t_rot = world_rotations(source, pose), world_rotations(target, moved)
+    s_rest, t_rest = world_rotations(source, source.rest), world_rotations(target, target.rest)
+    for s, t in zip(source.groups["trunk"], target.groups["trunk"]):
+        np.testing.assert_allclose(s_rot[:, s] @ s_rest[s].T, t_rot[:, t] @ t_rest[t].T, atol=1e-9)
+
+
+def test_a_two_bone_trunk_follows_a_three_bone_one():
+    """Counts differ: target trunk bones take the blended changes of the source bones at the same
+    proportional place, so the chest (SC) direction from the pelvis follows the source's."""
+    source = cmu_rig(PICKUP)
+    target = cmu_rig(PICKUP, merge_spine=True)
+    assert len(target.groups["trunk"]) == 2 and len(source.groups["trunk"]) == 3
+    pairs = {p.target: p for p in rt.pair_bones(source, target)}
+    for t in target.groups["trunk"]:
+        assert sum(pairs[t].weights) == pytest.approx(1.0)
+        assert len(pairs[t].sources) == 2  # between two source bones
+    frames = np.arange(1, 1350, 10)
+    pose = source_pose(PICKUP, source, frames)
+    moved = rt.transfer_pose(source, pose, target, np.tile(np.eye(4), (len(target), 1, 1)),
+                             np.zeros((len(frames), 3)))
+    s_heads, s_tails = source.world_points(pose)
+    t_heads, t_tails = target.world_points(moved)
+    s_trunk = rt.chain_joints(source, "trunk", s_heads, s_tails)
+    t_trunk = rt.chain_joints(target, "trunk", t_heads, t_tails)
+    bend = angle_between(s_trunk[:, -1] - s_trunk[:, 0], s_trunk[:, 1] - s_trunk[:, 0])
+    error = angle_between(s_trunk[:, -1] - s_trunk[:, 0], t_trunk[:, -1] - t_trunk[:, 0])
+    # The merged spine cannot copy the source's curve exactly: the chest direction stays within the
+    # source's own bend of the spine (or a degree).
+    assert np.all(error <= np.maximum(bend, np.radians(1.0)))
+    assert np.degrees(error.max()) < 10.0
+
+
+def test_unmapped_target_bones_keep_their_own_local_pose():
+    source = cmu_rig(WALK)
+    target = cmu_rig(WALK, scale=1.1)
+    basis = np.tile(np.eye(4), (len(target), 1, 1))
+    finger = target.names.index("LeftHandIndex1")
+    hip_joint = target.names.index("LHipJoint")
+    for j, angle in ((finger, 0.4), (hip_joint, -0.3)):
+        basis[j, :3, :3] = _rotation_about(np.array([1.0, 0.2, 0.0]), angle)
+    pose = source_pose(WALK, source, FRAMES[:20])
+    moved = rt.transfer_pose(source, pose, target, basis, np.zeros((20, 3)))
+    local = rt.basis_from_pose(target, moved, [finger, hip_joint])
+    np.testing.assert_allclose(local, np.broadcast_to(basis[[finger, hip_joint]], local.shape), atol=1e-9)
+
+
+def test_a_clavicle_the_source_lacks_rides_on_the_chest():
+    source = cmu_rig(WALK)
+    groups = dict(source.groups)
+    for side in ("L", "R"):
+        groups[f"arm.{side}"] = groups[f"arm.{side}"][1:]  # a source without clavicles
+    source = rt.Rig(source.names, source.parents, source.rest, source.lengths, source.connected, groups)
+    target = cmu_rig(WALK)
+    pairs = {p.target: p for p in rt.pair_bones(source, target)}
+    clavicle = target.groups["arm.L"][0]
+    assert pairs[clavicle].sources == () and pairs[clavicle].rides_on == target.groups["trunk"][-1]
+    pose = source_pose(WALK, source, FRAMES[:30])
+    moved = rt.transfer_pose(source, pose, target, np.tile(np.eye(4), (len(target), 1, 1)), np.zeros((30, 3)))
+    chest = target.groups["trunk"][-1]
+    relation = np.linalg.inv(moved[:, chest]) @ moved[:, clavicle]
+    np.testing.assert_allclose(relation, np.broadcast_to(np.linalg.inv(target.rest[chest]) @ target.rest[clavicle],
+                                                         relation.shape), atol=1e-9)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Contacts and targets
+
+
+def test_intervals_bridge_short_gaps_and_drop_short_runs():
+    mask = np.zeros(40, dtype=bool)
+    mask[2:10] = mask[12:20] = True  # a 2-frame gap: one contact
+    mask[30:32] = True  # too short
+    assert rt.intervals(mask, min_length=4, max_gap=2) == [(2, 20)]
+    assert rt.intervals(mask, min_length=4, max_gap=1) == [(2, 10), (12, 20)]
+
+
+def test_a_step_is_found_as_two_plants():
+    settings = rt.RetargetSettings(fps=FPS)
+    frames = 120
+    x = np.concatenate([np.zeros(40), np.linspace(0.0, 0.6, 40), np.full(40, 0.6)])
+    z = 0.08 + np.concatenate([np.zeros(40), 0.15 * np.sin(np.linspace(0, np.pi, 40)), np.zeros(40)])
+    ankle = np.stack([x, np.zeros(frames), z], axis=1)
+    runs = rt.detect_plants(ankle, 2, FPS, 0.9, settings)
+    assert len(runs) == 2
+    (a0, b0), (a1, b1) = runs
+    assert a0 == 0 and b1 == frames
+    # The plants end and start where the foot is still moving slower than the threshold.
+    speed = np.linalg.norm(np.gradient(ankle, axis=0), axis=1) * FPS
+    assert np.all(speed[a0:b0] < settings.plant_speed * 0.9) and np.all(speed[a1:b1] < settings.plant_speed * 0.9)
+    assert 38 <= b0 <= 41 and 79 <= a1 <= 82
+
+
+def test_holds_are_still_inside_and_blend_without_a_jump():
+    free = np.stack([np.linspace(0, 1, 100), np.zeros(100), np.zeros(100)], axis=1)
+    held_point = np.array([0.3, 0.1, 0.0])
+    blend = 8
+    out = rt.hold(free, [(30, 50, held_point)], blend)
+    np.testing.assert_array_equal(out[30:50], np.broadcast_to(held_point, (20, 3)))
+    np.testing.assert_array_equal(out[:30 - blend - 1], free[:30 - blend - 1])
+    np.testing.assert_array_equal(out[50 + blend + 1:], free[50 + blend + 1:])
+    # Smoothstep over blend+1 frames: a step at most 1.5/(blend+1) of the largest gap between the held point
+    # and the free trajectory over the blends, plus the free step.
+    window = np.r_[30 - blend - 1:30, 50:50 + blend + 1]
+    jump = np.linalg.norm(held_point - free[window], axis=1).max()
+    steps = np.linalg.norm(np.diff(out, axis=0), axis=1)
+    assert steps.max() <= 1.5 * jump / (blend + 1) + np.linalg.norm(free[1] - free[0]) + 1e-12
+
+
+def test_overlapping_holds_blend_continuously():
+    free = np.zeros((60, 3))
+    out = rt.hold(free, [(10, 25, np.array([1.0, 0, 0])), (28, 40, np.array([0.0, 1.0, 0]))], 6)
+    steps = np.linalg.norm(np.diff(out, axis=0), axis=1)
+    assert steps.max() < 0.5  # the two held points are 1.41 apart: no frame jumps between them
+
+
+@settings(deadline=None, max_examples=30)
+@given(arrays(np.float64, (40, 2), elements=st.floats(-1.0, 1.0)), st.integers(0, 6))
+def test_moving_average_is_the_windowed_mean(values, half_width):
+    out = rt.moving_average(values, half_width)
+    padded = np.concatenate([np.repeat(values[:1], half_width, 0), values, np.repeat(values[-1:], half_width, 0)])
+    expected = np.array([padded[f:f + 2 * half_width + 1].mean(axis=0) for f in range(len(values))])
+    np.testing.assert_allclose(out, expected, atol=1e-12)
+
+
+def test_body_shift_brings_every_target_within_reach_and_only_where_needed():
+    """Four limbs on a body bobbing up and down: targets drift out of reach now and then. After the shift
+    every target is within reach (less the settle margin); frames far from any such moment are not moved,
+    and the shift changes gently from frame to frame."""
+    frames = 200
+    t = np.arange(frames)
+    body = np.stack([0.2 * np.sin(t / 15.0), np.zeros(frames), 0.05 * np.sin(t / 7.0)], axis=1)
+    offsets = np.array([[0.2, 0, 0.5], [-0.2, 0, 0.5], [0.1, 0, 0], [-0.1, 0, 0]])
+    bases = body[:, None] + offsets
+    reach = np.array([0.6, 0.6, 0.9, 0.9])
+    feet = np.array([[0.1, 0.0, -0.85], [-0.1, 0.0, -0.85]])  # planted, about at full stretch
+    hands = offsets[:2] + np.array([[0.45, 0.2, 0.0], [-0.45, 0.2, 0.0]])
+    targets = np.concatenate([np.broadcast_to(hands, (frames, 2, 3)) + 0.15 * np.sin(t / 10.0)[:, None, None],
+                              np.broadcast_to(feet, (frames, 2, 3))], axis=1)
+    margin, settle, half = 0.03, 0.015, 6
+    shift = rt.body_shift(bases, targets, reach, [2, 2, 3, 3], margin, settle, half)
+    distance = np.linalg.norm(targets - bases - shift[:, None], axis=-1)
+    assert np.all(distance <= (1 - settle) * reach + 1e-9)
+    needed = np.any(np.linalg.norm(targets - bases, axis=-1) > (1 - margin) * reach, axis=1)
+    assert needed.any() and not needed.all()
+    quiet = ~np.convolve(needed, np.ones(2 * half + 1), mode="same").astype(bool)
+    assert quiet.any()
+    np.testing.assert_array_equal(shift[quiet], 0.0)
+    steps = np.linalg.norm(np.diff(shift, axis=0), axis=1)
+    target_steps = np.linalg.norm(np.diff(targets - bases, axis=0), axis=-1).max()
+    assert steps.max() <= 2 * target_steps
+
+
+# ---------------------------------------------------------------------------------------------------------
+# The plan
+
+
+def plan_for(clip_name, target, frames, **settings):
+    source = cmu_rig(clip_name)
+    pose = source_pose(clip_name, source, frames)
+    plan = rt.plan_retarget(source, pose, target, np.tile(np.eye(4), (len(target), 1, 1)),
+                            rt.RetargetSettings(fps=FPS, **{k: v for k, v in settings.items() if k != "boxes"}),
+                            settings.get("boxes"))
+    return source, pose, plan
+
+
+def test_planted_feet_are_held_still_and_free_effectors_follow_the_scaled_source():
+    target = cmu_rig(WALK, scale=0.85, group_scales={"leg.L": 1.1, "leg.R": 1.1}, rolls=0.1)
+    source, pose, plan = plan_for(WALK, target, np.arange(1, 317))
+    s_heads = world_heads(source, pose)
+    a_s, a_t = anchors(source, target, plan.ground)
+    assert plan.leg_ratio == pytest.approx(rt.leg_length(target) / rt.leg_length(source))
+    blend = rt.RetargetSettings(fps=FPS).frames(rt.RetargetSettings().blend_duration)
+    planted = 0
+    for k, effector in enumerate(rt.EFFECTORS):
+        scaled = scaled_about(s_heads[:, source.groups[effector][0]], a_s, a_t, plan.leg_ratio)
+        near_contact = np.zeros(len(scaled), dtype=bool)
+        for a, b in plan.contact_intervals[effector]:
+            held = plan.world_targets[a:b, k]
+            np.testing.assert_array_equal(held, np.broadcast_to(held[0], held.shape))  # no sliding
+            planted += b - a
+            near_contact[max(a - blend - 1, 0):b + blend + 1] = True
+        np.testing.assert_allclose(plan.world_targets[~near_contact, k], scaled[~near_contact], atol=1e-12)
+    assert planted > 0.3 * len(plan.contacts)  # a walk: each foot planted a good part of the time
+    assert not plan.contacts[:, :2].any()  # hands never touch the ground here
+
+
+def test_exact_ground_contacts_put_the_target_soles_on_the_ground():
+    """Exact: a planted ankle stands its foot's own height (ankle above the lowest foot joint, in the
+    transferred foot orientation) above the ground; scaled, it stands the source's height times the ratio."""
+    target = cmu_rig(WALK, scale=1.3, group_scales={"foot.L": 1.6, "foot.R": 1.6})  # other ankle heights
+    frames = np.arange(1, 317)
+    source, pose, loose = plan_for(WALK, target, frames)
+    _, _, exact = plan_for(WALK, target, frames, exact=True)
+    soles = rt.ankle_above_sole(target, *target.world_points(exact.start_pose))
+    checked = 0
+    for side, effector in enumerate(("foot.L", "foot.R")):
+        k = rt.EFFECTORS.index(effector)
+        for a, b in exact.contact_intervals[effector]:
+            assert exact.world_targets[a, k, 2] == pytest.approx(exact.ground + soles[a:b, side].mean(), abs=1e-12)
+            np.testing.assert_array_equal(exact.world_targets[a, k, :2], loose.world_targets[a, k, :2])
+            checked += 1
+    assert checked >= 2
+    # The two differ: the scaled ankle height is not the target foot's own.
+    assert not np.allclose(exact.world_targets[exact.contacts], loose.world_targets[loose.contacts], atol=1e-3)
+
+
+def test_exact_object_contacts_go_to_the_source_positions_on_the_object():
+    """Climb: both hands hold a bar. A box around where the source's hands rest: with exact contacts the
+    target's wrists go exactly to the source's (mean) positions there; otherwise to the scaled ones."""
+    source = cmu_rig(CLIMB)
+    frames = np.arange(1, 1201, 2)
+    pose = source_pose(CLIMB, source, frames)
+    wrists = world_heads(source, pose)[:, [source.groups["hand.L"][0], source.groups["hand.R"][0]]]
+    speed = np.linalg.norm(np.gradient(wrists, axis=0), axis=-1) * FPS / 2
+    still = np.nonzero((speed < 0.1).all(axis=1))[0]
+    assert len(still) > 20
+    bar = wrists[still].reshape(-1, 3)
+    boxes = (bar.min(axis=0)[None] - 0.02, bar.max(axis=0)[None] + 0.02)
+    target = cmu_rig(CLIMB, scale=1.15)
+    loose = rt.plan_retarget(source, pose, target, np.tile(np.eye(4), (len(target), 1, 1)),
+                             rt.RetargetSettings(fps=FPS / 2), boxes)
+    exact = rt.plan_retarget(source, pose, target, np.tile(np.eye(4), (len(target), 1, 1)),
+                             rt.RetargetSettings(fps=FPS / 2, exact=True), boxes)
+    for k, effector in enumerate(("hand.L", "hand.R")):
+        runs = exact.contact_intervals[effector]
+        assert runs, effector
+        for a, b in runs:
+            np.testing.assert_allclose(exact.world_targets[a:b, k], np.broadcast_to(
+                wrists[a:b, k].mean(axis=0), (b - a, 3)), atol=1e-12)
+            a_s, a_t = anchors(source, target, loose.ground)
+            scaled = scaled_about(wrists[a:b, k], a_s, a_t, loose.leg_ratio).mean(axis=0)
+            np.testing.assert_allclose(loose.world_targets[a:b, k], np.broadcast_to(scaled, (b - a, 3)), atol=1e-12)
+
+
+def test_bad_plans_are_clear_errors():
+    source = cmu_rig(WALK)
+    target = cmu_rig(WALK)
+    identity = np.tile(np.eye(4), (len(target), 1, 1))
+    with pytest.raises(SolverInputError, match="source pose must have shape"):
+        rt.plan_retarget(source, np.zeros((3, 2, 4, 4)), target, identity)
+    pose = source_pose(WALK, source, [5, 6])
+    pose[0, 3, 0, 0] = np.nan
+    with pytest.raises(SolverInputError, match="NaN"):
+        rt.plan_retarget(source, pose, target, identity)
+    with pytest.raises(SolverInputError, match="fps"):
+        rt.RetargetSettings(fps=0)
+
+
+def test_motion_limits_fix_each_hinge_in_its_upper_bone():
+    """The elbow and knee hinge axes are one fixed direction in the upper arm's / thigh's frame on every
+    frame, the bend axis of the clearly bent frames: those bend positively about it."""
+    target = cmu_rig(WALK, scale=1.1, rolls=0.3)
+    _, _, plan = plan_for(WALK, target, np.arange(1, 181))
+    model, bones = rt.body_model(target)
+    start, heads, tails = plan.start_pose[:, bones], plan.heads[:, bones], plan.tails[:, bones]
+    limits = rt.motion_limits(model, start, heads, tails)
+    for name in ("arm.L", "arm.R", "leg.L", "leg.R"):
+        limb = model.limbs[name]
+        hinge = len(limb.bones) - 1
+        axes = limits[name].limits.hinge_axis[:, hinge]
+        upper = start[:, limb.bones[hinge - 1], :3, :3]
+        local = np.einsum("fji,fj->fi", upper / np.linalg.norm(upper, axis=-2, keepdims=True), axes)
+        np.testing.assert_allclose(local, np.broadcast_to(local[0], local.shape), atol=1e-12)
+        joints = limb.joints(heads, tails)
+        u, v = joints[:, hinge] - joints[:, hinge - 1], joints[:, hinge + 1] - joints[:, hinge]
+        bend = np.cross(u, v)
+        bent = angle_between(u, v) > 0.2
+        assert bent.any(), name
+        assert np.all(np.sum(bend[bent] * axes[bent], axis=1) > 0.0)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# The whole numpy path: plan -> adjust_frames -> channels
+
+
+def retarget_numpy(clip_name, target, frames):
+    source, pose, plan = plan_for(clip_name, target, frames)
+    model, bones = rt.body_model(target)
+    start, heads, tails = plan.start_pose[:, bones], plan.heads[:, bones], plan.tails[:, bones]
+    result = adjust_frames(model, heads, tails, plan.targets, rt.EFFECTORS, [2, 2, 3, 3],
+                           limits=rt.motion_limits(model, start, heads, tails))
+    return source, pose, plan, result, rt.solved_pose(plan, result.rotations, result.heads, bones)
+
+
+@pytest.mark.parametrize("clip_name", [WALK, PICKUP])
+def test_retargeted_motion_reaches_keeps_plants_and_adds_no_pops(clip_name):
+    """Another body: legs 1.15, arms 0.9, trunk 1.2 times the source's, bones rolled, arms in an A-pose."""
+    target = cmu_rig(clip_name, scale=1.1, rolls=0.3, arm_drop=np.radians(30),
+                     group_scales={"leg.L": 1.15, "leg.R": 1.15, "arm.L": 0.9, "arm.R": 0.9, "trunk": 1.2})
+    frames = np.arange(1, 181)
+    source, pose, plan, result, solved = retarget_numpy(clip_name, target, frames)
+    tolerance = 1e-4 * rt.leg_length(target)
+    assert np.all(result.residuals <= tolerance)
+
+    # Planted feet do not slide in the result either.
+    for k, effector in enumerate(rt.EFFECTORS):
+        ankle = solved[:, target.groups[effector][0], :3, 3]
+        for a, b in plan.contact_intervals[effector]:
+            assert np.ptp(ankle[a:b], axis=0).max() <= 2 * tolerance
+
+    # No new pops: the largest change of velocity of any joint, and of angular velocity of any bone, is about
+    # the source's own (positions relative to each rig's leg length).
+    s_body, t_body = mapped(source), mapped(target)
+    s_rough = rt.roughness(world_heads(source, pose)[:, s_body], rt.leg_length(source)).max()
+    t_rough = rt.roughness(world_heads(target, solved)[:, t_body], rt.leg_length(target)).max()
+    assert t_rough <= 1.5 * s_rough
+    s_turn = rt.angular_roughness(world_rotations(source, pose)[:, s_body]).max()
+    t_turn = rt.angular_roughness(world_rotations(target, solved)[:, t_body]).max()
+    assert t_turn <= 1.5 * s_turn
+
+    # The channels written back reproduce the solved pose through forward kinematics.
+    basis = np.tile(np.eye(4), (len(frames), len(target), 1, 1))
+    basis[:, t_body] = rt.basis_from_pose(target, solved, t_body)
+    np.testing.assert_allclose(rt.forward_kinematics(target, basis)[:, t_body], solved[:, t_body], atol=1e-9)
