@@ -9,8 +9,11 @@ methods start there; we compare each result to the captured pose:
     paper's Table 1;
   - mean per-joint position error: over the trunk, arm and leg chain joints.
 Plus reach (median/max residual, share met), the "fewest moved joints" check (SC and root displacement on the
-poses whose every target is within its limb's reach from the start pose: must be 0), and speed: µs per pose
-one pose at a time and vectorised over 1,000 frames, as ratios against plain FABRIK in the same run.
+poses whose every target is within its limb's reach from the start pose: must be 0), the output's hinge
+consistency (each forearm / shin must lie in its upper bone's hinge plane as the returned rotations turn it:
+the elbow and knee are pure hinges; and how far the upper bones were twisted to turn the bend planes), and
+speed: µs per pose one pose at a time and vectorised over 1,000 frames, as ratios against plain FABRIK in the
+same run.
 
 Plain FABRIK (the baseline) is implemented here: tree.py's 'centroid' strategy is not in the repository yet.
 It is Aristidou & Lasenby's multi-end-effector FABRIK on the same chains with every joint free (no limits, no
@@ -31,7 +34,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from fullbody_adjust.solver.adjust import AdjustSettings, adjust_frames, adjust_pose  # noqa: E402
-from fullbody_adjust.solver.body import BodyModel  # noqa: E402
+from fullbody_adjust.solver.body import BodyModel, default_limits  # noqa: E402
+from fullbody_adjust.solver.geometry import swing_rotation  # noqa: E402
 from tests.helpers.bvh import CMU_CLIPS, CMU_GROUPS, read_cmu  # noqa: E402
 
 EFFECTORS = ("hand.L", "hand.R", "foot.L", "foot.R")
@@ -167,6 +171,33 @@ def naturalness(model, chains, heads, tails, cap_chains, cap_h, cap_t):
     return float(ang.mean()), float(pos.mean())
 
 
+def hinge_consistency(model, heads, tails, result):
+    """Over the arms and legs of every pose: the largest distance of the lower bone's direction from the plane
+    perpendicular to the start hinge axis turned by the upper bone's returned rotation (0 = a pure hinge), and
+    the largest twist of the upper bone about its own direction beyond its minimal swing (radians)."""
+    limits = default_limits(model, heads, tails)
+    off, twist = 0.0, 0.0
+    for name in LIMBS:
+        limb = model.limbs[name]
+        i = len(limb.bones) - 1
+        upper = limb.bones[i - 1]
+        old = model.limbs[name].joints(heads, tails)
+        new = model.limbs[name].joints(result.heads, result.tails)
+        d0, p = old[:, i] - old[:, i - 1], new[:, i] - new[:, i - 1]
+        p /= np.linalg.norm(p, axis=1, keepdims=True)
+        v = new[:, i + 1] - new[:, i]
+        v /= np.linalg.norm(v, axis=1, keepdims=True)
+        axis = limits[name].limits.hinge_axis[:, i]
+        axis = axis - np.sum(axis * d0, axis=1, keepdims=True) * d0 / np.sum(d0 * d0, axis=1, keepdims=True)
+        axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+        turned = np.einsum("fab,fb->fa", result.rotations[:, upper], axis)
+        off = max(off, float(np.max(np.abs(np.sum(turned * v, axis=1)))))
+        swung = np.einsum("fab,fb->fa", swing_rotation(d0, p), axis)
+        tau = np.arctan2(np.sum(np.cross(swung, turned) * p, axis=1), np.sum(swung * turned, axis=1))
+        twist = max(twist, float(np.max(np.abs(tau))))
+    return off, twist
+
+
 def reach_summary(residuals, tol):
     r = residuals[np.isfinite(residuals)]
     return {"median": float(np.median(r)), "p99": float(np.percentile(r, 99)), "max": float(r.max()),
@@ -214,6 +245,8 @@ def main():
         reach = np.linalg.norm(np.diff(j, axis=1), axis=-1).sum(axis=1)
         within &= np.linalg.norm(targets[:, k] - j[:, 0], axis=-1) <= reach
 
+    off_plane, max_twist = hinge_consistency(model, st_h, st_t, ours)
+
     # Speed: one pose at a time, then 1,000 frames in one call, each against plain FABRIK in this run.
     k = min(args.single_poses, n)
     t_ours_1 = timed(lambda: [adjust_pose(model, st_h[i], st_t[i], targets[i], EFFECTORS) for i in range(k)]) / k
@@ -242,6 +275,8 @@ def main():
             "share_of_other_poses_moving_sc": float(np.mean(ours.sc_displacement[~within] > 0))
             if (~within).any() else None,
         },
+        "hinge_output": {"max_lower_bone_off_upper_bone_hinge_plane": off_plane,
+                         "max_upper_bone_twist_rad": max_twist},
         "iterations_mean": {"ours": float(ours.iterations.mean()), "plain_fabrik": float(plain_iter.mean())},
         "speed": {
             "us_per_pose_single": {"ours": t_ours_1 * 1e6, "plain_fabrik": t_plain_1 * 1e6,

@@ -7,7 +7,7 @@ from .chain import STATUSES, ChainBatchResult, ChainResult, ChainSettings, solve
 from .errors import SolverInputError
 from .geometry import normalize, rotate_about_axis, swing_rotation
 from .limits import CONE, FREE, HINGE, JointLimits, carry_axis, hinge_axis_from_bend
-from .obstacles import Boxes, penetrations, points_inside, segments_cross
+from .obstacles import Boxes, as_boxes, penetrations, points_inside, segments_cross
 from .tree import STRATEGIES, Effector, TreeResult, solve_tree
 
 __all__ = [
@@ -15,6 +15,6 @@ __all__ = [
     "SolverInputError",
     "normalize", "rotate_about_axis", "swing_rotation",
     "CONE", "FREE", "HINGE", "JointLimits", "carry_axis", "hinge_axis_from_bend",
-    "Boxes", "penetrations", "points_inside", "segments_cross",
+    "Boxes", "as_boxes", "penetrations", "points_inside", "segments_cross",
     "STRATEGIES", "Effector", "TreeResult", "solve_tree",
 ]

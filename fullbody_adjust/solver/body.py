@@ -302,6 +302,14 @@ class HumanLimits:
       hip     thigh vs the pelvis' down direction             measured <= 108 deg -> 115
       knee    hinge                                           measured <= 159 deg -> [-0.2, 2.85] rad
       neck    each neck segment (vs its start direction / the one below)  measured <= 45 deg -> 50
+    Hinge twists: how far the elbow's / knee's bend plane may turn about the upper arm / thigh (humeral and
+    femoral rotation) from the start plane carried by that segment's minimal swing (limits.py, hinge twist).
+    Measured from each pose of a pair to the other (pairs 60 frames apart, and random pairs, in the same
+    clips), captured limb bent by more than 0.5 rad. A twist must stay below 90 deg (beyond it a bend plane
+    is the same plane bent the other way), which about 3 % of the pairs would need (the dance's turned-out
+    legs, arms swung past 90 deg, where the swing frame itself has turned):
+      elbow_twist  upper arm: 95th percentile 69-80 deg, 95-96 % of pairs within 80 deg     -> 80
+      knee_twist   thigh:     95th percentile 39-49 deg, 94-95 % of pairs within 45 deg     -> 45
     """
 
     lumbar: float = math.radians(55)
@@ -312,6 +320,8 @@ class HumanLimits:
     hip: float = math.radians(115)
     knee: tuple = (-0.2, 2.85)
     neck: float = math.radians(50)
+    elbow_twist: float = math.radians(80)
+    knee_twist: float = math.radians(45)
     # A start bend above this (radians) defines the hinge plane and its positive side; below it the bend side
     # is ambiguous (mocap noise on a straight limb), so the bone's X axis or the body-frame heuristic decides
     # the side. Kept below -elbow[0] and -knee[0] so a start pose is never outside its own hinge range.
@@ -370,8 +380,10 @@ def default_limits(model: BodyModel, heads, tails, human: HumanLimits = HumanLim
         def set_cone(i, angle):
             kind[i], cone[i] = CONE, angle
 
-        def set_hinge(i, bend_side, rng, child_bone):
-            kind[i], lo[i], hi[i] = HINGE, rng[0], rng[1]
+        twist = np.zeros(m)
+
+        def set_hinge(i, bend_side, rng, child_bone, twist_range):
+            kind[i], lo[i], hi[i], twist[i] = HINGE, rng[0], rng[1], twist_range
             x = None if x_axes is None else x_axes[:, child_bone]
             axes[:, i] = _hinge_axis(segs[:, i - 1], segs[:, i], bend_side, x, human.bent)
 
@@ -381,7 +393,7 @@ def default_limits(model: BodyModel, heads, tails, human: HumanLimits = HumanLim
             for i in range(1, m):
                 set_cone(i, human.spine)
         elif limb.name.startswith("arm"):
-            set_hinge(m - 1, forward, human.elbow, limb.bones[m - 1])
+            set_hinge(m - 1, forward, human.elbow, limb.bones[m - 1], human.elbow_twist)
             if m >= 3:
                 # Clavicle(s): swing from the start direction, which rides on the chest.
                 parent_dir = segs[:, 0]
@@ -396,12 +408,12 @@ def default_limits(model: BodyModel, heads, tails, human: HumanLimits = HumanLim
         elif limb.name.startswith("leg"):
             parent_dir = -pelvis_up
             set_cone(0, human.hip)
-            set_hinge(m - 1, -forward, human.knee, limb.bones[m - 1])
+            set_hinge(m - 1, -forward, human.knee, limb.bones[m - 1], human.knee_twist)
         else:  # head: neck segments swing from their start direction on the chest
             parent_dir = segs[:, 0]
             for i in range(m):
                 set_cone(i, human.neck)
-        limits = JointLimits(kind, cone, axes, lo, hi)
+        limits = JointLimits(kind, cone, axes, lo, hi, twist)
         out[limb.name] = LimbLimits(limits, None if parent_dir is None else normalize(parent_dir))
     return out
 

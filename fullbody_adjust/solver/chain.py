@@ -14,6 +14,11 @@ is where joint limits are enforced: there the parent segment is already final, s
 the limits exactly. The forward pass applies the limits too, in reverse, only to steer its proposal (as
 FABRIK 2011 does in both passes).
 
+Two-segment finish (limited chains, beyond FABRIK): in the backward pass, once joint n-3 is placed, the last
+two segments are placed analytically where a swivel position of joint n-2 meets the target with every limit
+and obstacle satisfied (ChainModel._two_bone_finish); otherwise the FABRIK step stands. It ends the slow
+creep near full stretch, and lets a hinged limb (elbow, knee) turn its bend plane within its twist range.
+
 Obstacles (paper §4.1, boxes): in both passes a joint that lands inside a box, or whose segment crosses one,
 is moved (ChainModel._avoid). A reachable target must be outside the boxes for a collision-free result; a
 target inside a box is a defined result (status 'blocked', reason 'target inside obstacle').
@@ -31,7 +36,7 @@ import numpy as np
 from .errors import SolverInputError
 from .geometry import any_perpendicular, cross, dot, norm
 from .limits import CONE, FREE, HINGE, JointLimits, apply_cone, apply_hinge, carry_axis
-from .obstacles import Boxes, points_inside, segments_cross
+from .obstacles import as_boxes, points_inside, segments_cross
 
 STATUSES = ("reached", "unreachable", "blocked", "limited", "max_iterations")
 
@@ -109,9 +114,13 @@ class ChainBatchResult:
 
 def solve_chain(positions, target, *, settings=ChainSettings(), limits=None, obstacles=None,
                 parent_direction=None):
-    """Solve one chain; joint 0 is the fixed base, joint n-1 the end effector. See ChainResult."""
+    """Solve one chain; joint 0 is the fixed base, joint n-1 the end effector. obstacles: Boxes or an array
+    of box corners. See ChainResult."""
     if not isinstance(settings, ChainSettings):
         raise SolverInputError("settings must be a ChainSettings")
+    obstacles = as_boxes(obstacles)
+    if limits is not None and not isinstance(limits, JointLimits):
+        raise SolverInputError("limits must be a JointLimits")
     limited = limits is not None and limits.any_active
     if not limited and (obstacles is None or len(obstacles) == 0):
         return _solve_plain(positions, target, settings)
@@ -122,6 +131,9 @@ def solve_chain(positions, target, *, settings=ChainSettings(), limits=None, obs
         raise SolverInputError("per-problem boxes for a single chain need a batch axis of 1")
     if limits is not None and limits.hinge_axis.ndim == 3 and limits.hinge_axis.shape[0] != 1:
         raise SolverInputError("per-problem hinge axes for a single chain need a batch axis of 1")
+    if limits is not None and limits.hinge_reference is not None and limits.hinge_reference.ndim == 3 \
+            and limits.hinge_reference.shape[0] != 1:
+        raise SolverInputError("per-problem hinge references for a single chain need a batch axis of 1")
     return solve_chain_batch(p[None], t[None], settings=settings, limits=limits, obstacles=obstacles,
                              parent_directions=pd)[0]
 
@@ -392,6 +404,16 @@ _CIRCLE_ANGLES = np.array(_circle_angles)
 # of radius D around the anchor, by increasing angle from the unconstrained direction (the smallest change
 # to what FABRIK asked for), azimuths ordered from the reference side.
 _SPHERE_POLAR = np.radians([5, 10, 15, 20, 30, 40, 50, 60, 75, 90, 105, 120, 135, 150, 165, 180])
+# Two-segment finish (ChainModel._two_bone_finish): swivel angles of the middle joint around the pivot ->
+# target line, from FABRIK's proposal outward (0, +d, -d, +2d, ...), and the least hinge twist range that
+# leaves an interval of them to pick from (a twist-free hinge fits one swivel angle, never a sample).
+_SWIVEL_SAMPLES = 48
+_swivel = [0.0]
+for _k in range(1, _SWIVEL_SAMPLES // 2):
+    _swivel += [_k * 2 * math.pi / _SWIVEL_SAMPLES, -_k * 2 * math.pi / _SWIVEL_SAMPLES]
+_swivel.append(math.pi)
+_SWIVEL_ANGLES = np.array(_swivel)
+_MIN_FINISH_TWIST = math.radians(5)
 
 
 class ChainModel:
@@ -418,11 +440,25 @@ class ChainModel:
         if limits is not None and len(limits) != m:
             raise SolverInputError(f"limits cover {len(limits)} joints but the chain has {m} limitable joints")
         self.limits = limits if limits is not None and limits.any_active else None
+        self._finishes = False
         if self.limits is not None:
             axes = self.limits.hinge_axis
             if axes.ndim == 3 and axes.shape[0] != self.B:
                 raise SolverInputError(f"per-problem hinge axes have batch size {axes.shape[0]}, expected {self.B}")
             self.hinge_axes = np.broadcast_to(axes, (self.B, m, 3))
+            # The analytic two-segment finish needs a swivel range to pick from: not a hinge whose plane is fixed.
+            self._finishes = self.n >= 3 and (self.limits.kind[m - 1] != HINGE
+                                              or self.limits.hinge_twist[m - 1] >= _MIN_FINISH_TWIST)
+            # Where each hinge axis is given: its parent direction at the start pose, or the caller's.
+            ref = self.limits.hinge_reference
+            if ref is None:
+                self.hinge_refs = np.concatenate([self.start_dirs[:, :1], self.start_dirs[:, :-1]], axis=1)
+            else:
+                if ref.ndim == 3 and ref.shape[0] != self.B:
+                    raise SolverInputError(
+                        f"per-problem hinge references have batch size {ref.shape[0]}, expected {self.B}")
+                ref = np.broadcast_to(ref, (self.B, m, 3))
+                self.hinge_refs = ref / np.maximum(norm(ref), 1e-300)[..., None]
         self.parent_dirs = None
         if parent_directions is not None:
             pd = np.asarray(parent_directions, dtype=np.float64)
@@ -437,8 +473,7 @@ class ChainModel:
         if self.limits is not None and self.limits.kind[0] != FREE and self.parent_dirs is None:
             raise SolverInputError("joint 0 has a limit but no parent_direction was given")
 
-        if obstacles is not None and not isinstance(obstacles, Boxes):
-            raise SolverInputError("obstacles must be Boxes")
+        obstacles = as_boxes(obstacles)
         self.boxes = obstacles if obstacles is not None and len(obstacles) > 0 else None
         if self.boxes is not None:
             if self.boxes.batched and self.boxes.mins.shape[0] != self.B:
@@ -454,7 +489,7 @@ class ChainModel:
 
     # -- limits -----------------------------------------------------------------------------------------------
 
-    def _limit(self, i, rows, parent, dirs, fallback, start_parent):
+    def _limit(self, i, rows, parent, dirs, fallback):
         """Apply joint i's limit to unit dirs (b,3) or (b,c,3). Returns (dirs, binding (b,...))."""
         kind = self.limits.kind[i]
         extra = dirs.ndim - 2
@@ -463,9 +498,9 @@ class ChainModel:
             return apply_cone(expand(parent), dirs, self.limits.cone_angle[i], expand(fallback))
         axis = self.hinge_axes[rows, i]
         if i > 0:
-            axis = carry_axis(axis, start_parent, parent)
+            axis = carry_axis(axis, self.hinge_refs[rows, i], parent)
         return apply_hinge(expand(parent), dirs, expand(axis), self.limits.hinge_min[i], self.limits.hinge_max[i],
-                           expand(fallback))
+                           expand(fallback), self.limits.hinge_twist[i])
 
     def _limit_reverse(self, j, rows, child, dirs, fallback):
         """Forward-pass counterpart of joint j's limit (FABRIK 2011 applies limits in both passes): segment j
@@ -475,8 +510,9 @@ class ChainModel:
         from: the backward pass enforces the limits exactly."""
         if self.limits.kind[j] == CONE:
             return apply_cone(child, dirs, self.limits.cone_angle[j], fallback)[0]
-        axis = carry_axis(self.hinge_axes[rows, j], self.start_dirs[rows, j - 1], dirs)
-        return apply_hinge(child, dirs, axis, -self.limits.hinge_max[j], -self.limits.hinge_min[j], fallback)[0]
+        axis = carry_axis(self.hinge_axes[rows, j], self.hinge_refs[rows, j], dirs)
+        return apply_hinge(child, dirs, axis, -self.limits.hinge_max[j], -self.limits.hinge_min[j], fallback,
+                           self.limits.hinge_twist[j])[0]
 
     # -- obstacles ---------------------------------------------------------------------------------------------
 
@@ -617,7 +653,11 @@ class ChainModel:
         binding = np.zeros(b, dtype=bool)
         responded = np.zeros(b, dtype=bool)
         failed = np.zeros(b, dtype=bool)
+        pivot = self.n - 3 if not stretch and root is None and self._finishes else -1
+        finished = None
         for i in range(self.n - 1):
+            if i == pivot:
+                finished, elbow, wrist = self._two_bone_finish(P, rows, aims)
             anchor = P[:, i]
             d = aims[:, i + 1] - anchor
             if not stretch and self.limits is not None and i + 1 < self.n - 1 and self.limits.kind[i + 1] == HINGE:
@@ -636,28 +676,103 @@ class ChainModel:
             limit_fn = None
             if self.limits is not None and self.limits.kind[i] != FREE:
                 if i == 0:
-                    parent, start_parent = self.parent_dirs[rows], None
+                    parent = self.parent_dirs[rows]
                 else:
                     parent = (P[:, i] - P[:, i - 1]) / lengths[:, i - 1, None]
                     parent = parent / norm(parent)[:, None]
-                    start_parent = self.start_dirs[rows, i - 1]
                 fallback = prev[:, i + 1] - prev[:, i]
                 fallback = fallback / norm(fallback)[:, None]
-                u, bind = self._limit(i, rows, parent, d / dn[:, None], fallback, start_parent)
+                u, bind = self._limit(i, rows, parent, d / dn[:, None], fallback)
                 binding |= bind
                 cand = anchor + u * L[:, None]
 
-                def limit_fn(h, dirs, i=i, rows=rows, parent=parent, fallback=fallback, start_parent=start_parent):
-                    sp = None if start_parent is None else start_parent[h]
-                    return self._limit(i, rows[h], parent[h], dirs, fallback[h], sp)[0]
+                def limit_fn(h, dirs, i=i, rows=rows, parent=parent, fallback=fallback):
+                    return self._limit(i, rows[h], parent[h], dirs, fallback[h])[0]
             else:
                 cand = anchor + d * (L / dn)[:, None]
             if self.boxes is not None:
                 cand, resp, fail = self._avoid(rows, anchor, cand, L, ref[:, i + 1], i + 1, i, limit_fn)
                 responded |= resp
                 failed |= fail
+            if finished is not None and i >= pivot:
+                cand[finished] = (elbow if i == pivot else wrist)[finished]
+                binding &= ~finished
+                responded &= ~finished
+                failed &= ~finished
             P[:, i + 1] = cand
         return binding, responded, failed
+
+    def _two_bone_finish(self, P, rows, aims):
+        """Analytic placement of the last two segments in the backward pass, once their pivot joint n-3 is
+        placed, for a limited chain whose joint n-2 is free, a cone, or a hinge with a twist range
+        (_finishes): FABRIK creeps toward a target near full stretch, and a hinge lets it reach only by
+        turning the bend plane, which its passes do not seek. With pivot S, target T and lengths a, c, the
+        middle joint lies on the circle
+        where the spheres (S, a) and (T, c) meet; of _SWIVEL_ANGLES around it (from the forward pass's middle
+        joint, the one FABRIK aims at, outward) the first is taken where the pivot's limit, the hinge (bend
+        and twist) and the obstacles all hold exactly. Returns (finished (b,), middle (b,3), end (b,3)); rows
+        with no such point (target out of the two segments' range, limits or boxes) are left to FABRIK."""
+        j = self.n - 3
+        b = len(rows)
+        finished = np.zeros(b, dtype=bool)
+        middle = np.zeros((b, 3))
+        end = np.zeros((b, 3))
+        lengths = self.lengths[rows]
+        a, c = lengths[:, j], lengths[:, j + 1]
+        S = P[:, j]
+        to_t = self.targets[rows] - S
+        d = norm(to_t)
+        h = np.nonzero((d > np.abs(a - c) * (1.0 + 1e-9)) & (d < (a + c) * (1.0 - 1e-9)))[0]
+        if h.size == 0:
+            return finished, middle, end
+        a, c, d, S, T = a[h], c[h], d[h], S[h], self.targets[rows[h]]
+        e = to_t[h] / d[:, None]
+        along = (a * a + d * d - c * c) / (2.0 * d)
+        rho = np.sqrt(np.maximum(a * a - along * along, 0.0))
+        centre = S + along[:, None] * e
+        w = aims[h, j + 1] - centre
+        w = w - dot(w, e)[:, None] * e
+        wn = norm(w)
+        ok = wn > 1e-12 * a
+        e1 = np.where(ok[:, None], w / np.where(ok, wn, 1.0)[:, None], any_perpendicular(e))
+        e2 = cross(e, e1)
+        ring = np.cos(_SWIVEL_ANGLES)[None, :, None] * e1[:, None] \
+            + np.sin(_SWIVEL_ANGLES)[None, :, None] * e2[:, None]
+        E = centre[:, None] + rho[:, None, None] * ring  # (h,K,3)
+        u = (E - S[:, None]) / a[:, None, None]
+        u = u / norm(u)[..., None]
+        v = T[:, None] - E
+        v = v / norm(v)[..., None]
+        ok = np.ones(E.shape[:2], dtype=bool)
+        if self.limits.kind[j] != FREE:
+            if j == 0:
+                parent = self.parent_dirs[rows[h]]
+            else:
+                parent = P[h, j] - P[h, j - 1]
+                parent = parent / norm(parent)[:, None]
+            ok &= ~self._limit(j, rows[h], parent, u, u[:, 0])[1]
+        k = j + 1
+        if self.limits.kind[k] == CONE:
+            ok &= ~apply_cone(u, v, self.limits.cone_angle[k], v)[1]
+        elif self.limits.kind[k] == HINGE:
+            axis = carry_axis(self.hinge_axes[rows[h], k][:, None], self.hinge_refs[rows[h], k][:, None], u)
+            ok &= ~apply_hinge(u, v, axis, self.limits.hinge_min[k], self.limits.hinge_max[k], v,
+                               self.limits.hinge_twist[k])[1]
+        wrist = E + c[:, None, None] * v
+        if self.boxes is not None:
+            boxes = self.boxes.select(rows[h])
+            for seg, (p0, p1) in ((j, (S[:, None], E)), (k, (E, wrist))):
+                ign_joint, ign_seg = self._ignored(rows[h], seg + 1, seg)
+                inside, crossing = self._violations(
+                    boxes, np.broadcast_to(p0, p1.shape), p1,
+                    None if ign_joint is None else ign_joint[:, None], None if ign_seg is None else ign_seg[:, None])
+                ok &= ~(inside.any(axis=-1) | crossing.any(axis=-1))
+        pick = np.argmax(ok, axis=1)
+        found = ok[np.arange(h.size), pick]
+        finished[h] = found
+        middle[h] = E[np.arange(h.size), pick]
+        end[h] = wrist[np.arange(h.size), pick]
+        return finished, middle, end
 
     # -- solve -------------------------------------------------------------------------------------------------
 
@@ -689,10 +804,27 @@ class ChainModel:
             P[sel, 1:-1] = P[sel, 1:-1] + u[:, None, :] * shift[:, :, None]
         nudges[slots] += 1
 
+    def violations(self, P, rows):
+        """(b,) problems `rows` whose pose P (b,n,3) breaks a joint limit (beyond rounding) or penetrates a box
+        it does not ignore."""
+        bad = np.zeros(len(rows), dtype=bool)
+        if self.limits is not None:
+            lengths = self.lengths[rows]
+            dirs = (P[:, 1:] - P[:, :-1]) / lengths[..., None]
+            dirs = dirs / norm(dirs)[..., None]
+            for i in np.nonzero(self.limits.kind != FREE)[0]:
+                parent = self.parent_dirs[rows] if i == 0 else dirs[:, i - 1]
+                bad |= self._limit(i, rows, parent, dirs[:, i], dirs[:, i])[1]
+        if self.boxes is not None:
+            inside, crossing = self.penetration_counts(P, rows)
+            bad |= (inside + crossing) > 0
+        return bad
+
     def _iterate(self, P, rows, force):
         """FABRIK iterations on problems `rows`, in place on P (B,n,3). Rows whose end is already within
-        tolerance only iterate if `force`. Returns per-row (iterations, residual, stalled, limit binding,
-        obstacle responses in the returned iterate, penetrations of the returned iterate)."""
+        tolerance only iterate if `force` (bool or per row (b,)). Returns per-row (iterations, residual,
+        stalled, limit binding, obstacle responses in the returned iterate, penetrations of the returned
+        iterate)."""
         s = self.settings
         tol = s.tolerance
         stall = tol * _STALL
@@ -779,11 +911,17 @@ class ChainModel:
             limit_binding[rows] = binding
             obstacle_active[rows] = responded
 
-        # With limits or obstacles at least one iteration runs, so the start pose is never returned unchecked.
+        # A start pose already at its target is returned untouched (bit-exact, 0 iterations) unless it breaks a
+        # limit or penetrates a box: then at least one iteration runs, so it is never returned unchecked.
         constrained = self.limits is not None or self.boxes is not None
         rows = np.nonzero(~beyond)[0]
         if rows.size:
-            its, res, stl, bind, obst, pen = self._iterate(P, rows, constrained)
+            force = False
+            if constrained:
+                force = np.zeros(rows.size, dtype=bool)
+                met = norm(P[rows, -1] - self.targets[rows]) <= tol
+                force[met] = self.violations(P[rows[met]], rows[met])
+            its, res, stl, bind, obst, pen = self._iterate(P, rows, force)
             iterations[rows], residual[rows], stalled[rows] = its, res, stl
             limit_binding[rows], obstacle_active[rows] = bind, obst
             # FABRIK's obstacle response is local: the chain can wrap around the wrong side of a box and stay

@@ -6,7 +6,19 @@ i-1 -> i, or for joint 0 the chain's fixed `parent_direction`. Two kinds besides
 - HINGE: the child direction stays in the plane perpendicular to the hinge axis, and its signed bend angle
   about the axis, measured from the parent direction, stays in [hinge_min, hinge_max]. A range that does not
   contain negative angles is a hinge whose bend side never flips (elbows, knees).
-The hinge axis is given at the START pose and carried along by the parent segment's swing while solving.
+The hinge axis is given at the START pose (or at the parent direction `hinge_reference`, if given) and carried
+along by the parent segment's minimal swing while solving (carry_axis); the solver uses its part perpendicular
+to the parent direction (any perpendicular if the axis lies along the parent, where the hinge is meaningless).
+
+Hinge twist. A swing carries the axis but cannot turn the bend plane about the parent segment, yet a real
+shoulder or hip turns the upper arm or thigh about its own length (humeral/femoral rotation): without that,
+a hinged limb reaches only the targets its parent's swing can face. `hinge_twist` (radians, in [0, pi/2))
+lets the bend plane turn about the parent direction by up to +-hinge_twist from the carried axis. The set of
+allowed child directions is then two wedges around the parent: positive bends at azimuths within
++-hinge_twist of the carried bend side, negative bends (if the range has any) opposite; apply_hinge returns
+the nearest allowed direction. As |twist| < pi/2 the two wedges never meet: the bend side never flips.
+A caller that writes bone rotations turns the parent bone by the same twist (hinge_twist_angle), so the
+child's rotation relative to its parent stays a pure hinge.
 """
 
 import math
@@ -33,6 +45,13 @@ class JointLimits:
     hinge_axis: np.ndarray
     hinge_min: np.ndarray
     hinge_max: np.ndarray
+    # (n-1,) radians in [0, pi/2): how far the bend plane may turn about the parent direction (module
+    # docstring). None = 0 everywhere: the plane turns only with the parent's swing.
+    hinge_twist: np.ndarray = None
+    # (n-1,3) or (B,n-1,3): the parent direction at which hinge_axis is given, where the carry starts from.
+    # None = the chain's start pose. Lets a caller keep the axis in the frame it writes bone rotations in
+    # when the chain starts from another pose (a limb carried along by its parent, a warm start).
+    hinge_reference: np.ndarray = None
 
     def __post_init__(self):
         kind = np.array(self.kind, dtype=np.int64).reshape(-1)
@@ -41,14 +60,19 @@ class JointLimits:
         axis = np.array(self.hinge_axis, dtype=np.float64)
         lo = np.array(self.hinge_min, dtype=np.float64).reshape(-1)
         hi = np.array(self.hinge_max, dtype=np.float64).reshape(-1)
-        if cone.shape != (m,) or lo.shape != (m,) or hi.shape != (m,):
+        twist = np.zeros(m) if self.hinge_twist is None else np.array(self.hinge_twist, dtype=np.float64)
+        twist = twist.reshape(-1)
+        ref = None if self.hinge_reference is None else np.array(self.hinge_reference, dtype=np.float64)
+        if cone.shape != (m,) or lo.shape != (m,) or hi.shape != (m,) or twist.shape != (m,):
             raise SolverInputError(f"joint limits: every per-joint array needs {m} entries")
-        if axis.shape not in ((m, 3),) and not (axis.ndim == 3 and axis.shape[1:] == (m, 3)):
-            raise SolverInputError(f"joint limits: hinge_axis must be ({m},3) or (B,{m},3), got {axis.shape}")
+        for name, arr in (("hinge_axis", axis), ("hinge_reference", ref)):
+            if arr is not None and arr.shape != (m, 3) and not (arr.ndim == 3 and arr.shape[1:] == (m, 3)):
+                raise SolverInputError(f"joint limits: {name} must be ({m},3) or (B,{m},3), got {arr.shape}")
         if np.any((kind < FREE) | (kind > HINGE)):
             raise SolverInputError("joint limits: kind must be FREE=0, CONE=1 or HINGE=2")
-        for name, arr in (("cone_angle", cone), ("hinge_axis", axis), ("hinge_min", lo), ("hinge_max", hi)):
-            if not np.all(np.isfinite(arr)):
+        for name, arr in (("cone_angle", cone), ("hinge_axis", axis), ("hinge_min", lo), ("hinge_max", hi),
+                          ("hinge_twist", twist), ("hinge_reference", ref)):
+            if arr is not None and not np.all(np.isfinite(arr)):
                 raise SolverInputError(f"joint limits: {name} has NaN/inf")
         for i in np.nonzero(kind == CONE)[0]:
             if not 0.0 <= cone[i] <= math.pi:
@@ -58,10 +82,14 @@ class JointLimits:
                 raise SolverInputError(f"joint {i}: hinge range must satisfy -pi <= min <= max <= pi")
             if np.any(norm(axis[..., i, :]) <= 1e-12):
                 raise SolverInputError(f"joint {i}: hinge axis has zero length")
-        for arr in (kind, cone, axis, lo, hi):
+            if not 0.0 <= twist[i] < math.pi / 2:
+                raise SolverInputError(f"joint {i}: hinge twist must be in [0, pi/2)")
+            if ref is not None and i > 0 and np.any(norm(ref[..., i, :]) <= 1e-12):
+                raise SolverInputError(f"joint {i}: hinge reference direction has zero length")
+        for arr in (kind, cone, axis, lo, hi, twist) + (() if ref is None else (ref,)):
             arr.setflags(write=False)
         for name, arr in (("kind", kind), ("cone_angle", cone), ("hinge_axis", axis),
-                          ("hinge_min", lo), ("hinge_max", hi)):
+                          ("hinge_min", lo), ("hinge_max", hi), ("hinge_twist", twist), ("hinge_reference", ref)):
             object.__setattr__(self, name, arr)
 
     @classmethod
@@ -87,9 +115,10 @@ class JointLimits:
         kind[i], cone[i] = CONE, angle
         return replace(self, kind=kind, cone_angle=cone)
 
-    def with_hinge(self, i, axis, lo, hi):
+    def with_hinge(self, i, axis, lo, hi, twist=0.0):
         """A copy with joint i a hinge about `axis` (3,) or per problem (B,3), at the start pose, bend range
-        [lo, hi] radians (positive = right-handed about the axis, from the parent direction)."""
+        [lo, hi] radians (positive = right-handed about the axis, from the parent direction), bend plane free
+        to turn by up to +-twist radians about the parent direction."""
         self._check_index(i)
         axis = np.asarray(axis, dtype=np.float64)
         axes = self.hinge_axis
@@ -98,8 +127,24 @@ class JointLimits:
         axes = axes.copy()
         axes[..., i, :] = axis
         kind, lo_arr, hi_arr = self.kind.copy(), self.hinge_min.copy(), self.hinge_max.copy()
-        kind[i], lo_arr[i], hi_arr[i] = HINGE, lo, hi
-        return replace(self, kind=kind, hinge_axis=axes, hinge_min=lo_arr, hinge_max=hi_arr)
+        twist_arr = self.hinge_twist.copy()
+        kind[i], lo_arr[i], hi_arr[i], twist_arr[i] = HINGE, lo, hi, twist
+        return replace(self, kind=kind, hinge_axis=axes, hinge_min=lo_arr, hinge_max=hi_arr, hinge_twist=twist_arr)
+
+    def derived(self, **arrays):
+        """A copy with some arrays replaced WITHOUT validation, for a solver's own per-solve copies of limits it
+        has validated (e.g. hinge axes rotated along with the chain, references taken from checked chains):
+        __post_init__ costs more than a small chain iteration."""
+        out = object.__new__(type(self))
+        out.__dict__.update(self.__dict__)
+        for name, arr in arrays.items():
+            if name not in self.__dataclass_fields__:
+                raise TypeError(f"JointLimits has no field {name!r}")
+            if arr is not None:
+                arr = np.asarray(arr, dtype=np.float64)
+                arr.setflags(write=False)
+            object.__setattr__(out, name, arr)
+        return out
 
     @property
     def any_active(self):
@@ -134,9 +179,12 @@ def apply_cone(parent, v, angle, fallback):
     Returns (limited directions, binding mask)."""
     c = dot(parent, v)
     w = v - c[..., None] * parent
+    wn = norm(w)
     # atan2 of the perpendicular and parallel parts resolves small angles; cos alone only to ~1e-8 rad.
-    over = np.arctan2(norm(w), c) > angle
-    bad = ~(norm(w) > _DEGENERATE)
+    over = np.arctan2(wn, c) > angle
+    if not over.any() and v.shape == over.shape + (3,):
+        return v, over  # nothing to clamp (the common case inside FABRIK's iterations)
+    bad = ~(wn > _DEGENERATE)
     if np.any(bad):
         fb = fallback - dot(fallback, parent)[..., None] * parent
         w = _with_fallback(w, fb, bad)
@@ -149,18 +197,38 @@ def apply_cone(parent, v, angle, fallback):
     return np.where(over[..., None], limited, v), over
 
 
-def apply_hinge(parent, v, axis, lo, hi, fallback):
-    """Put unit directions v (...,3) on the hinge: in the plane perpendicular to `axis` (made perpendicular to
-    the unit `parent` first), signed bend angle about the axis clamped to [lo, hi]. A v (nearly) parallel to
-    the axis has no bend angle: the previous direction `fallback` stands in, and if that is degenerate too
-    the clamped zero bend. Returns (limited directions, binding mask: the direction had to change)."""
+def _clamp_angle(theta, lo, hi):
+    """Angles theta in (-pi, pi] clamped to [lo, hi]: an angle outside goes to the bound nearer around the
+    circle (a bend wanted at -2.9 rad is 0.68 rad from a 2.7 rad bound, 2.9 from a 0 bound), so the result is
+    the nearest direction of the arc, not merely the nearer bound on the line."""
+    inside = (theta >= lo) & (theta <= hi)
+    to_lo = np.abs(np.remainder(theta - lo + math.pi, 2 * math.pi) - math.pi)
+    to_hi = np.abs(np.remainder(theta - hi + math.pi, 2 * math.pi) - math.pi)
+    return np.where(inside, theta, np.where(to_lo <= to_hi, lo, hi))
+
+
+def _hinge_frame(parent, axis):
+    """Unit hinge axis made perpendicular to the unit `parent` (any perpendicular if it lies along the parent)
+    and the side of positive bend, axis x parent."""
     a = axis - dot(axis, parent)[..., None] * parent
     a_bad = ~(norm(a) > _DEGENERATE)
     if np.any(a_bad):
         a = _with_fallback(a, np.broadcast_to(any_perpendicular(parent), a.shape), a_bad)
     a = a - dot(a, parent)[..., None] * parent  # twice: a may be tiny, its first pass inexact
     a = a / norm(a)[..., None]
-    side = cross(a, parent)  # the direction of positive bend: a quarter turn about the axis from the parent
+    return a, cross(a, parent)
+
+
+def apply_hinge(parent, v, axis, lo, hi, fallback, twist=None):
+    """Put unit directions v (...,3) on the hinge: in the plane perpendicular to `axis` (made perpendicular to
+    the unit `parent` first), signed bend angle about the axis clamped to [lo, hi] (_clamp_angle). A v
+    (nearly) parallel to the axis has no bend angle: the previous direction `fallback` stands in, and if that
+    is degenerate too the clamped zero bend. With `twist` (radians, scalar or (...)) the plane may turn about
+    the parent by up to +-twist: the nearest direction of the two wedges the module docstring describes.
+    Returns (limited directions, binding mask: the direction had to change)."""
+    a, side = _hinge_frame(parent, axis)
+    if twist is not None and np.any(np.asarray(twist) > 0.0):
+        return _apply_twisted_hinge(parent, v, a, side, lo, hi, fallback, np.asarray(twist, dtype=np.float64))
     x = dot(v, parent)
     y = dot(v, side)
     bad = ~(np.hypot(x, y) > _DEGENERATE)
@@ -170,7 +238,52 @@ def apply_hinge(parent, v, axis, lo, hi, fallback):
         bad = ~(np.hypot(x, y) > _DEGENERATE)
         x = np.where(bad, 1.0, x)
         y = np.where(bad, 0.0, y)
-    theta = np.clip(np.arctan2(y, x), lo, hi)[..., None]
+    theta = _clamp_angle(np.arctan2(y, x), lo, hi)[..., None]
     limited = np.cos(theta) * parent + np.sin(theta) * side
     binding = norm(limited - v) > 1e-12
     return limited, binding
+
+
+def _apply_twisted_hinge(parent, v, a, side, lo, hi, fallback, twist):
+    """apply_hinge with a twist range. In the frame (parent, side, a), v has azimuth phi about the parent
+    (from the side toward the axis) and polar angle from the parent. The bend plane turned by tau has the side
+    cos(tau) side + sin(tau) a. Candidates: the plane nearest v's azimuth with v on its positive side
+    (tau = clip(phi)) and with v on its negative side (tau = clip(phi -+ pi)); in each, v's projection with
+    its bend clamped to [lo, hi] (the nearest point of that arc). The nearer candidate wins."""
+    x, y, z = dot(v, parent), dot(v, side), dot(v, a)
+    r = np.hypot(y, z)
+    phi = np.arctan2(z, y)
+    # v along the axis with no twist to turn to it (twist 0 on that row): the previous direction stands in.
+    bad = ~(np.hypot(x, r * np.cos(phi - np.clip(phi, -twist, twist))) > _DEGENERATE)
+    if np.any(bad):
+        x = np.where(bad, dot(fallback, parent), x)
+        y2, z2 = dot(fallback, side), dot(fallback, a)
+        r = np.where(bad, np.hypot(y2, z2), r)
+        phi = np.where(bad, np.arctan2(z2, y2), phi)
+        bad = ~(np.hypot(x, r * np.cos(phi - np.clip(phi, -twist, twist))) > _DEGENERATE)
+        x, r, phi = np.where(bad, 1.0, x), np.where(bad, 0.0, r), np.where(bad, 0.0, phi)
+    best, best_dot = None, None
+    for wanted in (phi, np.where(phi > 0.0, phi - math.pi, phi + math.pi)):
+        tau = np.clip(wanted, -twist, twist)
+        theta = _clamp_angle(np.arctan2(r * np.cos(phi - tau), x), lo, hi)
+        sin_t = np.sin(theta)[..., None]
+        cand = np.cos(theta)[..., None] * parent + sin_t * (np.cos(tau)[..., None] * side
+                                                            + np.sin(tau)[..., None] * a)
+        c = dot(cand, v)
+        if best is None:
+            best, best_dot = cand, c
+        else:
+            nearer = c > best_dot
+            best = np.where(nearer[..., None], cand, best)
+    return best, norm(best - v) > 1e-12
+
+
+def hinge_twist_angle(parent, child, axis):
+    """The twist (radians, in (-pi/2, pi/2]) by which the bend plane of unit `child` about unit `parent` is
+    turned from the plane perpendicular to `axis` (the carried axis, made perpendicular to the parent), about
+    the parent direction; 0 where the child lies along the parent (every plane holds it)."""
+    a, side = _hinge_frame(parent, axis)
+    y, z = dot(child, side), dot(child, a)
+    phi = np.arctan2(z, y)
+    plane = np.where(phi > math.pi / 2, phi - math.pi, np.where(phi <= -math.pi / 2, phi + math.pi, phi))
+    return np.where(np.hypot(y, z) > _DEGENERATE, plane, 0.0)

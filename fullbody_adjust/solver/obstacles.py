@@ -64,6 +64,18 @@ class Boxes:
         return Boxes(self.mins[rows], self.maxs[rows])
 
 
+def as_boxes(obstacles):
+    """None, Boxes, or an array of box corners ((K,8,3), (K,2,3) or per problem (B,K,...,3)) -> Boxes or None."""
+    if obstacles is None or isinstance(obstacles, Boxes):
+        return obstacles
+    try:
+        return Boxes.from_corners(obstacles)
+    except (TypeError, ValueError) as ex:
+        if isinstance(ex, SolverInputError):
+            raise
+        raise SolverInputError(f"obstacles must be Boxes or an array of box corners: {ex}") from None
+
+
 def _box_arrays(boxes, lead_ndim):
     """mins, maxs shaped to broadcast against points with `lead_ndim` leading axes, giving (..., K, 3).
     Per-problem boxes pair their B axis with the points' first axis."""

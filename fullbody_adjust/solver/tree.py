@@ -28,8 +28,7 @@ import numpy as np
 
 from .chain import ChainModel, ChainSettings, solve_chain
 from .errors import SolverInputError
-from .geometry import norm
-from .obstacles import Boxes, points_inside, segments_cross
+from .obstacles import as_boxes, points_inside, segments_cross
 
 STRATEGIES = ("centroid", "weighted", "sequential")
 _STALL = 1e-3  # as in chain.py: an iteration moving every effector less than tolerance * _STALL has stalled
@@ -152,8 +151,7 @@ def solve_tree(positions, parents, effectors, *, strategy="centroid", settings=C
         raise SolverInputError(f"strategy must be one of {', '.join(STRATEGIES)}, got {strategy!r}")
     if not isinstance(settings, ChainSettings):
         raise SolverInputError("settings must be a ChainSettings")
-    if obstacles is not None and not isinstance(obstacles, Boxes):
-        raise SolverInputError("obstacles must be Boxes")
+    obstacles = as_boxes(obstacles)
     if obstacles is not None and obstacles.batched:
         raise SolverInputError("trees take shared boxes (K,3)")
     if obstacles is not None and len(obstacles) == 0:

@@ -11,6 +11,7 @@ from fullbody_adjust.solver.adjust import (AdjustSettings, adjust_frames, adjust
                                            project_onto_balls, sub_base_point)
 from fullbody_adjust.solver.body import END, BodyModel, default_limits
 from fullbody_adjust.solver.errors import SolverInputError
+from fullbody_adjust.solver.geometry import swing_rotation
 from fullbody_adjust.solver.limits import CONE, HINGE
 from fullbody_adjust.solver.obstacles import Boxes, points_inside, segments_cross
 from tests.helpers.bvh import CMU_GROUPS, read_cmu
@@ -397,9 +398,8 @@ def _penetrations(model, heads, tails, limb, boxes, target):
     ("arm.L", "hand.L", True), ("trunk", "hand.L", True), ("leg.L", "foot.L", True), ("leg.L", "foot.L", False)])
 def test_obstacles_are_avoided_in_every_group(synth, limb, effector, use_limits):
     """Solve once free; put a 4 cm box where the group's middle joint went; solve again: the group's joints and
-    segments stay out of the box, and the task is met or honestly reported 'blocked'. (A hinged knee has no
-    freedom left to go around a box at the knee: the hinge turns only with the thigh's swing, so a foot
-    target fixes the leg.)"""
+    segments stay out of the box, and the task is met or honestly reported 'blocked'. (A hinged knee goes
+    around a box at the knee by turning its bend plane about the thigh, within the knee's twist range.)"""
     model, h, t = synth
     if limb == "trunk":
         base = _joints(model, h, t, "arm.L")[0, 0]
@@ -421,15 +421,14 @@ def test_obstacles_are_avoided_in_every_group(synth, limb, effector, use_limits)
     assert _penetrations(model, free.heads, free.tails, limb, boxes, target) > 0
     res = adjust_frames(model, h, t, tg, EFFECTORS, obstacles=boxes, settings=cfg)
     assert _penetrations(model, res.heads, res.tails, limb, boxes, target) == 0
-    if limb == "leg.L":
-        # Knee inside the box: with the hinge no other pose meets the target; without it, the chain solver's
-        # obstacle response may still stall (FABRIK keeps the knee near its old side). Either way: no
-        # penetration, and a task not met says why.
+    if limb == "leg.L" and not use_limits:
+        # Knee inside the box, no limits: the chain solver's obstacle response may stall (FABRIK keeps the knee
+        # near its old side). Either way: no penetration, and a task not met says why.
         assert res.residuals[0, k] <= TOL or (res.status[0, k] == "blocked" and "obstacle" in res.reasons[0, k])
-        if use_limits:
-            assert res.status[0, k] == "blocked"
     else:
         assert res.residuals[0, k] <= TOL, res.reasons[0, k]
+    if use_limits:
+        _assert_limits_hold(model, h, t, res, default_limits(model, h, t))
 
 
 def test_blocked_target_is_reported(synth):
@@ -481,6 +480,71 @@ def test_joint_limits_hold_in_every_group(pickup):
     # Without limits the same targets are met at least as often, and elbows may then bend backwards.
     free = adjust_frames(model, h, t, tg, EFFECTORS, settings=AdjustSettings(use_limits=False))
     assert np.mean(free.status == "reached") >= np.mean(res.status == "reached")
+
+
+def test_elbows_and_knees_come_out_as_pure_hinges_with_the_twist_on_the_upper_bone(pickup):
+    """Far targets (wrists and ankles 45 frames later, pelvis kept): where the solver turned a bend plane about
+    the upper arm / thigh, that bone's rotation carries the twist, so the start hinge axis turned with the
+    upper bone is perpendicular to the new lower bone (the lower bone lies in the upper bone's local hinge
+    plane), the twist stays within the limit, and the lower bone turns relative to the upper one about that
+    axis only (a pure hinge: the elbow or knee does not twist)."""
+    clip, model = pickup
+    frames = np.arange(100, 1300, 60)
+    h, t = clip.bones(frames)
+    later, _ = clip.bones(frames + 45)
+    tg = np.stack([_current(model, later, e) for e in EFFECTORS], axis=1)
+    tg = tg - later[:, None, model.root] + h[:, None, model.root]
+    res = adjust_frames(model, h, t, tg, EFFECTORS)
+    limits = default_limits(model, h, t)
+    twists = []
+    for name in ("arm.L", "arm.R", "leg.L", "leg.R"):
+        limb = model.limbs[name]
+        i = len(limb.bones) - 1  # the hinge joint, between the last two bones
+        upper, lower = limb.bones[i - 1], limb.bones[i]
+        axis0 = limits[name].limits.hinge_axis[:, i]
+        d0 = h[:, lower] - h[:, upper]
+        axis0 = axis0 - np.sum(axis0 * d0, axis=1, keepdims=True) * d0 / np.sum(d0 * d0, axis=1, keepdims=True)
+        axis0 /= np.linalg.norm(axis0, axis=1, keepdims=True)
+        j = _joints(model, res.heads, res.tails, name)
+        v = j[:, i + 1] - j[:, i]
+        v /= np.linalg.norm(v, axis=1, keepdims=True)
+        r_up, r_low = res.rotations[:, upper], res.rotations[:, lower]
+        local_v = np.einsum("fba,fb->fa", r_up, v)  # the lower bone's direction in the upper bone's new frame
+        np.testing.assert_allclose(np.sum(local_v * axis0, axis=1), 0.0, atol=1e-9)
+        # The twist: from the axis carried by the upper bone's swing alone to the one it turned with.
+        p = j[:, i] - j[:, i - 1]
+        swung = np.einsum("fab,fb->fa", swing_rotation(d0, p), axis0)
+        turned = np.einsum("fab,fb->fa", r_up, axis0)
+        tau = np.arctan2(np.sum(np.cross(swung, turned) * p, axis=1) / np.linalg.norm(p, axis=1),
+                         np.sum(swung * turned, axis=1))
+        assert np.all(np.abs(tau) <= limits[name].limits.hinge_twist[i] + 1e-9)
+        twists.append(tau)
+        # Pure hinge, where the start pose lies on its own hinge (its lower bone perpendicular to the axis).
+        v0 = t[:, lower] - h[:, lower]
+        on_plane = np.abs(np.sum(v0 * axis0, axis=1)) <= 1e-12 * np.linalg.norm(v0, axis=1)
+        relative = np.einsum("fba,fbc->fac", r_up, r_low)
+        np.testing.assert_allclose(np.einsum("fab,fb->fa", relative, axis0)[on_plane], axis0[on_plane], atol=1e-9)
+        assert on_plane.mean() > 0.5
+    assert np.max(np.abs(twists)) > 0.1  # the solver did turn some bend planes
+
+
+def test_limbs_already_at_their_targets_are_left_exactly_as_they_were(rig):
+    """Feet targets at the ankles, a hand target within the arm's reach: the legs and feet are not re-solved
+    (positions bit-identical, rotations exactly identity, not moved), obstacles elsewhere or not."""
+    model, h, t = rig
+    up, left, forward = (v[0] for v in model.body_frame(h, t))
+    tg = _targets(model, h, t, **{"foot.L": _current(model, h, "foot.L"), "foot.R": _current(model, h, "foot.R"),
+                                  "hand.L": _current(model, h, "hand.L") + 0.08 * forward + 0.05 * up})
+    far = Boxes(h[0, model.root][None] + 5.0, h[0, model.root][None] + 6.0)
+    for obstacles in (None, far):
+        res = adjust_frames(model, h, t, tg, EFFECTORS, obstacles=obstacles)
+        assert list(res.status[0]) == ["reached", "unconstrained", "reached", "reached"]
+        legs = [b for g in ("leg.L", "leg.R", "foot.L", "foot.R") for b in model.groups[g]]
+        still = sorted(_descendants(model, legs))
+        assert np.array_equal(res.heads[:, still], h[:, still]) and np.array_equal(res.tails[:, still], t[:, still])
+        assert np.array_equal(res.rotations[:, still], np.broadcast_to(np.eye(3), (1, len(still), 3, 3)))
+        moved = {g for g, m in zip(res.group_names, res.moved[0]) if m}
+        assert moved == {"arm.L", "hand.L"}
 
 
 def test_elbow_never_bends_backwards_on_a_target_behind_it(synth):

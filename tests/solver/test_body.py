@@ -7,6 +7,7 @@ import pytest
 
 from fullbody_adjust.solver.body import BodyModel, HumanLimits, Skeleton, default_limits
 from fullbody_adjust.solver.errors import SolverInputError
+from fullbody_adjust.solver.geometry import swing_rotation
 from fullbody_adjust.solver.limits import CONE, HINGE
 from tests.helpers.bvh import CMU_CLIPS, CMU_GROUPS, read_bvh, read_cmu
 
@@ -242,3 +243,50 @@ def test_bent_limb_hinge_is_the_start_bend_plane(walk, cmu_model):
     _, _, forward = cmu_model.body_frame(heads, tails)
     assert np.dot(np.cross(axis, thigh), forward[0]) < 0.0
     assert math.isclose(np.linalg.norm(axis), 1.0)
+
+
+def test_elbow_and_knee_hinges_get_the_twist_ranges(walk, cmu_model):
+    heads, tails = walk.bones([100])
+    human = HumanLimits(elbow_twist=0.9, knee_twist=0.4)
+    limits = default_limits(cmu_model, heads, tails, human)
+    for name, twist in (("arm.L", 0.9), ("arm.R", 0.9), ("leg.L", 0.4), ("leg.R", 0.4)):
+        lim = limits[name].limits
+        expected = np.where(lim.kind == HINGE, twist, 0.0)
+        assert list(lim.hinge_twist) == list(expected) and np.sum(lim.kind == HINGE) == 1
+    for name in ("trunk", "head"):
+        assert not np.any(limits[name].limits.hinge_twist)
+
+
+def test_twist_ranges_cover_most_captured_pose_changes():
+    """HumanLimits' elbow and knee twists, measured as its docstring says: from a pose to the pose 60 frames
+    later in the same clip, how far the later (clearly bent) limb's bend plane turned about the upper bone
+    from the start plane carried by that bone's minimal swing, on its natural side (full azimuth: a plane
+    turned past 90 deg counts as turned that far, not as bent backwards). At least 94 % fit the range."""
+    human = HumanLimits()
+    turned = {"arm": [], "leg": []}
+    for name in CMU_CLIPS:
+        c = read_cmu(name)
+        m = BodyModel.from_description(c.names, c.parents, CMU_GROUPS)
+        later = np.arange(61, c.frame_count, 6)
+        h0, t0 = c.bones(later - 60)
+        h1, t1 = c.bones(later)
+        limits = default_limits(m, h0, t0, human)
+        for limb in ("arm.L", "arm.R", "leg.L", "leg.R"):
+            i = len(m.limbs[limb].bones) - 1
+            j0, j1 = m.limbs[limb].joints(h0, t0), m.limbs[limb].joints(h1, t1)
+            d0 = j0[:, i] - j0[:, i - 1]
+            p = j1[:, i] - j1[:, i - 1]
+            p /= np.linalg.norm(p, axis=1, keepdims=True)
+            v = j1[:, i + 1] - j1[:, i]
+            v /= np.linalg.norm(v, axis=1, keepdims=True)
+            axis = np.einsum("fab,fb->fa", swing_rotation(d0, p), limits[limb].limits.hinge_axis[:, i])
+            axis -= np.sum(axis * p, axis=1, keepdims=True) * p
+            axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+            side = np.cross(axis, p)
+            azimuth = np.abs(np.arctan2(np.sum(v * axis, axis=1), np.sum(v * side, axis=1)))
+            bent = _angle(p, v) > 0.5
+            turned[limb[:3]].append(azimuth[bent])
+    for group, limit in (("arm", human.elbow_twist), ("leg", human.knee_twist)):
+        a = np.concatenate(turned[group])
+        assert a.size > 500
+        assert np.mean(a <= limit) >= 0.94, (group, np.mean(a <= limit))

@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fullbody_adjust.solver import CONE, FREE, HINGE, JointLimits, SolverInputError, carry_axis, hinge_axis_from_bend
-from fullbody_adjust.solver.limits import apply_cone, apply_hinge
+from fullbody_adjust.solver.limits import apply_cone, apply_hinge, hinge_twist_angle
 
 from .strategies import unit_vectors
 
@@ -23,6 +23,12 @@ def test_constructors_fill_one_joint_each():
     assert len(lim) == 3
     per_problem = JointLimits.free(3).with_hinge(1, np.tile([1.0, 0.0, 0.0], (4, 1)), -1.0, 1.0)
     assert per_problem.hinge_axis.shape == (4, 2, 3)
+    assert list(lim.hinge_twist) == [0.0, 0.0, 0.0] and lim.hinge_reference is None
+    assert list(lim.with_hinge(1, [0.0, 0.0, 1.0], 0.0, 1.0, twist=0.7).hinge_twist) == [0.0, 0.7, 0.0]
+
+
+def _fields(lim):
+    return lim.kind, lim.cone_angle, lim.hinge_axis, lim.hinge_min, lim.hinge_max
 
 
 @pytest.mark.parametrize("make, message", [
@@ -32,6 +38,11 @@ def test_constructors_fill_one_joint_each():
     (lambda: JointLimits.free(3).with_hinge(0, [0.0, 0.0, 1.0], 1.0, 0.5), "hinge range"),
     (lambda: JointLimits.free(3).with_hinge(0, [0.0, 0.0, 0.0], 0.0, 0.5), "zero length"),
     (lambda: JointLimits.free(3).with_cone(0, float("nan")), "NaN"),
+    (lambda: JointLimits.free(3).with_hinge(1, [0.0, 0.0, 1.0], 0.0, 1.0, twist=math.pi / 2), "hinge twist"),
+    (lambda: JointLimits.free(3).with_hinge(1, [0.0, 0.0, 1.0], 0.0, 1.0, twist=-0.1), "hinge twist"),
+    (lambda: JointLimits(*_fields(JointLimits.free(3)), hinge_twist=[0.1]), "2 entries"),
+    (lambda: JointLimits(*_fields(JointLimits.free(3)), hinge_reference=np.zeros((3, 3))), r"hinge_reference must be"),
+    (lambda: JointLimits(*_fields(JointLimits.free(3)), hinge_reference=np.full((2, 3), np.nan)), "NaN"),
 ])
 def test_bad_limits_are_rejected(make, message):
     with pytest.raises(SolverInputError, match=message):
@@ -95,3 +106,67 @@ def test_carried_axis_keeps_its_relation_to_the_parent(start_parent, axis, paren
     moved = carry_axis(axis, start_parent, parent)
     assert np.dot(moved, parent) == pytest.approx(np.dot(axis, start_parent), abs=1e-12)
     assert np.linalg.norm(moved) == pytest.approx(1.0, abs=1e-12)
+
+
+def _hinge_direction(parent, axis, bend, tau):
+    """The unit child direction bent by `bend` about `axis` (perpendicular to `parent`) turned by `tau` about the
+    parent: the generator of the twisted hinge's allowed set."""
+    a = axis - np.dot(axis, parent) * parent
+    a /= np.linalg.norm(a)
+    side = np.cross(a, parent)
+    return math.cos(bend) * parent + math.sin(bend) * (math.cos(tau) * side + math.sin(tau) * a)
+
+
+@settings(deadline=None, max_examples=150)
+@given(unit_vectors(), unit_vectors(), unit_vectors(), st.floats(-math.pi, math.pi), st.floats(-math.pi, math.pi),
+       st.floats(0.0, 1.5))
+def test_twisted_hinge_gives_the_nearest_allowed_direction(parent, v, axis, a, b, twist):
+    """The result is in the allowed set (bend in [lo, hi] in a plane turned by at most `twist` about the parent)
+    and no direction of that set, sampled densely, is nearer to v."""
+    lo, hi = min(a, b), max(a, b)
+    if np.linalg.norm(np.cross(axis, parent)) < 1e-3:
+        return
+    out, binding = apply_hinge(parent, v, axis, lo, hi, v, twist)
+    assert np.linalg.norm(out) == pytest.approx(1.0, abs=1e-12)
+    # In the plane turned by the measured twist clamped to the range (the twist of a direction near the parent
+    # is ill-conditioned; its distance from the plane is not).
+    tau = float(np.clip(hinge_twist_angle(parent, out, axis), -twist, twist))
+    k = axis - np.dot(axis, parent) * parent
+    k /= np.linalg.norm(k)
+    k_tau = math.cos(tau) * k - math.sin(tau) * np.cross(k, parent)
+    assert abs(np.dot(out, k_tau)) <= 1e-9
+    bend = math.atan2(np.dot(np.cross(parent, out), k_tau), np.dot(parent, out))
+    assert any(lo - 1e-9 <= x <= hi + 1e-9 for x in (bend, bend - 2 * math.pi, bend + 2 * math.pi))
+    bends = np.linspace(lo, hi, 61)
+    taus = np.linspace(-twist, twist, 61)
+    grid = np.array([_hinge_direction(parent, axis, t, u) for t in bends for u in taus])
+    nearest = np.min(np.linalg.norm(grid - v, axis=1))
+    step = max(hi - lo, 2 * twist) / 60  # grid spacing (radians): the grid point is at most ~step from the best
+    assert np.linalg.norm(out - v) <= nearest + 1e-9
+    assert nearest <= np.linalg.norm(out - v) + step + 1e-9
+    assert binding == (np.linalg.norm(out - v) > 1e-12)
+
+
+@settings(deadline=None, max_examples=150)
+@given(unit_vectors(), unit_vectors(), st.floats(0.05, 3.0), st.floats(-1.5, 1.5), st.booleans())
+def test_twist_angle_recovers_the_plane_turn(parent, axis, bend, tau, negative):
+    """A child bent in the plane turned by tau: hinge_twist_angle gives tau back, whichever side it bends to;
+    a twisted hinge with a range covering it leaves the child where it is."""
+    if np.linalg.norm(np.cross(axis, parent)) < 1e-3:
+        return
+    child = _hinge_direction(parent, axis, -bend if negative else bend, tau)
+    assert hinge_twist_angle(parent, child, axis) == pytest.approx(tau, abs=1e-9)
+    out, binding = apply_hinge(parent, child, axis, -3.0, 3.0, child, abs(tau) + 0.01)
+    np.testing.assert_allclose(out, child, atol=1e-12)
+    assert not binding
+    assert hinge_twist_angle(parent, parent, axis) == 0.0  # straight: every plane holds it
+
+
+def test_zero_twist_is_the_plain_hinge():
+    parent, axis = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
+    v = np.array([0.3, 0.5, 0.81])
+    v /= np.linalg.norm(v)
+    plain = apply_hinge(parent, v, axis, 0.0, 2.0, v)
+    for zero in (0.0, np.zeros(1)):
+        twisted = apply_hinge(parent, v, axis, 0.0, 2.0, v, zero)
+        np.testing.assert_array_equal(twisted[0], plain[0])

@@ -6,7 +6,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from fullbody_adjust.solver import Boxes, SolverInputError, penetrations, points_inside, segments_cross
+from fullbody_adjust.solver import Boxes, SolverInputError, as_boxes, penetrations, points_inside, segments_cross
 
 from .strategies import boxes_corners
 
@@ -42,6 +42,7 @@ def test_from_corners_takes_min_and_max_of_eight_corners():
 
 def test_empty_boxes_and_per_problem_boxes():
     assert len(Boxes.empty()) == 0
+    assert len(as_boxes(np.zeros((0, 8, 3)))) == 0 and as_boxes(None) is None
     assert points_inside(np.zeros((4, 3)), Boxes.empty()).shape == (4, 0)
     per_problem = Boxes.from_corners(np.zeros((5, 2, 2, 3)) + np.array([0.0, 1.0])[None, None, :, None])
     assert per_problem.batched and len(per_problem) == 2
