@@ -22,7 +22,9 @@ def armature_poll_message(context):
     return None
 
 
-class _ArmatureOperator:
+class ArmatureOperator:
+    """Operators on the active armature: greyed out, with the reason, when there is none."""
+
     @classmethod
     def poll(cls, context):
         reason = armature_poll_message(context)
@@ -78,7 +80,7 @@ class _SolverOptions:
             layout.prop(self, name)
 
 
-class FULLBODY_ADJUST_OT_map_bones(_ArmatureOperator, bpy.types.Operator):
+class FULLBODY_ADJUST_OT_map_bones(ArmatureOperator, bpy.types.Operator):
     """Map the armature's bones onto the body model again (presets, then detection from the hierarchy)"""
     bl_idname = "fullbody_adjust.map_bones"
     bl_label = "Map Bones"
@@ -97,7 +99,7 @@ class FULLBODY_ADJUST_OT_map_bones(_ArmatureOperator, bpy.types.Operator):
         return {'FINISHED'}
 
 
-class FULLBODY_ADJUST_OT_create_targets(_ArmatureOperator, bpy.types.Operator):
+class FULLBODY_ADJUST_OT_create_targets(ArmatureOperator, bpy.types.Operator):
     """Create an empty at each wrist and ankle (and the head) and use them as the targets"""
     bl_idname = "fullbody_adjust.create_targets"
     bl_label = "Create Targets"
@@ -115,7 +117,7 @@ class FULLBODY_ADJUST_OT_create_targets(_ArmatureOperator, bpy.types.Operator):
         return {'FINISHED'}
 
 
-class FULLBODY_ADJUST_OT_adjust_pose(_SolverOptions, _ArmatureOperator, bpy.types.Operator):
+class FULLBODY_ADJUST_OT_adjust_pose(_SolverOptions, ArmatureOperator, bpy.types.Operator):
     """Adjust the whole body so hands and feet reach their targets, and key the bones that moved"""
     bl_idname = "fullbody_adjust.adjust_pose"
     bl_label = "Adjust Pose"
@@ -130,7 +132,7 @@ class FULLBODY_ADJUST_OT_adjust_pose(_SolverOptions, _ArmatureOperator, bpy.type
         return {'FINISHED'}
 
 
-class FULLBODY_ADJUST_OT_adjust_frames(_SolverOptions, _ArmatureOperator, bpy.types.Operator):
+class FULLBODY_ADJUST_OT_adjust_frames(_SolverOptions, ArmatureOperator, bpy.types.Operator):
     """Adjust every frame of a range in one solve and key the bones that moved"""
     bl_idname = "fullbody_adjust.adjust_frames"
     bl_label = "Adjust Frames"

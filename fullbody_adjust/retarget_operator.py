@@ -9,7 +9,7 @@ from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
 from .bridge import retarget
 from .bridge.errors import AdjustError
-from .operators import armature_poll_message
+from .operators import ArmatureOperator
 
 
 def _armature_names(self, context, edit_text):
@@ -37,7 +37,7 @@ def source_armature(context, name=""):
     return candidates[0]
 
 
-class FULLBODY_ADJUST_OT_retarget(bpy.types.Operator):
+class FULLBODY_ADJUST_OT_retarget(ArmatureOperator, bpy.types.Operator):
     """Retarget another armature's motion onto the active armature, into a new action (hands and feet keep \
 to the source's trajectories and contacts)"""
     bl_idname = "fullbody_adjust.retarget"
@@ -62,13 +62,6 @@ to the source's trajectories and contacts)"""
                                     "positions on the object, instead of the source's scaled by the legs' ratio")
     new_action: StringProperty(name="New Action",
                                description="Name of the new action (default: <source action>_<target>)")
-
-    @classmethod
-    def poll(cls, context):
-        reason = armature_poll_message(context)
-        if reason is not None:
-            cls.poll_message_set(reason)
-        return reason is None
 
     def execute(self, context):
         props = self.properties

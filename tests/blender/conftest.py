@@ -91,3 +91,15 @@ def extension_disabled(extension_module_name):
         if addon_utils.check(extension_module_name)[1]:
             disable_extension(extension_module_name)
         enable_extension(extension_module_name)
+
+
+@pytest.fixture
+def rig():
+    """Rigify's basic human metarig (29 bones), added to the empty file and active (a test module may define
+    its own `rig`)."""
+    import bpy
+
+    if "rigify" not in bpy.context.preferences.addons:
+        bpy.ops.preferences.addon_enable(module="rigify")
+    bpy.ops.object.armature_basic_human_metarig_add()
+    return bpy.context.object

@@ -14,13 +14,6 @@ from fullbody_adjust.solver.obstacles import Boxes
 UNIT_CORNERS = np.array([(x, y, z) for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
 
 
-@pytest.fixture
-def rig():
-    if "rigify" not in bpy.context.preferences.addons:
-        bpy.ops.preferences.addon_enable(module="rigify")
-    bpy.ops.object.armature_basic_human_metarig_add()
-    return bpy.context.object
-
 
 def cube(name, location=(0.0, 0.0, 0.0), rotation=(0.0, 0.0, 0.0), scale=(1.0, 1.0, 1.0), collection=None):
     mesh = bpy.data.meshes.new(name)

@@ -22,13 +22,6 @@ EFFECTOR_BONES = {"hand.L": "hand.L", "hand.R": "hand.R", "foot.L": "foot.L", "f
                   "head": "spine.006"}
 
 
-@pytest.fixture
-def rig():
-    if "rigify" not in bpy.context.preferences.addons:
-        bpy.ops.preferences.addon_enable(module="rigify")
-    bpy.ops.object.armature_basic_human_metarig_add()
-    return bpy.context.object
-
 
 def effector_positions(obj, effectors=EFFECTORS):
     world = np.array(obj.matrix_world)
