@@ -24,10 +24,13 @@ All results are measured the same way afterwards: per frame (frame_set), each wr
 hand and foot bones) in world space against its target; median, p99 and max over frames and effectors. Times
 are the median of --repeat runs in this one process; ratios are reference time / ours.
 
-Run: .ci/with-bpy python bench/batch.py [--repeat 3] [--frames 1000]   (prints one JSON object)
+Run: .ci/with-bpy python bench/batch.py [--repeat 3] [--frames 1000]   (prints one JSON object on stdout;
+Blender's and the importers' chatter goes to stderr)
 """
 
 import argparse
+import contextlib
+import ctypes
 import json
 import os
 import statistics
@@ -54,6 +57,30 @@ LAYERED = "layers" in bpy.types.Action.bl_rna.properties  # 4.4+: F-Curves are m
 # IK chains of the reference: the bone carrying the constraint (its tail is the wrist / ankle) and its length.
 IK_CHAINS = {"hand.L": ("forearm.L", 3), "hand.R": ("forearm.R", 3), "foot.L": ("shin.L", 2),
              "foot.R": ("shin.R", 2)}
+
+
+@contextlib.contextmanager
+def stdout_to_stderr():
+    """Send everything written to file descriptor 1 (Python's and C's stdout: the BVH importer, rigify,
+    Blender itself) to stderr, so stdout carries only the JSON."""
+    def flush_all():
+        sys.stdout.flush()
+        if libc is not None:
+            libc.fflush(None)  # C stdio buffers hold text meant for the descriptor they were written to
+
+    try:
+        libc = ctypes.CDLL(None)
+    except (OSError, TypeError):  # no C library to open by no name (Windows): Python's buffer is still flushed
+        libc = None
+    flush_all()
+    saved = os.dup(1)
+    os.dup2(2, 1)
+    try:
+        yield
+    finally:
+        flush_all()
+        os.dup2(saved, 1)
+        os.close(saved)
 
 
 def build_scene():
@@ -229,6 +256,13 @@ def main():
     parser.add_argument("--repeat", type=int, default=3, help="timed runs of each method (median reported)")
     parser.add_argument("--frames", type=int, default=1000, help="frames to retarget, from frame 2")
     args = parser.parse_args()
+    with stdout_to_stderr():
+        report = measure(args)
+    print(json.dumps(report, indent=2))
+
+
+def measure(args):
+    """Build the scene, time every method and measure the results: the report as a dict."""
 
     source, target = build_scene()
     frames = np.arange(FIRST_FRAME, FIRST_FRAME + args.frames, dtype=np.float64)
@@ -265,7 +299,7 @@ def main():
         remove_run(rig)
 
     median = {name: statistics.median(runs) for name, runs in times.items()}
-    print(json.dumps({
+    return {
         "blender": bpy.app.version_string,
         "clip": CLIP,
         "frames": int(args.frames),
@@ -281,7 +315,7 @@ def main():
         "constraints_vs_ours_bone_direction_deg": same_result,
         "ours_solver_residual": stats(outcome.residuals),
         "contact_frames": {e: int(outcome.contacts[:, k].sum()) for k, e in enumerate(outcome.effectors)},
-    }, indent=2))
+    }
 
 
 if __name__ == "__main__":

@@ -27,6 +27,12 @@ CHANNEL_KINDS = ("location", "rotation", "scale")
 _KEYFRAME_PROPS = bpy.types.Keyframe.bl_rna.properties
 _INTERPOLATION = {item.identifier: item.value for item in _KEYFRAME_PROPS["interpolation"].enum_items}
 _HANDLE_TYPE = {item.identifier: item.value for item in _KEYFRAME_PROPS["handle_left_type"].enum_items}
+# What keyframe_points.add gives every new key (Blender ignores the preferences there): a fresh F-Curve
+# needs these written only when they differ, and auto handles are recalculated by fcurve.update() whatever
+# they were.
+_ADDED_INTERPOLATION = _INTERPOLATION["BEZIER"]
+_ADDED_HANDLE_TYPE = _HANDLE_TYPE["AUTO_CLAMPED"]
+_AUTO_HANDLES = (_HANDLE_TYPE["AUTO"], _HANDLE_TYPE["AUTO_CLAMPED"])
 
 # 4.4 introduced slotted actions; 5.0 gave fcurve_ensure_for_datablock its group_name.
 _LAYERED = "layers" in bpy.types.Action.bl_rna.properties
@@ -128,6 +134,12 @@ def merge_keys(fcurve, frames, values):
     count = len(points)
     frames = np.asarray(frames, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64)
+    if count == 0 and len(frames) and _added_keys_are_new_keys():
+        # A fresh F-Curve whose new keys are what keyframe_points.add makes anyway: only their points to set.
+        points.add(len(frames))
+        points.foreach_set("co", np.stack([frames, values], axis=1).astype(np.float32).reshape(-1))
+        fcurve.update()
+        return
     co = _get(points, "co", count, 2, np.float32)
     left = _get(points, "handle_left", count, 2, np.float32)
     right = _get(points, "handle_right", count, 2, np.float32)
@@ -159,13 +171,20 @@ def merge_keys(fcurve, frames, values):
         left_type = np.concatenate([left_type, np.full(new_count, handle_type, np.int32)])
         right_type = np.concatenate([right_type, np.full(new_count, handle_type, np.int32)])
         points.add(new_count)
-        points.foreach_set("interpolation", interpolation.astype(np.int32))
-        points.foreach_set("handle_left_type", left_type)
-        points.foreach_set("handle_right_type", right_type)
+        fresh = count == 0  # every key just added, with keyframe_points.add's defaults
+        if not (fresh and np.all(interpolation == _ADDED_INTERPOLATION)):
+            points.foreach_set("interpolation", interpolation.astype(np.int32))
+        if not (fresh and handle_type == _ADDED_HANDLE_TYPE):
+            points.foreach_set("handle_left_type", left_type)
+            points.foreach_set("handle_right_type", right_type)
+        recalculated = fresh and handle_type in _AUTO_HANDLES
+    else:
+        recalculated = False
     if new_count or np.any(replaced):
         points.foreach_set("co", co.reshape(-1))
-        points.foreach_set("handle_left", left.reshape(-1))
-        points.foreach_set("handle_right", right.reshape(-1))
+        if not recalculated:
+            points.foreach_set("handle_left", left.reshape(-1))
+            points.foreach_set("handle_right", right.reshape(-1))
         fcurve.update()
 
 
@@ -209,6 +228,14 @@ class _FCurves:
                 fcurve.group = groups.get(group) or groups.new(group)
         self.by_path[(data_path, index)] = fcurve
         return fcurve
+
+
+def _added_keys_are_new_keys():
+    """keyframe_points.add's keys (Bézier, auto clamped handles, recalculated by fcurve.update()) are what
+    the user's preferences make new keys."""
+    edit = bpy.context.preferences.edit
+    return (_INTERPOLATION[edit.keyframe_new_interpolation_type] == _ADDED_INTERPOLATION
+            and _HANDLE_TYPE[edit.keyframe_new_handle_type] == _ADDED_HANDLE_TYPE)
 
 
 def _pose_bone(obj, name):

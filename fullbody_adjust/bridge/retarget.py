@@ -240,10 +240,13 @@ def _basis_from_fcurves(obj, frames):
         if prop.startswith("rotation_") and rt.ROTATION_PROPERTY[modes[bone]] != prop:
             continue  # the bone rotates by another property: this curve has no effect
         values[prop][:, bone, fc.array_index] = _evaluate(fc, frames, lookup)
-    rotation = np.empty((frames_n, count, 3, 3))
-    for mode in set(modes):
-        bones = [i for i, m in enumerate(modes) if m == mode]
-        rotation[:, bones] = rt.rotation_matrices(mode, values[rt.ROTATION_PROPERTY[mode]][:, bones])
+    if len(set(modes)) == 1:  # one rotation mode throughout (as imports make): no gathering by mode
+        rotation = rt.rotation_matrices(modes[0], values[rt.ROTATION_PROPERTY[modes[0]]])
+    else:
+        rotation = np.empty((frames_n, count, 3, 3))
+        for mode in set(modes):
+            bones = [i for i, m in enumerate(modes) if m == mode]
+            rotation[:, bones] = rt.rotation_matrices(mode, values[rt.ROTATION_PROPERTY[mode]][:, bones])
     return rt.basis_matrices(values["location"], rotation, values["scale"])
 
 
@@ -257,20 +260,28 @@ def _evaluate(fcurve, frames, lookup):
         return np.array([fcurve.evaluate(float(f)) for f in frames])
     co = np.empty(2 * n, dtype=np.float32)
     points.foreach_get("co", co)
-    x, y = co[0::2], co[1::2].astype(np.float64)
-    cached = lookup.get((n, x[0], x[-1]))
-    if cached is not None and np.array_equal(cached[0], x):
-        _, order, at, on_key = cached
-    else:
+    x = co[0::2]
+    key = x.tobytes()
+    search = lookup.get(key)
+    if search is None:
         order = np.argsort(x, kind="stable") if np.any(np.diff(x) < 0.0) else None
         ordered = (x if order is None else x[order]).astype(np.float64)
         at = np.clip(np.searchsorted(ordered, frames - _SAME_FRAME), 0, n - 1)
         on_key = np.abs(ordered[at] - frames) <= _SAME_FRAME
-        lookup[(n, x[0], x[-1])] = (x, order, at, on_key)
+        between = np.nonzero(~on_key)[0]
+        # A key on every frame, in a row (a BVH import keys every frame): the values are one slice.
+        run = int(at[0]) if (order is None and between.size == 0 and len(at)
+                             and np.array_equal(at, np.arange(at[0], at[0] + len(at)))) else None
+        search = lookup[key] = (order, at, on_key, between, run)
+    order, at, on_key, between, run = search
+    y = co[1::2]
+    if run is not None:
+        return y[run:run + len(frames)].astype(np.float64)
+    y = y.astype(np.float64)
     if order is not None:
         y = y[order]
     out = np.where(on_key, y[at], 0.0)
-    for i in np.nonzero(~on_key)[0]:
+    for i in between:
         out[i] = fcurve.evaluate(float(frames[i]))
     return out
 
@@ -361,7 +372,9 @@ def _action_name(obj):
 def _channels(obj, rig, basis, written, modes):
     """{bone: {property: (F,n)}}: each written bone's rotation in its mode, continuous from its current value;
     the root's location too."""
-    rotation = basis[..., :3, :3] / np.sqrt(np.sum(basis[..., :3, :3] ** 2, axis=-2, keepdims=True))
+    linear = basis[..., :3, :3]
+    squares = linear * linear  # unit columns (scale removed); the sums written out, faster than np.sum here
+    rotation = linear / np.sqrt(squares[..., 0:1, :] + squares[..., 1:2, :] + squares[..., 2:3, :])
     out = {rig.names[j]: {} for j in written}
     for mode in sorted({modes[j] for j in written}):  # one conversion per rotation mode
         columns = [k for k, j in enumerate(written) if modes[j] == mode]

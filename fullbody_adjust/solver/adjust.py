@@ -196,10 +196,25 @@ def nearest_in_balls(points, centres, radii, active):
     sphere, the nearest point of a two-sphere circle, or a three-sphere point; the nearest feasible candidate
     wins. Returns (x (F,3), feasible (F,)): feasible False where the balls have no common point (x = points).
     A point already inside every ball is returned unchanged (bit-exact)."""
-    n_rows, k = radii.shape
     best = points.copy()
     feasible = _inside(points, centres, radii, active)
     best_d = np.where(feasible, 0.0, np.inf)
+    todo = ~feasible
+    if np.any(todo):
+        # Only the rows outside some ball have candidates to weigh (a point inside all stays, at distance 0).
+        rows = np.nonzero(todo)[0]
+        best[rows], best_d[rows] = _nearest_candidate(points[rows], centres[rows], radii[rows], active[rows])
+    feasible = np.isfinite(best_d)
+    best = np.where(feasible[:, None], best, points)
+    return best, feasible
+
+
+def _nearest_candidate(points, centres, radii, active):
+    """nearest_in_balls' candidates (projections, circle points, three-sphere points) for points outside
+    some ball: the nearest valid one and its distance (inf where none is valid)."""
+    k = radii.shape[1]
+    best = points.copy()
+    best_d = np.full(len(points), np.inf)
     proj = project_onto_balls(points, centres, radii)
 
     def consider(cand, valid):
@@ -210,25 +225,21 @@ def nearest_in_balls(points, centres, radii, active):
         best = np.where(take[:, None], cand, best)
         best_d = np.where(take, dist, best_d)
 
-    todo = ~feasible
-    if np.any(todo):
-        for a in range(k):
-            consider(proj[:, a], active[:, a])
-        for a in range(k):
-            for b in range(a + 1, k):
-                cand, ok = _circle_point(points, centres[:, a], radii[:, a], centres[:, b], radii[:, b])
-                consider(cand, ok & active[:, a] & active[:, b])
-        for a in range(k):
-            for b in range(a + 1, k):
-                for c in range(b + 1, k):
-                    pts, ok = _sphere_triple(centres[:, a], radii[:, a], centres[:, b], radii[:, b],
-                                             centres[:, c], radii[:, c])
-                    both = ok & active[:, a] & active[:, b] & active[:, c]
-                    consider(pts[0], both)
-                    consider(pts[1], both)
-    feasible = np.isfinite(best_d)
-    best = np.where(feasible[:, None], best, points)
-    return best, feasible
+    for a in range(k):
+        consider(proj[:, a], active[:, a])
+    for a in range(k):
+        for b in range(a + 1, k):
+            cand, ok = _circle_point(points, centres[:, a], radii[:, a], centres[:, b], radii[:, b])
+            consider(cand, ok & active[:, a] & active[:, b])
+    for a in range(k):
+        for b in range(a + 1, k):
+            for c in range(b + 1, k):
+                pts, ok = _sphere_triple(centres[:, a], radii[:, a], centres[:, b], radii[:, b],
+                                         centres[:, c], radii[:, c])
+                both = ok & active[:, a] & active[:, b] & active[:, c]
+                consider(pts[0], both)
+                consider(pts[1], both)
+    return best, best_d
 
 
 def nearest_on_sphere_in_balls(points, centre, radius, centres, radii, active):
@@ -832,17 +843,25 @@ class _Problem:
             res = norm(pos - np.where(act[:, None], self.targets[:, k], 0.0))
             residuals[act, k] = res[act]
             ls = solves[name]
-            for f in np.nonzero(act)[0]:
-                if res[f] <= tol:
-                    status[f, k], reasons[f, k] = "reached", ls.reason[f] or "reached"
-                    continue
-                st, why = ls.status[f], ls.reason[f]
-                if st == "reached":  # met by its chain, then moved (cannot happen with rigid propagation)
-                    st, why = "unreachable", "moved off its target after the chain solve"
-                if st == "unreachable" and limb.hub == "sc" and trunk.solved[f] \
-                        and trunk.status[f] in ("blocked", "limited"):
-                    st, why = trunk.status[f], f"the trunk could not bring the SC into reach: {trunk.reason[f]}"
-                status[f, k], reasons[f, k] = st, why
+            rows = np.nonzero(act)[0]
+            met = res[rows] <= tol
+            st = np.array(ls.status[rows], dtype=object)
+            why = np.array(ls.reason[rows], dtype=object)
+            # Met by its chain, then moved (cannot happen with rigid propagation).
+            moved_off = ~met & (st == "reached")
+            st[moved_off] = "unreachable"
+            why[moved_off] = "moved off its target after the chain solve"
+            if limb.hub == "sc":
+                t_st = np.asarray(trunk.status)[rows]
+                by_trunk = ~met & (st == "unreachable") & np.asarray(trunk.solved)[rows] \
+                    & ((t_st == "blocked") | (t_st == "limited"))
+                for i in np.nonzero(by_trunk)[0]:
+                    f = rows[i]
+                    st[i], why[i] = trunk.status[f], f"the trunk could not bring the SC into reach: {trunk.reason[f]}"
+            st[met] = "reached"
+            why[met & np.array([not r for r in why], dtype=bool)] = "reached"
+            status[rows, k] = st
+            reasons[rows, k] = why
         moved = np.zeros((F, len(GROUP_NAMES)), dtype=bool)
         for g, name in enumerate(GROUP_NAMES):
             bones = list(model.groups.get(name, ()))

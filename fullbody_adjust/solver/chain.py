@@ -945,10 +945,12 @@ class ChainModel:
         inside, crossing = self.penetration_counts(P)
         status = np.empty(B, dtype=object)
         reason = np.empty(B, dtype=object)
-        for j in range(B):
-            st, why = _final_status(residual[j] <= tol, bool(reachable[j]), dist[j], total[j], inner[j],
-                                    bool(stalled[j]), int(iterations[j]), bool(obstacle_active[j]),
-                                    bool(limit_binding[j]))
+        # Plain Python values: indexing numpy arrays element by element costs more than the status logic.
+        per_problem = zip((residual <= tol).tolist(), reachable.tolist(), dist.tolist(), total.tolist(),
+                          inner.tolist(), stalled.tolist(), iterations.tolist(), obstacle_active.tolist(),
+                          limit_binding.tolist())
+        for j, args in enumerate(per_problem):
+            st, why = _final_status(*args)
             if self.boxes is not None:
                 notes = []
                 if inside[j] or crossing[j]:

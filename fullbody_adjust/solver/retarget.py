@@ -133,7 +133,7 @@ def quaternions_of(matrices):
         sel = pick == p
         if not np.any(sel):
             continue
-        s = m[sel]
+        s = m if p == pick[0] and np.all(sel) else m[sel]  # usually one case covers every matrix: no gather
         if p == 0:
             r = np.sqrt(1.0 + s[:, 0, 0] + s[:, 1, 1] + s[:, 2, 2]) * 2
             v = [0.25 * r, (s[:, 2, 1] - s[:, 1, 2]) / r, (s[:, 0, 2] - s[:, 2, 0]) / r, (s[:, 1, 0] - s[:, 0, 1]) / r]
@@ -313,11 +313,12 @@ class Rig:
         return self.to_world(heads), self.to_world(tails)
 
     def to_world(self, points):
-        return points @ self.matrix_world[:3, :3].T + self.matrix_world[:3, 3]
+        # A contiguous transpose: numpy multiplies by a strided one about twice as slowly (same result).
+        return points @ np.ascontiguousarray(self.matrix_world[:3, :3].T) + self.matrix_world[:3, 3]
 
     def to_armature(self, points):
         inv = np.linalg.inv(self.matrix_world)
-        return points @ inv[:3, :3].T + inv[:3, 3]
+        return points @ np.ascontiguousarray(inv[:3, :3].T) + inv[:3, 3]
 
 
 def forward_kinematics(rig, basis):
@@ -337,27 +338,40 @@ def basis_from_pose(rig, pose, bones):
     pose in the same array: the inverse of forward_kinematics."""
     bones = np.asarray(bones, dtype=np.int64)
     parents = rig.parents[bones]
-    parent_pose = np.where((parents >= 0)[None, :, None, None], pose[:, np.maximum(parents, 0)], _EYE4)
+    parent_pose = pose[:, np.maximum(parents, 0)]  # a copy (fancy indexing)
+    parent_pose[:, parents < 0] = _EYE4
     return affine_inverse(parent_pose @ rig.relative[bones]) @ pose[:, bones]
 
 
 def affine_inverse(m):
     """Inverses of affine matrices (…,4,4) (last row 0 0 0 1), in closed form: numpy's batched inv is
-    several times slower for many small matrices."""
-    a = m[..., :3, :3]
-    c0, c1, c2 = a[..., :, 0], a[..., :, 1], a[..., :, 2]
-    rows = np.stack([cross(c1, c2), cross(c2, c0), cross(c0, c1)], axis=-2)  # adjugate: rows = cofactors
-    det = dot(c0, rows[..., 0, :])
+    several times slower for many small matrices. Computed entry by entry on contiguous component arrays
+    (adjugate rows = cross products of the columns, over the determinant)."""
+    m = np.asarray(m, dtype=np.float64)
+    a = [[np.ascontiguousarray(m[..., i, j]) for j in range(3)] for i in range(3)]
+    col = [[a[0][j], a[1][j], a[2][j]] for j in range(3)]
+
+    def cross_of(u, v):
+        return [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
+
+    rows = [cross_of(col[1], col[2]), cross_of(col[2], col[0]), cross_of(col[0], col[1])]
+    det = col[0][0] * rows[0][0] + col[0][1] * rows[0][1] + col[0][2] * rows[0][2]
     out = np.zeros(m.shape)
-    out[..., :3, :3] = rows / det[..., None, None]
-    out[..., :3, 3] = -apply_matrix(out[..., :3, :3], m[..., :3, 3])
+    inv = [[rows[i][j] / det for j in range(3)] for i in range(3)]
+    t = [np.ascontiguousarray(m[..., i, 3]) for i in range(3)]
+    for i in range(3):
+        for j in range(3):
+            out[..., i, j] = inv[i][j]
+        out[..., i, 3] = -(inv[i][0] * t[0] + inv[i][1] * t[1] + inv[i][2] * t[2])
     out[..., 3, 3] = 1.0
     return out
 
 
 def _unit_columns(m):
-    """Rotation parts (…,3,3) with unit columns (a pose matrix's scale removed)."""
-    return m / np.sqrt(np.sum(m * m, axis=-2, keepdims=True))
+    """Rotation parts (…,3,3) with unit columns (a pose matrix's scale removed). The column sums written
+    out: numpy's reduction over a short middle axis is several times slower (same rounding)."""
+    sq = m * m
+    return m / np.sqrt(sq[..., 0:1, :] + sq[..., 1:2, :] + sq[..., 2:3, :])
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -543,8 +557,9 @@ def transfer_pose(source, source_pose, target, target_basis, hips):
     used = sorted({s for pair in pairs for s in pair.sources})
     s_rest = source.rotation @ _unit_columns(source.rest[used, :3, :3])
     # The world rotation change since rest of each used source bone, seen in the target's armature space.
-    changes = target.rotation.T @ source.rotation @ _unit_columns(source_pose[:, used, :3, :3]) \
-        @ np.swapaxes(s_rest, -1, -2)
+    # (Contiguous operands: numpy multiplies strided stacks of small matrices several times slower.)
+    changes = target.rotation.T @ source.rotation @ _unit_columns(
+        np.ascontiguousarray(source_pose[:, used][..., :3, :3])) @ np.ascontiguousarray(np.swapaxes(s_rest, -1, -2))
     change_of = {s: k for k, s in enumerate(used)}
     t_rest = target.rotation @ _unit_columns(target.rest[:, :3, :3])
     armature_rot = {}  # target bone -> (F,3,3) rotation in the target's armature space
@@ -561,18 +576,25 @@ def transfer_pose(source, source_pose, target, target_basis, hips):
     basis[target.connected, :3, 3] = 0.0
     local = target.relative @ basis  # (Jt,4,4)
     own_scale = np.sqrt(np.sum(basis[:, :3, :3] ** 2, axis=-2))  # (Jt,3)
-    rotations, heads = [], []  # per bone, contiguous: faster than writing into strided slices
+    local_rot, local_head = np.ascontiguousarray(local[:, :3, :3]), np.ascontiguousarray(local[:, :3, 3])
+    # Bone-major: each bone's frames contiguous (faster than strided slices), copied into place once.
+    rotations = np.empty((len(target), frames, 3, 3))
+    heads = np.empty((len(target), frames, 3))
     for j, p in enumerate(target.parents):
         if j in armature_rot:
-            rotations.append(armature_rot[j] * own_scale[j])
+            np.multiply(armature_rot[j], own_scale[j], out=rotations[j])
+        elif p < 0:
+            rotations[j] = local_rot[j]
         else:
-            rotations.append(np.broadcast_to(local[j, :3, :3], (frames, 3, 3)) if p < 0
-                             else rotations[p] @ local[j, :3, :3])
-        heads.append(np.broadcast_to(local[j, :3, 3], (frames, 3)) if p < 0
-                     else rotations[p] @ local[j, :3, 3] + heads[p])
-    pose = np.zeros((frames, len(target), 4, 4))
-    pose[..., :3, :3] = np.stack(rotations, axis=1)
-    pose[..., :3, 3] = np.stack(heads, axis=1)
+            np.matmul(rotations[p], local_rot[j], out=rotations[j])
+        if p < 0:
+            heads[j] = local_head[j]
+        else:
+            np.add(rotations[p] @ local_head[j], heads[p], out=heads[j])
+    pose = np.empty((frames, len(target), 4, 4))
+    pose[..., :3, :3] = rotations.transpose(1, 0, 2, 3)
+    pose[..., :3, 3] = heads.transpose(1, 0, 2)
+    pose[..., 3, :3] = 0.0
     pose[..., 3, 3] = 1.0
     # Put the hip centre where it belongs.
     hips_now = target.to_world(hip_centres(target, pose[..., :3, 3]))
@@ -587,8 +609,8 @@ def translate_body(rig, pose, world_shift):
     below = np.zeros(len(rig), dtype=bool)
     for j, p in enumerate(rig.parents):
         below[j] = j == root or (p >= 0 and below[p])
-        if below[j]:
-            pose[:, j, :3, 3] += shift
+    heads = pose[..., :3, 3]  # a view: moved in place
+    heads[:, below] += shift[:, None, :]
 
 
 # --------------------------------------------------------------------------------------------------------
@@ -865,7 +887,7 @@ def solved_pose(plan, rotations, heads, bones):
     ``rotations`` (F,k,3,3) applied to the start pose's rotations, their heads (F,k,3) as solved (both in the
     solve's space, the target armature). Other bones keep the start pose (they are not written)."""
     solved = plan.start_pose[:, bones]  # a copy (fancy indexing)
-    solved[..., :3, :3] = rotations @ solved[..., :3, :3]
+    solved[..., :3, :3] = rotations @ np.ascontiguousarray(solved[..., :3, :3])  # strided stacks multiply slowly
     solved[..., :3, 3] = heads
     pose = plan.start_pose.copy()
     pose[:, bones] = solved
