@@ -58,10 +58,13 @@ class AdjustSettings:
     sub_base_passes: the SC is placed with the arm bases' current offsets; when the chest turns, the bases turn
         with it, so up to this many passes re-place the SC with the turned offsets;
     limit_passes: a limb held short by its joint limits (a clavicle that may swing only so far, a bent knee)
-        reaches less far than its length: where its sub-base (SC or root) had to move anyway, the frame is
-        solved again up to this many times with that limb's reach cut to what it achieved, so the sub-base
-        moves far enough (kept if more tasks are met, or as many with smaller residuals). Where the sub-base
-        stayed, it stays (rule (i) is exact): the task is then reported 'limited'."""
+        reaches less far than its length: the frame is solved again up to this many times with that limb's
+        reach cut to what it achieved, so the sub-base moves far enough (kept if more tasks are met, or as many
+        with smaller residuals);
+    help_held_limbs: a limb whose target lies within its length but whose limits hold it short does not serve
+        alone (rule (i) means a limb that can reach): its sub-base moves to help, as for a target beyond its
+        length. False reads rule (i) by length alone: the sub-base then stays and the task is 'limited'.
+        Either way a limb that reaches its target alone leaves the SC and root exactly where they were."""
 
     chain: ChainSettings = ChainSettings()
     variant: str = "weighted"
@@ -71,8 +74,11 @@ class AdjustSettings:
     reach_margin: float = 0.01
     sub_base_passes: int = 4
     limit_passes: int = 2
+    help_held_limbs: bool = True
 
     def __post_init__(self):
+        if not isinstance(self.help_held_limbs, bool):
+            raise SolverInputError("help_held_limbs must be a bool")
         if not isinstance(self.chain, ChainSettings):
             raise SolverInputError("chain must be a ChainSettings")
         if self.variant not in VARIANTS:
@@ -692,11 +698,12 @@ class _Problem:
         tol = self.settings.chain.tolerance
         for _ in range(self.settings.limit_passes):
             held = np.isin(result.status, ("limited", "max_iterations")) & (result.residuals > tol)
-            # Rule (i) stays exact: a limb's reach is cut only where its sub-base already had to move.
-            for k, e in enumerate(self.effectors):
-                hub_moved = result.sc_displacement if self.model.limbs[LIMB_OF_EFFECTOR[e]].hub == "sc" \
-                    else result.root_displacement
-                held[:, k] &= hub_moved > 0.0
+            if not self.settings.help_held_limbs:
+                # Rule (i) read literally: a limb's reach is cut only where its sub-base already had to move.
+                for k, e in enumerate(self.effectors):
+                    hub_moved = result.sc_displacement if self.model.limbs[LIMB_OF_EFFECTOR[e]].hub == "sc" \
+                        else result.root_displacement
+                    held[:, k] &= hub_moved > 0.0
             rows = np.nonzero(held.any(axis=1))[0]
             if rows.size == 0:
                 break

@@ -477,9 +477,36 @@ def test_joint_limits_hold_in_every_group(pickup):
     res = adjust_frames(model, h, t, tg, EFFECTORS)
     assert np.any(res.sc_displacement > 0) and np.mean(res.status == "reached") > 0.8
     _assert_limits_hold(model, h, t, res, default_limits(model, h, t))
-    # Without limits the same targets are met at least as often, and elbows may then bend backwards.
+    # Captured targets are reachable within the limits: (nearly) all met, as without limits.
     free = adjust_frames(model, h, t, tg, EFFECTORS, settings=AdjustSettings(use_limits=False))
-    assert np.mean(free.status == "reached") >= np.mean(res.status == "reached")
+    assert np.mean(res.status == "reached") >= 0.95 and np.mean(free.status == "reached") >= 0.95
+
+
+def test_a_limb_held_short_by_its_limits_gets_help_from_the_trunk(pickup):
+    """Captured wrists and ankles from 60 frames later (pelvis kept): some lie within the arm's length but past
+    what its limits let it reach from the unmoved chest. Read literally (help_held_limbs=False) rule (i) keeps the
+    SC and the task ends 'limited'; by default the SC moves and the task is met. Where every limb reaches alone,
+    both readings give the very same pose: the SC and root untouched."""
+    clip, model = pickup
+    frames = np.arange(61, clip.frame_count - 1, 10)
+    h, t = clip.bones(frames)
+    h0, t0 = clip.bones(frames - 60)
+    shift = (h[:, model.root] - h0[:, model.root])[:, None]
+    h0, t0 = h0 + shift, t0 + shift
+    tg = np.stack([_current(model, h, e) for e in EFFECTORS], axis=1)
+    strict = adjust_frames(model, h0, t0, tg, EFFECTORS, settings=AdjustSettings(help_held_limbs=False))
+    helped = adjust_frames(model, h0, t0, tg, EFFECTORS)
+
+    held = strict.status == "limited"
+    rows = np.nonzero(held.any(axis=1))[0]
+    assert rows.size > 0 and np.all(strict.sc_displacement[rows] + strict.root_displacement[rows] == 0.0)
+    assert np.mean(helped.status[held] == "reached") >= 0.9
+    assert np.all(helped.sc_displacement[rows] + helped.root_displacement[rows] > 0.0)
+
+    alone = np.all(strict.status == "reached", axis=1)
+    assert alone.sum() > 0.8 * len(frames)
+    np.testing.assert_array_equal(helped.heads[alone], strict.heads[alone])
+    np.testing.assert_array_equal(helped.rotations[alone], strict.rotations[alone])
 
 
 def test_elbows_and_knees_come_out_as_pure_hinges_with_the_twist_on_the_upper_bone(pickup):
