@@ -336,11 +336,42 @@ def forward_kinematics(rig, basis):
 def basis_from_pose(rig, pose, bones):
     """matrix_basis (F,k,4,4) that puts ``bones`` (k indices) at ``pose`` (F,J,4,4), each under its parent's
     pose in the same array: the inverse of forward_kinematics."""
+    # Worked on component arrays (entry, frame, bone): a = parent pose @ relative rest, then
+    # a^-1 @ pose = (L^-1 P_L, L^-1 (P_t - t)) for a = (L t; 0 1), L^-1 its adjugate over its determinant.
+    # Several times faster than batched 4x4 products and an inverse on numpy 1.26, with far fewer temporaries.
     bones = np.asarray(bones, dtype=np.int64)
     parents = rig.parents[bones]
-    parent_pose = pose[:, np.maximum(parents, 0)]  # a copy (fancy indexing)
-    parent_pose[:, parents < 0] = _EYE4
-    return affine_inverse(parent_pose @ rig.relative[bones]) @ pose[:, bones]
+    frames, joints = pose.shape[:2]
+    comp = np.ascontiguousarray(np.asarray(pose, dtype=np.float64).reshape(frames, joints, 16)[..., :12]
+                                .transpose(2, 0, 1))  # (12,F,J): rows 0-2 of every pose matrix
+    p = comp[:, :, np.maximum(parents, 0)]  # copies (fancy indexing)
+    p[:, :, parents < 0] = _EYE4.reshape(16)[:12, None, None]
+    b = comp[:, :, bones]
+    rel = rig.relative[bones].reshape(-1, 16).T  # (16,k)
+    a = [[p[4 * i] * rel[j] + p[4 * i + 1] * rel[4 + j] + p[4 * i + 2] * rel[8 + j] for j in range(3)]
+         for i in range(3)]
+    t = [p[4 * i] * rel[3] + p[4 * i + 1] * rel[7] + p[4 * i + 2] * rel[11] + p[4 * i + 3] for i in range(3)]
+    col = [[a[0][j], a[1][j], a[2][j]] for j in range(3)]
+    adj = [_cross_of(col[1], col[2]), _cross_of(col[2], col[0]), _cross_of(col[0], col[1])]
+    det = col[0][0] * adj[0][0] + col[0][1] * adj[0][1] + col[0][2] * adj[0][2]
+    inv = [[adj[i][j] / det for j in range(3)] for i in range(3)]
+    out = np.zeros((16,) + b.shape[1:])
+    for i in range(3):
+        shift = -(inv[i][0] * t[0] + inv[i][1] * t[1] + inv[i][2] * t[2])
+        for j in range(4):
+            row = out[4 * i + j]
+            np.multiply(inv[i][0], b[j], out=row)
+            row += inv[i][1] * b[4 + j]
+            row += inv[i][2] * b[8 + j]
+            if j == 3:
+                row += shift
+    out[15] = 1.0
+    return out.transpose(1, 2, 0).reshape(frames, len(bones), 4, 4)  # a strided view, (F,k,4,4)
+
+
+def _cross_of(u, v):
+    """Cross product of two vectors given as lists of three component arrays."""
+    return [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
 
 
 def affine_inverse(m):
@@ -350,11 +381,7 @@ def affine_inverse(m):
     m = np.asarray(m, dtype=np.float64)
     a = [[np.ascontiguousarray(m[..., i, j]) for j in range(3)] for i in range(3)]
     col = [[a[0][j], a[1][j], a[2][j]] for j in range(3)]
-
-    def cross_of(u, v):
-        return [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
-
-    rows = [cross_of(col[1], col[2]), cross_of(col[2], col[0]), cross_of(col[0], col[1])]
+    rows = [_cross_of(col[1], col[2]), _cross_of(col[2], col[0]), _cross_of(col[0], col[1])]
     det = col[0][0] * rows[0][0] + col[0][1] * rows[0][1] + col[0][2] * rows[0][2]
     out = np.zeros(m.shape)
     inv = [[rows[i][j] / det for j in range(3)] for i in range(3)]
