@@ -9,6 +9,7 @@ import pytest
 from fullbody_adjust.bridge.errors import AdjustError
 from fullbody_adjust.bridge.obstacles import obstacle_box_frames, obstacle_boxes, obstacle_meshes
 from fullbody_adjust.solver.obstacles import Boxes
+from tests.helpers.rotations import euler_xyz
 
 # A cube of half-size 1 around its origin: the same 8 corners as its bound_box, in any order.
 UNIT_CORNERS = np.array([(x, y, z) for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], dtype=np.float64)
@@ -23,14 +24,6 @@ def cube(name, location=(0.0, 0.0, 0.0), rotation=(0.0, 0.0, 0.0), scale=(1.0, 1
     ob.location, ob.rotation_euler, ob.scale = location, rotation, scale
     (collection or bpy.context.scene.collection).objects.link(ob)
     return ob
-
-
-def euler_xyz(x, y, z):
-    cx, sx, cy, sy, cz, sz = math.cos(x), math.sin(x), math.cos(y), math.sin(y), math.cos(z), math.sin(z)
-    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-    return rz @ ry @ rx
 
 
 def expected_corners(local_corners, location, rotation, scale):

@@ -16,6 +16,7 @@ from fullbody_adjust.bridge.targets import (
     read_target_frames,
     read_targets,
 )
+from tests.helpers.rotations import euler_xyz
 
 # Basic metarig bones whose heads are the effectors (it has no "head" bone: its top spine bone is the head).
 EFFECTOR_BONES = {"hand.L": "hand.L", "hand.R": "hand.R", "foot.L": "foot.L", "foot.R": "foot.R",
@@ -30,14 +31,6 @@ def effector_positions(obj, effectors=EFFECTORS):
 
 def location(ob):
     return np.array(ob.matrix_world.translation)
-
-
-def euler_xyz(x, y, z):
-    cx, sx, cy, sy, cz, sz = math.cos(x), math.sin(x), math.cos(y), math.sin(y), math.cos(z), math.sin(z)
-    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
-    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-    return rz @ ry @ rx
 
 
 def snapshot(obj):
