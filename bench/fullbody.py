@@ -281,6 +281,8 @@ def main():
             "of_those_reached_by_the_limbs_alone": int(alone.sum()),
             "max_sc_displacement": float(ours.sc_displacement[alone].max()) if alone.any() else None,
             "max_root_displacement": float(ours.root_displacement[alone].max()) if alone.any() else None,
+            "max_sc_and_root_displacement_with_rule_i_by_length_alone": float(
+                np.max(strict.sc_displacement[within] + strict.root_displacement[within])) if within.any() else None,
             "of_those_with_a_limb_held_by_its_limits": {
                 "poses": int(helped.sum()),
                 "tasks_met_with_rule_i_by_length_alone": int(np.sum(strict.status[helped] == "reached")),
