@@ -150,9 +150,17 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None):
         snapshot = pose.as_batch(pose.read_pose(obj))
     else:
         with _pose_kept(obj):  # stepping through the frames evaluates the animation into the pose bones
-            world_targets = targets.read_target_frames(obj, frames, context)  # (F,E,3), NaN: no target
-            corners = obstacles.obstacle_box_frames(obj, context, frames)
-            snapshot = pose.read_pose_frames(obj, frames)
+            target_at = targets.target_frame_reader(obj, context)
+            boxes_at = obstacles.box_frame_reader(obj, context)
+            world_targets = np.full((len(frames), len(targets.EFFECTORS), 3), np.nan)  # NaN: no target
+            corner_rows = []
+
+            def read_others(row, frame):  # one pass over the frames reads pose, targets and obstacles
+                world_targets[row] = target_at(frame)[0]
+                corner_rows.append(boxes_at(frame))
+
+            snapshot = pose.read_pose_frames(obj, frames, each_frame=read_others)
+            corners = np.stack(corner_rows)
     _check_object_scale(obj, snapshot)
     model = _model(snapshot, bone_map)
     _check_driven_bones(model, snapshot)

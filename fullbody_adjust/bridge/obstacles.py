@@ -4,11 +4,10 @@ Which meshes (DESIGN.md §3): those of ``obj.fullbody_adjust.obstacles`` (child 
 or, when that is None, every visible mesh that does not move with this armature.
 """
 
-import math
-
 import numpy as np
 
 from .errors import AdjustError
+from .frames import step_frames
 
 
 def obstacle_meshes(obj, context):
@@ -62,19 +61,19 @@ def obstacle_boxes(obj, context):
 def obstacle_box_frames(obj, context, frames):
     """Corners (F, K, 8, 3) per frame, for moving obstacles. The meshes are chosen once, at the
     current frame, so K is the same for every frame; the current frame is restored afterwards."""
-    scene = context.scene
     frames = [float(frame) for frame in frames]
     meshes = obstacle_meshes(obj, context)
     boxes = np.zeros((len(frames), len(meshes), 8, 3))
-    start_frame, start_subframe = scene.frame_current, scene.frame_subframe
-    try:
-        for row, frame in enumerate(frames):
-            whole = math.floor(frame)
-            scene.frame_set(whole, subframe=frame - whole)
-            boxes[row] = _corners(meshes, context.evaluated_depsgraph_get(), frame)
-    finally:
-        scene.frame_set(start_frame, subframe=start_subframe)
+    for row, frame in step_frames(context.scene, frames):
+        boxes[row] = _corners(meshes, context.evaluated_depsgraph_get(), frame)
     return boxes
+
+
+def box_frame_reader(obj, context):
+    """A function of the current scene frame giving the obstacles' world corners (K, 8, 3); the meshes are
+    chosen once, here."""
+    meshes = obstacle_meshes(obj, context)
+    return lambda frame: _corners(meshes, context.evaluated_depsgraph_get(), frame)
 
 
 def _corners(meshes, depsgraph, frame=None):

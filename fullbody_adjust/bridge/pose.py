@@ -34,6 +34,7 @@ from mathutils import Euler, Matrix, Vector
 
 from ..solver.geometry import swing_rotation
 from .errors import AdjustError
+from .frames import step_frames
 
 EULER_ORDERS = ("XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX")
 
@@ -109,23 +110,19 @@ def read_pose(obj):
     return PoseSnapshot(**static, **_read_frame(obj))
 
 
-def read_pose_frames(obj, frames):
+def read_pose_frames(obj, frames, each_frame=None):
     """A batched PoseSnapshot (leading axis F) of ``obj`` at each of ``frames`` (scene frames, may be
-    fractional). Sets each frame in turn and restores the scene's current frame afterwards."""
-    scene = bpy.context.scene
+    fractional). Sets each frame in turn and restores the scene's current frame afterwards.
+    ``each_frame(row, frame)``, when given, is called at every frame too, so other readers share the pass."""
     frames = np.asarray(frames, dtype=np.float64).reshape(-1)
     if len(frames) == 0 or not np.all(np.isfinite(frames)):
         raise ValueError("read_pose_frames needs at least one finite frame")
     static = _read_static(obj)
     rows = []
-    start_frame, start_subframe = scene.frame_current, scene.frame_subframe
-    try:
-        for frame in frames:
-            whole = math.floor(frame)
-            scene.frame_set(whole, subframe=float(frame - whole))
-            rows.append(_read_frame(obj))
-    finally:
-        scene.frame_set(start_frame, subframe=start_subframe)
+    for row, frame in step_frames(bpy.context.scene, frames):
+        rows.append(_read_frame(obj))
+        if each_frame is not None:
+            each_frame(row, frame)
     stacked = {key: np.stack([row[key] for row in rows]) for key in rows[0] if key != "channels"}
     stacked["channels"] = {key: np.stack([row["channels"][key] for row in rows]) for key in rows[0]["channels"]}
     stacked["frame"] = frames.copy()

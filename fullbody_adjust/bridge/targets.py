@@ -13,6 +13,7 @@ import bpy
 import numpy as np
 
 from .errors import AdjustError
+from .frames import step_frames
 
 EFFECTORS = ("hand.L", "hand.R", "foot.L", "foot.R", "head")
 
@@ -208,22 +209,29 @@ def read_target_frames(obj, frames, context=None, *, rotations=False):
     frame afterwards, also on error. Same AdjustErrors as read_targets (the frame is named).
     """
     context = bpy.context if context is None else context
-    scene = context.scene
     frames = [float(frame) for frame in frames]
-    enabled = _enabled_targets(obj, scene)
+    read = target_frame_reader(obj, context)
     positions = np.full((len(frames), len(EFFECTORS), 3), np.nan)
     rotation_frames = np.full((len(frames), len(EFFECTORS), 3, 3), np.nan)
-    start_frame, start_subframe = scene.frame_current, scene.frame_subframe
-    try:
-        for row, frame in enumerate(frames):
-            whole = math.floor(frame)
-            scene.frame_set(whole, subframe=frame - whole)
-            depsgraph = context.evaluated_depsgraph_get()
-            for effector, _slot, target in enabled:
-                world = _world_matrix(effector, target, depsgraph, frame)
-                column = EFFECTORS.index(effector)
-                positions[row, column] = world[:3, 3]
-                rotation_frames[row, column] = _rotation_part(world)
-    finally:
-        scene.frame_set(start_frame, subframe=start_subframe)
+    for row, frame in step_frames(context.scene, frames):
+        positions[row], rotation_frames[row] = read(frame)
     return (positions, rotation_frames) if rotations else positions
+
+
+def target_frame_reader(obj, context):
+    """A function of the current scene frame giving the targets' world positions (E,3) and rotations
+    (E,3,3), NaN for effectors without an enabled target. The slots are checked once, here."""
+    enabled = _enabled_targets(obj, context.scene)
+
+    def read(frame):
+        depsgraph = context.evaluated_depsgraph_get()
+        positions = np.full((len(EFFECTORS), 3), np.nan)
+        rotations = np.full((len(EFFECTORS), 3, 3), np.nan)
+        for effector, _slot, target in enabled:
+            world = _world_matrix(effector, target, depsgraph, frame)
+            column = EFFECTORS.index(effector)
+            positions[column] = world[:3, 3]
+            rotations[column] = _rotation_part(world)
+        return positions, rotations
+
+    return read
