@@ -3,7 +3,7 @@
 ``bpy.utils.register_cli_command``) and, with the bpy wheel, ``python -m fullbody_adjust SUBCOMMAND FILE.blend
 ...`` (``__main__.py``). Both end in ``main(argv)``, which returns the exit code.
 
-Thin: the work is ``bridge.adjustment.adjust_frames`` (and ``bridge.retarget.retarget`` once it exists), the
+Thin: the work is ``bridge.adjustment.adjust_frames`` and ``bridge.retarget.retarget``, the
 Blender-side chores (open, save, pick the armature and the frames, read the preview's skeletons) are in
 ``bridge.batch``, the report, progress line and picture in ``reporting``. Every expected problem — bad
 arguments, a missing file, an unknown armature, a frame range outside the action, a rig that cannot be mapped,
@@ -13,7 +13,6 @@ input .blend is only ever written with --overwrite.
 
 import argparse
 from dataclasses import dataclass
-import importlib
 import os
 import sys
 import time
@@ -23,6 +22,7 @@ import bpy
 import numpy as np
 
 from .bridge import adjustment, batch
+from .bridge.retarget import retarget as retarget_motion
 from .bridge.errors import AdjustError
 from .reporting import preview, summary
 from .reporting.progress import ConsoleProgress, NoProgress
@@ -43,7 +43,7 @@ exit codes:
   2  bad arguments or input (missing or unreadable file, unknown armature or object, frame range outside
      the action, a rig that cannot be mapped, an output that cannot be written...): one line on stderr,
      nothing written, the input file untouched
-  3  internal error (a bug; --debug prints the traceback) or a subcommand not available in this version"""
+  3  internal error (a bug; --debug prints the traceback)"""
 
 _VARIANTS = {"priority": 'PRIORITY', "weighted": 'WEIGHTED', "fabrik": 'FABRIK'}
 
@@ -93,9 +93,6 @@ def main(argv, prog=f"blender -b FILE.blend -c {COMMAND}"):
     except (CommandError, AdjustError) as ex:
         print(f"{where}: error: {_one_line(ex)}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except _Unavailable as ex:
-        print(f"{where}: error: {ex}", file=sys.stderr)
-        return EXIT_INTERNAL
     except Exception as ex:  # a bug: still one line (and the traceback on request), never a Blender crash
         if args.debug:
             traceback.print_exc()
@@ -270,10 +267,6 @@ class WorkResult:
     seconds: float
     figure: object
     details: dict
-
-
-class _Unavailable(Exception):
-    pass
 
 
 def _execute(args):
@@ -452,14 +445,14 @@ def _retarget(args, context):
     contacts, contact_name = args.contacts or ("ground", None)
     contact_object = batch.object_named(context, contact_name, "--contacts object") if contact_name else None
     start, end = batch.frame_range(source, context.scene, args.frame_start, args.frame_end)
-    retarget = _retarget_function()  # after the input checks, before any change
 
     frames = np.arange(start, end + 1, dtype=np.float64)
     shown = frames[preview.pick_snapshots(len(frames), args.preview_frames)]
     progress = _progress(args, len(frames), f"retarget '{source.name}' -> '{target.name}'")
     started = time.perf_counter()
-    outcome = retarget(context, source, target, start, end, contacts=contacts, contact_object=contact_object,
-                       exact=args.exact, new_action=args.new_action, progress=progress)
+    outcome = retarget_motion(context, source, target, start, end, contacts=contacts,
+                              contact_object=contact_object, exact=args.exact, new_action=args.new_action,
+                              progress=progress)
     seconds = time.perf_counter() - started
     progress.finish()
 
@@ -477,21 +470,6 @@ def _retarget(args, context):
                "contact_object": contact_name, "exact": args.exact,
                "action": action.name if action is not None else batch.action_name(target)}
     return WorkResult(outcome=outcome, seconds=seconds, figure=figure, details=details)
-
-
-# The retarget subcommand's work function lives here (issue 6, part 2).
-RETARGET_MODULE = f"{__package__}.bridge.retarget"
-
-
-def _retarget_function():
-    """bridge.retarget.retarget, or _Unavailable while that module has not landed."""
-    try:
-        module = importlib.import_module(RETARGET_MODULE)
-    except ModuleNotFoundError as ex:
-        if ex.name != RETARGET_MODULE:
-            raise
-        raise _Unavailable("retarget is not available yet") from None
-    return module.retarget
 
 
 def _one_line(ex):

@@ -6,7 +6,6 @@ bytes and modification time did not change. One test runs `python -m fullbody_ad
 """
 
 import importlib
-import importlib.util
 import json
 import os
 from pathlib import Path
@@ -26,11 +25,6 @@ ADJUST_SAMPLES = {"reach_near_far": "Character", "arm_obstacles": "Character", "
 @pytest.fixture(scope="module")
 def cli(extension_module_name):
     return importlib.import_module(f"{extension_module_name}.cli")
-
-
-@pytest.fixture(scope="module")
-def retarget_available(extension_module_name):
-    return importlib.util.find_spec(f"{extension_module_name}.bridge.retarget") is not None
 
 
 def sample(tmp_path, name):
@@ -413,21 +407,8 @@ def test_retarget_of_an_unmappable_target_exits_2(cli, capsys, tmp_path):
     before.check()
 
 
-def test_retarget_says_when_it_is_not_available(cli, capsys, tmp_path, monkeypatch):
-    monkeypatch.setattr(cli, "RETARGET_MODULE", cli.RETARGET_MODULE.replace("retarget", "not_landed_yet"))
-    path = sample(tmp_path, "retarget_cmu")
-    before = Untouched(path)
-    code, _, err = run(cli, capsys, "retarget", path, "--source", "Source", "--target", "Large", "--output",
-                       tmp_path / "out.blend", "--quiet")
-    assert code == 3 and err.strip() == "fullbody_adjust retarget: error: retarget is not available yet"
-    before.check()
-    assert not (tmp_path / "out.blend").exists()
-
-
 @pytest.mark.parametrize("target, contacts", [("Large", ["object", "Ball"]), ("Small", ["ground"])])
-def test_retarget_writes_the_targets_motion(cli, capsys, tmp_path, retarget_available, target, contacts):
-    if not retarget_available:
-        pytest.skip("bridge.retarget has not landed")
+def test_retarget_writes_the_targets_motion(cli, capsys, tmp_path, target, contacts):
     path = sample(tmp_path, "retarget_cmu")
     before = Untouched(path)
     out_blend, report_path, png = tmp_path / "out.blend", tmp_path / "r.json", tmp_path / "p.png"
