@@ -771,6 +771,8 @@ def describe_armature(obj):
     names = tuple(b.name for b in bones)
     index = {name: i for i, name in enumerate(names)}
     parents = [index[b.parent.name] if b.parent is not None else -1 for b in bones]
+    if _is_control_rig(obj):
+        parents = _control_rig().skeleton_parents(names, parents)
     heads = np.empty(n * 3, dtype=np.float32)
     tails = np.empty(n * 3, dtype=np.float32)
     bones.foreach_get("head_local", heads)
@@ -798,11 +800,35 @@ def load_map(obj):
 
 def ensure_map(obj):
     """The stored map when it still fits the rig; otherwise the rig is mapped afresh and the new map stored.
-    MappingError when the rig cannot be mapped (the stored items are then left as they were)."""
+    MappingError when the rig cannot be mapped (the stored items are then left as they were).
+
+    A generated control rig (Rigify) is solved on its ORG- bones, so only a map of ORG- bones fits it."""
     desc = describe_armature(obj)
+    control_rig = _is_control_rig(obj)
     stored = load_map(obj)
-    if stored is not None and not stored.problems(desc):
+    if stored is not None and not stored.problems(desc) and (not control_rig or _all_org(stored)):
         return stored
-    bone_map = map_rig(desc)
+    bone_map = _map_control_rig(desc) if control_rig else map_rig(desc)
     store_map(obj, bone_map)
     return bone_map
+
+
+def _control_rig():
+    from . import control_rig  # imports Blender's modules: only the Blender-side functions need it
+    return control_rig
+
+
+def _is_control_rig(obj):
+    return _control_rig().is_generated_rigify(obj)
+
+
+def _all_org(bone_map):
+    return all(bone.startswith(_control_rig().ORG) for _group, bone in bone_map.items())
+
+
+def _map_control_rig(desc):
+    """The ORG- variant of the Rigify preset on a generated rig's skeleton, else the usual mapping."""
+    for _label, bone_map, problems in preset_maps(desc):
+        if not problems and _all_org(bone_map):
+            return bone_map
+    return map_rig(desc)

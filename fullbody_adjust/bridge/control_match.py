@@ -1,0 +1,152 @@
+"""Posing a control rig through its controls: the controls an animator keys are placed so that the bones they
+drive (through constraints, IK and helper bones) reach the solved matrices.
+
+Each control is paired with one bone it drives, in one of two ways:
+
+- rigid: the control's new armature-space matrix is its current one carried by its bone's error,
+  ``C <- D @ inv(B) @ C`` (D: the bone's desired matrix, B: its evaluated one); exact in one step when the bone
+  follows the control rigidly (FK controls, an IK hand or foot control), a fixed-point step otherwise (a spine
+  whose controls pivot in its middle);
+- bend: the control sets the bend plane of a two-bone IK chain (its pole, or the chain's base control when the
+  rig uses no pole). Turning it about the chain's axis (first bone's head to the end bone's head) turns the IK
+  solution about that axis by the same angle, so the step is the angle from the evaluated middle joint to the
+  desired one about that axis;
+- scale: the control is the first bone of a stretchy IK chain (Rigify's IK shrinks or stretches its bones to
+  reach), scaled by the ratio of the bone's desired to its evaluated axis lengths, as Rigify's own IK-to-FK
+  snapping does.
+Pairs are applied level by level, parents' controls first, with one evaluation of the rig between levels, and
+the sweep is repeated until every driven bone is within tolerance. Nothing here knows a rig's names: the rig
+module (``control_rig``) says which control drives which bone.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+from mathutils import Matrix
+
+from .pose import ROTATION_PROPERTY, continuous_rotation
+
+
+@dataclass(frozen=True)
+class ControlPair:
+    """``control`` drives ``bone``; controls of lower ``level`` are placed first."""
+
+    control: str
+    bone: str
+    level: int
+    end: str = None  # bend pairs: the bone whose head ends the chain (hand, foot)
+    kind: str = "rigid"  # 'rigid' | 'bend' | 'scale'
+
+    @property
+    def bends(self):
+        return self.kind == "bend"
+
+
+def _matrix(pose_bone):
+    return np.array(pose_bone.matrix, dtype=np.float64)
+
+
+def _bone_error(current, desired, length):
+    """How far a bone is from its desired matrix: the larger of its head's and its tail's distance."""
+    head = np.linalg.norm(current[:3, 3] - desired[:3, 3])
+    tail = np.linalg.norm(current[:3, :3] @ [0.0, length, 0.0] + current[:3, 3]
+                          - desired[:3, :3] @ [0.0, length, 0.0] - desired[:3, 3])
+    return max(float(head), float(tail))
+
+
+def _middle(matrix, length):
+    """The tail of a bone (the chain's middle joint for a chain's first bone)."""
+    return matrix[:3, :3] @ np.array([0.0, length, 0.0]) + matrix[:3, 3]
+
+
+def _axis_scales(matrix):
+    return np.linalg.norm(matrix[:3, :3], axis=0)
+
+
+def _pair_error(pose_bones, pair, desired, lengths):
+    bone = _matrix(pose_bones[pair.bone])
+    if pair.kind == "scale":
+        return float(np.max(np.abs(_axis_scales(bone) - _axis_scales(desired[pair.bone])))) * lengths[pair.bone]
+    if pair.bends:
+        return float(np.linalg.norm(_middle(bone, lengths[pair.bone]) - _middle(desired[pair.bone], lengths[pair.bone])))
+    return _bone_error(bone, desired[pair.bone], lengths[pair.bone])
+
+
+def _bend_step(pose_bones, pair, desired, lengths):
+    """The rotation (4x4, about the chain's axis through its first joint) taking the evaluated middle joint
+    towards the desired one, or None when the axis is degenerate."""
+    bone = _matrix(pose_bones[pair.bone])
+    base = bone[:3, 3]
+    axis = _matrix(pose_bones[pair.end])[:3, 3] - base
+    size = np.linalg.norm(axis)
+    if size <= 1e-9 * lengths[pair.bone]:
+        return None
+    axis = axis / size
+    now = _middle(bone, lengths[pair.bone]) - base
+    want = _middle(desired[pair.bone], lengths[pair.bone]) - base
+    now = now - axis * (now @ axis)
+    want = want - axis * (want @ axis)
+    if min(np.linalg.norm(now), np.linalg.norm(want)) <= 1e-9 * lengths[pair.bone]:
+        return None  # a straight chain has no bend plane to turn
+    angle = np.arctan2(np.cross(now, want) @ axis, now @ want)
+    turn = np.eye(4)
+    turn[:3, :3] = np.array(Matrix.Rotation(float(angle), 3, axis.tolist()))
+    to_base, from_base = np.eye(4), np.eye(4)
+    to_base[:3, 3], from_base[:3, 3] = -base, base
+    return from_base @ turn @ to_base
+
+
+def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
+    """Place the controls of ``pairs`` so each pair's bone reaches ``desired[bone]`` (4x4 armature-space
+    matrices). Evaluates the rig (``view_layer.update()``) between levels. Returns the largest remaining bone
+    error (armature units) after the last sweep; the controls' channels are left set."""
+    pose_bones = obj.pose.bones
+    levels = sorted({p.level for p in pairs})
+    by_level = [[p for p in pairs if p.level == level] for level in levels]
+    lengths = {p.bone: pose_bones[p.bone].bone.length for p in pairs}
+    view_layer.update()
+    error = np.inf
+    for _sweep in range(max_sweeps):
+        for level_pairs in by_level:
+            moves, scales = [], []
+            for pair in level_pairs:
+                if _pair_error(pose_bones, pair, desired, lengths) <= tolerance:
+                    continue
+                control = pose_bones[pair.control]
+                if pair.kind == "scale":
+                    ratio = _axis_scales(desired[pair.bone]) / _axis_scales(_matrix(pose_bones[pair.bone]))
+                    scales.append((control, np.array(control.scale) * ratio))
+                    continue
+                if pair.bends:
+                    step = _bend_step(pose_bones, pair, desired, lengths)
+                    if step is None:
+                        continue
+                else:
+                    step = desired[pair.bone] @ np.linalg.inv(_matrix(pose_bones[pair.bone]))
+                moves.append((control, step @ _matrix(control)))
+            if not moves and not scales:
+                continue
+            for control, new in moves:
+                control.matrix = Matrix(new.tolist())
+            for control, scale in scales:
+                control.scale = scale.tolist()
+            view_layer.update()
+        error = max(_pair_error(pose_bones, p, desired, lengths) for p in pairs)
+        if error <= tolerance:
+            break
+    return error
+
+
+def read_channels(obj, controls, previous=None):
+    """{control: {property: (k,) values}}: the location and the rotation (in each control's rotation mode) the
+    controls hold now, the rotation made continuous with ``previous`` (same layout) or the control's own value."""
+    out = {}
+    for name in controls:
+        pose_bone = obj.pose.bones[name]
+        prop = ROTATION_PROPERTY[pose_bone.rotation_mode]
+        value = np.array(getattr(pose_bone, prop), dtype=np.float64)
+        if previous is not None and name in previous:
+            value = continuous_rotation(prop, pose_bone.rotation_mode, value, previous[name][prop])
+        out[name] = {"location": np.array(pose_bone.location, dtype=np.float64), prop: value,
+                     "scale": np.array(pose_bone.scale, dtype=np.float64)}
+    return out
