@@ -170,6 +170,8 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None):
     controlled = control_rig.is_generated_rigify(obj)
     if controlled:  # solved on the metarig's hierarchy of the ORG- bones
         snapshot = replace(snapshot, parents=control_rig.skeleton_parents(snapshot.names, snapshot.parents))
+    else:
+        _check_not_driven(obj, bone_map)
     model = _model(snapshot, bone_map)
     _check_driven_bones(model, snapshot)
     _check_target_distances(obj, world_targets, snapshot)
@@ -301,6 +303,17 @@ def _channel_values(bones, prop, size):
     values = np.empty(len(bones) * size, dtype=np.float32)
     bones.foreach_get(prop, values)
     return values.reshape(-1, size)
+
+
+def _check_not_driven(obj, bone_map):
+    """On a rig this extension does not know as a control rig, a mapped bone that follows a constraint would
+    override the keys written to it: say so instead of writing them. Limit constraints only bound the pose."""
+    for _group, name in bone_map.items():
+        pose_bone = obj.pose.bones.get(name)
+        for con in pose_bone.constraints if pose_bone is not None else ():
+            if con.enabled and con.influence > 0.0 and not con.type.startswith("LIMIT_"):
+                raise AdjustError(f"Bone '{name}' of '{obj.name}' follows its constraint '{con.name}', which would "
+                                  f"override keys written to it: pose the controls that drive it, or map other bones")
 
 
 def _check_target_distances(obj, world_targets, snapshot):

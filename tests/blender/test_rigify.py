@@ -184,3 +184,22 @@ def test_description_names_the_limb_modes(extension_module_name):
     assert control_rig.describe(rig) == "Rigify rig (FK arms, IK legs): keys controls"
     metarig = next(o for o in bpy.data.objects if o.type == 'ARMATURE' and o is not rig)
     assert not control_rig.is_generated_rigify(metarig)
+
+
+def test_unknown_rig_driven_by_constraints_is_refused(capfd):
+    """A rig not known as a control rig whose mapped forearm copies another bone's rotation: one line saying so,
+    nothing keyed; a Limit Rotation constraint alone only bounds the pose and is accepted."""
+    bpy.ops.preferences.addon_enable(module="rigify")
+    bpy.ops.object.armature_basic_human_metarig_add()
+    obj = bpy.context.active_object
+    bpy.ops.fullbody_adjust.create_targets()
+    reach_left_hand(obj, Pose(obj), "arm")
+    limit = obj.pose.bones["forearm.L"].constraints.new('LIMIT_ROTATION')
+    adjust(capfd)
+    obj.animation_data_clear()
+    obj.pose.bones["forearm.L"].constraints.remove(limit)
+    copy = obj.pose.bones["forearm.L"].constraints.new('COPY_ROTATION')
+    copy.target, copy.subtarget = obj, "upper_arm.L"
+    with pytest.raises(RuntimeError, match="forearm.L' of 'metarig' follows its constraint 'Copy Rotation'"):
+        bpy.ops.fullbody_adjust.adjust_pose()
+    assert obj.animation_data is None or obj.animation_data.action is None
