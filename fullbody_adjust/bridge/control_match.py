@@ -27,6 +27,10 @@ from mathutils import Matrix
 from .pose import ROTATION_PROPERTY, continuous_rotation
 
 
+# A sweep that leaves the largest error above this fraction of the previous sweep's is the last one.
+_STALLED = 0.7
+
+
 @dataclass(frozen=True)
 class ControlPair:
     """``control`` drives ``bone``; controls of lower ``level`` are placed first."""
@@ -131,9 +135,9 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
             for control, scale in scales:
                 control.scale = scale.tolist()
             view_layer.update()
-        error = max(_pair_error(pose_bones, p, desired, lengths) for p in pairs)
-        if error <= tolerance:
-            break
+        previous, error = error, max(_pair_error(pose_bones, p, desired, lengths) for p in pairs)
+        if error <= tolerance or error > _STALLED * previous:
+            break  # met, or a sweep no longer helps (an IK chain's own solver tolerance, a stretchy chain)
     return error
 
 
