@@ -16,7 +16,7 @@ from ..solver.adjust import AdjustSettings, adjust_frames as solve_frames
 from ..solver.body import CHAIN, END, ROOT, BodyModel
 from ..solver.obstacles import penetrations
 from . import control_rig, frames as frames_module, keyframes, mapping, obstacles, pose, targets
-from .control_match import match_controls, read_channels
+from .control_match import control_channels
 from .errors import AdjustError
 
 # UI names of the sub-base variants -> the solver's.
@@ -25,10 +25,6 @@ VARIANTS = {'FABRIK': "fabrik", 'WEIGHTED': "weighted", 'PRIORITY': "priority"}
 # A bone counts as moved when its rotation changed by more than this (radians, about) or its head moved by
 # more than this fraction of the rig's size: below it, a key would only record float noise.
 _MOVED = 1e-9
-
-# A control counts as moved when an entry of its local matrix changed by more than this: its channels are
-# float32, so an untouched control reads back bit for bit.
-_CONTROL_MOVED = 1e-7
 
 # A pose scale (or a bone length relative to the rig's size) at or below this counts as zero.
 _FLAT = 1e-6
@@ -198,8 +194,8 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None):
     action = None
     if controlled and names:
         tolerance = _in_armature_units(settings, snapshot.matrix_world).chain.tolerance
-        channels = _control_channels(context, obj, frames, model, snapshot, result, bone_map, keep_hands,
-                                     tolerance, apply_pose)
+        channels = _control_channels(context, obj, frames, snapshot, result, bone_map, keep_hands, tolerance,
+                                     apply_pose)
         names = tuple(channels)
         if options.insert_keys and names:
             action = keyframes.key_bones_frames(obj, None, frames, channels, action_name=options.new_action)
@@ -237,41 +233,26 @@ def _new_pose_matrices(snapshot, result, bones):
     return new_pose
 
 
-def _control_channels(context, obj, frames, model, snapshot, result, bone_map, keep_hands, tolerance, apply_pose):
+def _control_channels(context, obj, frames, snapshot, result, bone_map, keep_hands, tolerance, apply_pose):
     """A control rig's solved pose as its controls' channels {control: {property: (F,k)}}: on each frame the
     controls are placed so the mapped bones reach the solve (control_match), and the controls that moved on some
     frame are returned. With ``apply_pose`` (one frame, the current one) the controls are left placed; otherwise
     every frame is stepped to and the pose is put back afterwards."""
-    mapped = [snapshot.index(bone) for _group, bone in bone_map.items()]
+    names = [bone for _group, bone in bone_map.items()]
+    mapped = snapshot.indices(names)
     desired = _new_pose_matrices(snapshot, result, mapped)
     if not keep_hands:  # the hands and feet keep their pose relative to the forearm and shin
+        old = snapshot.pose_matrices[:, mapped]
+        position = {name: k for k, name in enumerate(names)}
         for end, limb in (("hand.L", "arm.L"), ("hand.R", "arm.R"), ("foot.L", "leg.L"), ("foot.R", "leg.R")):
-            k, p = mapped.index(snapshot.index(bone_map.bones(end)[0])), mapped.index(snapshot.index(bone_map.bones(limb)[-1]))
-            old = snapshot.pose_matrices[:, mapped]
+            k, p = position[bone_map.bones(end)[0]], position[bone_map.bones(limb)[-1]]
             desired[:, k] = desired[:, p] @ np.linalg.inv(old[:, p]) @ old[:, k]
     pairs = control_rig.control_pairs(obj, bone_map)
-    controls = list(dict.fromkeys(pair.control for pair in pairs))
-    names = [snapshot.names[j] for j in mapped]
-    rows, moved = [], np.zeros(len(controls), dtype=bool)
-
-    def match_frame(row):
-        before = _bases(obj, controls)
-        match_controls(obj, context.view_layer, pairs, dict(zip(names, desired[row])), tolerance)
-        moved[:] |= np.abs(_bases(obj, controls) - before).max(axis=(1, 2)) > _CONTROL_MOVED
-        rows.append(read_channels(obj, controls, previous=rows[-1] if rows else None))
-
     if apply_pose:
-        match_frame(0)
-    else:
-        with _pose_kept(obj):
-            for row, _frame in frames_module.step_frames(context.scene, frames):
-                match_frame(row)
-    return {c: {prop: np.stack([row[c][prop] for row in rows]) for prop in rows[0][c]}
-            for c, m in zip(controls, moved) if m}
-
-
-def _bases(obj, controls):
-    return np.array([obj.pose.bones[c].matrix_basis for c in controls], dtype=np.float64)
+        return control_channels(obj, context.view_layer, pairs, names, desired, tolerance, [0])
+    with _pose_kept(obj):
+        rows = (row for row, _frame in frames_module.step_frames(context.scene, frames))
+        return control_channels(obj, context.view_layer, pairs, names, desired, tolerance, rows)
 
 
 def _in_armature_units(settings, matrix_world):

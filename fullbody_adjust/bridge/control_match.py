@@ -27,6 +27,10 @@ from mathutils import Matrix
 from .pose import ROTATION_PROPERTY, continuous_rotation
 
 
+# A control counts as moved when an entry of its local matrix changed by more than this: its channels are
+# float32, so an untouched control reads back bit for bit.
+_CONTROL_MOVED = 1e-7
+
 # A sweep that leaves the largest error above this fraction of the previous sweep's is the last one.
 _STALLED = 0.7
 
@@ -139,6 +143,26 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
         if error <= tolerance or error > _STALLED * previous:
             break  # met, or a sweep no longer helps (an IK chain's own solver tolerance, a stretchy chain)
     return error
+
+
+def control_channels(obj, view_layer, pairs, bones, desired, tolerance, rows):
+    """The controls' channels that pose ``bones`` at ``desired`` (F,k,4,4 armature space) on each frame:
+    {control: {property: (F,n)}} for the controls that moved on some frame, rotations continuous over frames.
+    ``rows`` yields the frame rows in order (the caller may step the scene to each frame as it yields); the
+    controls are left as placed for the last row."""
+    controls = list(dict.fromkeys(pair.control for pair in pairs))
+    out, moved = [], np.zeros(len(controls), dtype=bool)
+    for row in rows:
+        before = _bases(obj, controls)
+        match_controls(obj, view_layer, pairs, dict(zip(bones, desired[row])), tolerance)
+        moved |= np.abs(_bases(obj, controls) - before).max(axis=(1, 2)) > _CONTROL_MOVED
+        out.append(read_channels(obj, controls, previous=out[-1] if out else None))
+    return {c: {prop: np.stack([row[c][prop] for row in out]) for prop in out[0][c]}
+            for c, m in zip(controls, moved) if m}
+
+
+def _bases(obj, controls):
+    return np.array([obj.pose.bones[c].matrix_basis for c in controls], dtype=np.float64)
 
 
 def read_channels(obj, controls, previous=None):
