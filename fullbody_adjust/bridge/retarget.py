@@ -25,7 +25,8 @@ import numpy as np
 from ..solver import SolverInputError
 from ..solver import retarget as rt
 from ..solver.adjust import adjust_frames as solve_frames
-from . import adjustment, keyframes, mapping, pose, targets
+from . import adjustment, control_rig, keyframes, mapping, pose, targets
+from .control_match import control_channels
 from .errors import AdjustError
 
 CONTACTS = ("ground", "object")
@@ -143,6 +144,8 @@ def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *
         source = _with_world(source, source_world)
         settings = rt.RetargetSettings(fps=scene.render.fps / scene.render.fps_base, exact=bool(exact))
         target_basis = _pose_property(target_obj.pose.bones, "matrix_basis", (4, 4)).transpose(0, 2, 1)
+        if len(target.names) != len(target_basis):  # a control rig's skeleton: its bones' own bases
+            target_basis = target_basis[[target_obj.pose.bones.find(name) for name in target.names]]
         plan = rt.plan_retarget(source, source_pose, target, target_basis, settings, boxes)
     except SolverInputError as ex:
         raise AdjustError(f"Cannot retarget '{source_obj.name}' onto '{target_obj.name}': {ex}") from None
@@ -152,8 +155,22 @@ def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *
 def write_pose(context, target_obj, target, pose_matrices, frames, action_name):
     """Key every mapped bone of ``target_obj`` (``target`` its Rig) at ``pose_matrices`` (F,J,4,4, armature
     space) over ``frames`` into a new action named ``action_name``, assigned to it: each bone's rotation in
-    its rotation mode, and the root's location. Returns (action, keyed bone names)."""
+    its rotation mode, and the root's location; on a control rig, the controls that pose the mapped bones.
+    Returns (action, keyed bone names)."""
     written = sorted({b for bones in target.groups.values() for b in bones})
+    if control_rig.is_generated_rigify(target_obj):
+        action = _new_action(target_obj, action_name)  # before posing: the old action no longer drives the controls
+        bone_map = mapping.BoneMap({g: [target.names[b] for b in bones] for g, bones in target.groups.items()})
+        tolerance = adjustment.settings_of(target_obj).chain.tolerance / float(np.linalg.norm(target.matrix_world[:3, 0]))
+        channels = control_channels(target_obj, context.view_layer, control_rig.control_pairs(target_obj, bone_map),
+                                    [target.names[b] for b in written], pose_matrices[:, written], tolerance,
+                                    range(len(frames)))
+        keyframes.key_bones_frames(target_obj, None, frames, channels)
+        # A rig with drivers already has animation data: the depsgraph learns of the new action's curves only
+        # when told (a rig without any animation before picks them up on the frame change).
+        target_obj.update_tag(refresh={'TIME'})
+        context.scene.frame_set(context.scene.frame_current)
+        return action, tuple(channels)
     basis = rt.basis_from_pose(target, pose_matrices, written)
     modes = tuple(pb.rotation_mode for pb in target_obj.pose.bones)
     channels = _channels(target_obj, target, basis, written, modes)
@@ -294,7 +311,10 @@ def _pose_property(collection, prop, shape):
 
 
 def _rig(obj, bone_map):
-    """solver.retarget.Rig of an armature object, its groups from ``bone_map``."""
+    """solver.retarget.Rig of an armature object, its groups from ``bone_map``. A control rig's Rig is its
+    mapped skeleton alone (control_rig), in the metarig's hierarchy: the controls are posed from it."""
+    if control_rig.is_generated_rigify(obj):
+        return _skeleton_rig(obj, bone_map)
     bones = obj.data.bones
     names = tuple(b.name for b in bones)
     index = {n: i for i, n in enumerate(names)}
@@ -306,6 +326,38 @@ def _rig(obj, bone_map):
     return rt.Rig(names=names, parents=parents,
                   rest=_pose_property(bones, "matrix_local", (4, 4)).transpose(0, 2, 1),
                   lengths=_pose_property(bones, "length", ()), connected=connected, groups=groups,
+                  matrix_world=np.array(obj.matrix_world, dtype=np.float64))
+
+
+def _skeleton_rig(obj, bone_map):
+    """The Rig of a control rig's mapped bones, parents first in the metarig's hierarchy."""
+    all_names = tuple(b.name for b in obj.data.bones)
+    all_parents = control_rig.skeleton_parents(all_names, [all_names.index(b.parent.name) if b.parent else -1
+                                                           for b in obj.data.bones])
+    mapped = [bone for _group, bone in bone_map.items()]
+    depth = {}
+
+    def depth_of(i):
+        if i not in depth:
+            depth[i] = 0 if all_parents[i] < 0 else depth_of(int(all_parents[i])) + 1
+        return depth[i]
+
+    order = sorted((all_names.index(b) for b in mapped), key=depth_of)
+    local = {i: k for k, i in enumerate(order)}
+
+    def mapped_parent(i):  # the nearest mapped ancestor in the metarig's hierarchy
+        j = int(all_parents[i])
+        while j >= 0 and j not in local:
+            j = int(all_parents[j])
+        return local.get(j, -1)
+
+    bones = [obj.data.bones[all_names[i]] for i in order]
+    names = tuple(b.name for b in bones)
+    groups = {g: tuple(names.index(b) for b in members) for g, members in bone_map.groups.items()}
+    return rt.Rig(names=names, parents=[mapped_parent(i) for i in order],
+                  rest=np.array([np.array(b.matrix_local) for b in bones], dtype=np.float64),
+                  lengths=np.array([b.length for b in bones], dtype=np.float64),
+                  connected=np.array([b.use_connect for b in bones], dtype=bool), groups=groups,
                   matrix_world=np.array(obj.matrix_world, dtype=np.float64))
 
 

@@ -1,0 +1,45 @@
+"""Retargeting a captured clip onto a generated Rigify rig: the new action keys the rig's controls, and Blender's
+evaluation of the deform bones follows the plan (wrists and ankles on their targets, planted feet still)."""
+
+import bpy
+import numpy as np
+
+from fullbody_adjust.bridge import retarget
+from fullbody_adjust.solver import retarget as rt
+
+from .test_retarget import enable_addon, import_clip
+from .test_rigify import INTERNAL, keyed_bones
+
+FRAMES = (2, 41)
+# Deform bones whose heads are the wrists and ankles, in rt.EFFECTORS order.
+DEFORM_ENDS = {"hand.L": "DEF-hand.L", "hand.R": "DEF-hand.R", "foot.L": "DEF-foot.L", "foot.R": "DEF-foot.R"}
+
+
+def test_a_clip_onto_a_generated_rig_keys_its_controls():
+    source = import_clip()
+    enable_addon("rigify")
+    bpy.ops.object.armature_basic_human_metarig_add()
+    bpy.ops.pose.rigify_generate()
+    rig = bpy.context.active_object
+    rig.location = (1.5, 0.0, 0.0)
+    bpy.context.view_layer.update()
+
+    outcome = retarget.retarget(bpy.context, source, rig, *FRAMES)
+
+    assert outcome.action is rig.animation_data.action
+    keyed = keyed_bones(rig)
+    assert keyed == set(outcome.keyed_bones) and keyed
+    assert not any(name.startswith(INTERNAL) for name in keyed), keyed
+    assert {"torso", "hand_ik.L", "foot_ik.L"} <= keyed
+    size = rt.leg_length(retarget._rig(rig, retarget.mapping.load_map(rig)))
+    heads = np.empty((FRAMES[1] - FRAMES[0] + 1, len(rt.EFFECTORS), 3))
+    for row, frame in enumerate(range(FRAMES[0], FRAMES[1] + 1)):
+        bpy.context.scene.frame_set(frame)
+        for k, effector in enumerate(rt.EFFECTORS):
+            heads[row, k] = rig.matrix_world @ rig.pose.bones[DEFORM_ENDS[effector]].head
+    reach = np.linalg.norm(heads - outcome.targets, axis=-1)
+    assert np.percentile(reach, 99) < 1e-4 * size and reach.max() < 1e-3 * size, reach.max() / size
+    for k, effector in enumerate(rt.EFFECTORS):
+        for a, b in rt.intervals(outcome.contacts[:, k]):
+            assert np.ptp(heads[a:b, k], axis=0).max() < 2e-4 * size, effector
+    assert outcome.contacts[:, 2:].any()  # the walk plants its feet in these frames
