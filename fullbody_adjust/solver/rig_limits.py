@@ -191,12 +191,24 @@ def _held(p, direction, x_axis):
 
 
 def _ranged(p, rest_dir, rest_axis, rng):
-    """A hinge about the rest axis (made perpendicular to p) with range `rng` (or the whole circle for None)
-    shifted by the rest direction's bend about it (its mean over the frames)."""
+    """A hinge about the rest axis (made perpendicular to p) with range `rng` (or the whole circle for None).
+    Each bound is the bend at which the hinge's plane meets the directions the rest direction reaches by
+    turning exactly that far about the rest axis: where the axis is not quite perpendicular to p (a rig's
+    roll a few degrees off) the bounds still hold exactly as the rig measures them."""
     axis = _perpendicular_axis(rest_axis, p)
     if rng is None:
         return axis, -math.pi, math.pi
-    rest_bend = float(np.mean(_bend(p, rest_dir, axis)))
-    lo = min(max(rest_bend + rng[0], -math.pi), math.pi)
-    hi = min(max(rest_bend + rng[1], -math.pi), math.pi)
-    return axis, lo, hi
+    rest_axis = normalize(rest_axis)
+    toward = cross(rest_axis, rest_dir)  # where a right-handed turn about the rest axis takes the rest direction
+    side = cross(axis, p)
+    rest_bend = _bend(p, rest_dir, axis)
+    bounds = []
+    for angle in rng:
+        # Directions turned by `angle` from the rest lie in the plane normal to n; its bend on the hinge plane:
+        n = math.cos(angle) * toward - math.sin(angle) * rest_dir
+        meet = np.arctan2(-dot(p, n), dot(side, n))
+        # Of the two opposite meeting bends, the one nearer the rest bend shifted by the angle.
+        off = np.remainder(meet - (rest_bend + angle) + math.pi / 2, math.pi) - math.pi / 2
+        bounds.append(float(np.mean(rest_bend + angle + off)))
+    lo, hi = (min(max(b, -math.pi), math.pi) for b in bounds)
+    return axis, min(lo, hi), max(lo, hi)
