@@ -14,7 +14,8 @@ axes is made perpendicular to the parent direction, as limits.py does with every
                    bend range = the start bend (over frames whose start bends differ, their span, as a bend
                    range is one pair of numbers for every frame).
   one locked       a hinge about the other axis of the rest frame; bend range = that axis's range (the whole
-                   circle when it has none) shifted by the rest bend. Blender keeps a locked axis at its start
+                   circle when it has none) from the rest bend (_ranged: each bound where the hinge's plane
+                   meets the directions turned exactly that far about the axis). Blender keeps a locked axis at its start
                    value; a start pose turned about the locked axis is not on that hinge's plane (the set of
                    directions left to it is no plane through the parent), so there the lock wins and the
                    direction is held as above.
@@ -29,7 +30,8 @@ axes is made perpendicular to the parent direction, as limits.py does with every
                    the hinge's plane by the first solve.
 Joint 0's parent direction becomes the bone's rest direction carried by its parent (the start direction when
 held), so its ranges are exact on every frame; for joints > 0 the parent is the previous chain segment, whose
-rest bend is the same on every frame when the parent bone is rigid (its mean over the frames is used).
+rest bend is the same on every frame when the parent bone is rigid (bounds are averaged over the frames).
+A bone that does not inherit its parent's rotation is read as if it did.
 Every hinge made here has no twist allowance: the bend plane stays where the rig puts it.
 """
 

@@ -209,3 +209,32 @@ def test_empty_constraint_range_is_one_clear_error():
     with pytest.raises(RuntimeError, match="Limit Rotation 'Limit Rotation' has its minimum X above its maximum"):
         bpy.ops.fullbody_adjust.adjust_pose()
     assert pose_channels(obj) == before
+
+
+def test_retargeting_keeps_the_target_rigs_range():
+    """The source walk's elbows bend beyond the target metarig's forearm range: the retargeted keys stay in it."""
+    from fullbody_adjust.bridge import retarget
+
+    from .test_retarget import add_metarig, import_clip
+
+    source = import_clip()
+    free, limited = add_metarig(location=(1.5, 0.0, 0.0)), add_metarig(location=(-1.5, 0.0, 0.0))
+    forearm = limited.pose.bones["forearm.L"]
+    forearm.use_ik_limit_x = True
+    forearm.ik_min_x, forearm.ik_max_x = X_RANGE
+    lo, hi = X_RANGE
+    frames = range(2, 41)
+
+    def x_rotations(obj):
+        out = []
+        for frame in frames:
+            bpy.context.scene.frame_set(frame)
+            out.append(x_rotation(forearm_in_rest_frame(obj, Pose(obj))))
+        return np.array(out)
+
+    retarget.retarget(bpy.context, source, free, frames[0], frames[-1])
+    wanted = x_rotations(free)
+    assert wanted.min() < lo - 0.1 or wanted.max() > hi + 0.1  # the walk's elbow leaves the range
+    retarget.retarget(bpy.context, source, limited, frames[0], frames[-1])
+    x = x_rotations(limited)
+    assert np.all(x >= lo - ANGLE) and np.all(x <= hi + ANGLE)
