@@ -14,11 +14,11 @@ axes is made perpendicular to the parent direction, as limits.py does with every
                    bend range = the start bend (over frames whose start bends differ, their span, as a bend
                    range is one pair of numbers for every frame).
   one locked       a hinge about the other axis of the rest frame; bend range = that axis's range (the whole
-                   circle when it has none) from the rest bend (_ranged: each bound where the hinge's plane
-                   meets the directions turned exactly that far about the axis). Blender keeps a locked axis at its start
-                   value; a start pose turned about the locked axis is not on that hinge's plane (the set of
-                   directions left to it is no plane through the parent), so there the lock wins and the
-                   direction is held as above.
+                   circle when it has none) from the rest bend (_ranged: each bound is where the hinge's plane
+                   meets the directions turned exactly that far about the axis). Blender keeps a locked axis
+                   at its start value; a start pose turned about the locked axis is not on that hinge's plane
+                   (the directions left to it form no plane through the parent), so there the lock wins and
+                   the direction is held as above.
   neither locked, ranged
                    a hinge about a ranged axis with that axis's range: the other axis stays at its rest value 0.
                    Conservative on purpose: a direction turned about both axes at once has no single "rotation
@@ -48,7 +48,8 @@ from .geometry import any_perpendicular, apply_matrix, cross, dot, norm, normali
 
 AXES = "XYZ"
 
-# A start direction within this angle (radians) of a hinge's plane lies on it (Blender's float32 pose).
+# A start pose turned by less than this (radians) about a locked axis counts as not turned about it (Blender's
+# pose is float32).
 _ON_PLANE = 1e-3
 
 

@@ -21,7 +21,8 @@ X_RANGE = (-0.15, 0.2)  # radians about the forearm's X axis, from its rest
 
 def rig_with_goals():
     """The basic metarig with targets; the left hand's target keyed on frames 1..FRAMES at goals around the
-    shoulder, in front and to the side, which the free elbow reaches by bending a lot; the other targets stay at the rest pose's wrists and ankles."""
+    shoulder, in front and to the side, which the free elbow reaches by bending a lot; the other targets stay
+    at the rest pose's wrists and ankles."""
     obj = add_rig("basic")
     bpy.ops.fullbody_adjust.create_targets()
     pose = Pose(obj)

@@ -17,7 +17,7 @@ from fullbody_adjust.solver.errors import SolverInputError
 from fullbody_adjust.solver.limits import HINGE
 from fullbody_adjust.solver.rig_limits import BoneLimitSpec, rig_limits
 
-from .test_adjust import EFFECTORS, synthetic_humanoid
+from .test_adjust import EFFECTORS, _descendants, synthetic_humanoid
 
 FLOAT = 1e-9
 
@@ -211,17 +211,16 @@ def test_joint_0_is_measured_from_the_rest_direction(body):
 def test_lock_over_frames_with_different_start_bends_spans_them(body):
     model, h0, t0, a0 = body
     heads, tails = frames(h0, t0, 2)
-    # Frame 1: the forearm bent a further 0.3 rad about its X axis (the hand follows).
-    fore, hand = model.names.index("forearm.L"), model.names.index("hand.L")
+    # Frame 1: the forearm bent a further 0.3 rad about its X axis (the hand and fingers follow).
+    fore = model.names.index("forearm.L")
     x = a0[0, fore, :, 0]
     c, s = math.cos(0.3), math.sin(0.3)
-    turn = c * np.eye(3) + s * np.array([[0, -x[2], x[1]], [x[2], 0, -x[0]], [-x[1], x[0], 0]]) + (1 - c) * np.outer(x, x)
+    cross_x = np.array([[0, -x[2], x[1]], [x[2], 0, -x[0]], [-x[1], x[0], 0]])
+    turn = c * np.eye(3) + s * cross_x + (1 - c) * np.outer(x, x)
     pivot = heads[1, fore].copy()
-    for j in range(len(model.names)):
-        if j == fore or model.parents[j] == fore or (model.parents[j] >= 0 and model.parents[model.parents[j]] == fore):
-            heads[1, j] = pivot + turn @ (heads[1, j] - pivot)
-            tails[1, j] = pivot + turn @ (tails[1, j] - pivot)
-    assert hand in [j for j in range(len(model.names)) if model.parents[j] == fore]
+    moved = sorted(_descendants(model, [fore]))
+    heads[1, moved] = pivot + (heads[1, moved] - pivot) @ turn.T
+    tails[1, moved] = pivot + (tails[1, moved] - pivot) @ turn.T
     axes = np.repeat(a0, 2, axis=0)
     defaults = default_limits(model, heads, tails, bone_x_axes=axes[..., 0])
     out = rig_limits(defaults, model, heads, tails, axes, spec(model, a0, "forearm.L", locked=(True, False, True)))
