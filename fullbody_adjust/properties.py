@@ -138,7 +138,8 @@ class FULLBODY_ADJUST_PG_settings(bpy.types.PropertyGroup):
     )
     use_joint_limits: BoolProperty(
         name="Joint Limits",
-        description="Keep elbows and knees from bending backwards and respect the rig's IK limits",
+        description="Respect the rig's own IK locks and limits and Local Space Limit Rotation constraints on the "
+                    "mapped bones; elbows and knees that set none never bend backwards",
         default=True,
     )
     keep_hand_orientation: BoolProperty(

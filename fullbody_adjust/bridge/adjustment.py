@@ -15,7 +15,7 @@ from ..solver import Boxes, ChainSettings, SolverInputError
 from ..solver.adjust import AdjustSettings, adjust_frames as solve_frames
 from ..solver.body import CHAIN, END, ROOT, BodyModel
 from ..solver.obstacles import penetrations
-from . import control_rig, frames as frames_module, keyframes, mapping, obstacles, pose, targets
+from . import control_rig, frames as frames_module, ik_limits, keyframes, mapping, obstacles, pose, targets
 from .control_match import control_channels
 from .errors import AdjustError
 
@@ -182,7 +182,8 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None):
     try:
         result = solve_frames(model, heads, tails, arm_targets, targets.EFFECTORS, priorities, obstacles=boxes,
                               settings=_in_armature_units(settings, snapshot.matrix_world),
-                              bone_x_axes=snapshot.pose_matrices[..., :3, 0])
+                              bone_x_axes=snapshot.pose_matrices[..., :3, 0],
+                              limits=ik_limits.joint_limits(obj, model, heads, tails, snapshot.pose_matrices, settings))
     except SolverInputError as ex:
         raise AdjustError(f"Cannot adjust '{obj.name}': {ex}") from None
     progress("writing", 0.8)

@@ -25,7 +25,7 @@ import numpy as np
 from ..solver import SolverInputError
 from ..solver import retarget as rt
 from ..solver.adjust import adjust_frames as solve_frames
-from . import adjustment, control_rig, keyframes, mapping, pose, targets
+from . import adjustment, control_rig, ik_limits, keyframes, mapping, pose, targets
 from .control_match import control_channels
 from .errors import AdjustError
 
@@ -84,6 +84,7 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
         start, heads, tails = plan.start_pose[:, bones], plan.heads[:, bones], plan.tails[:, bones]
         settings = adjustment.settings_of(target_obj)
         limits = rt.motion_limits(model, start, heads, tails, settings.human_limits) if settings.use_limits else None
+        limits = ik_limits.joint_limits(target_obj, model, heads, tails, start, settings, defaults=limits)
         result = solve_frames(model, heads, tails, plan.targets, rt.EFFECTORS,
                               [targets.DEFAULT_PRIORITY[e] for e in rt.EFFECTORS], settings=settings, limits=limits)
     except SolverInputError as ex:

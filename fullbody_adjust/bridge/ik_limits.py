@@ -1,0 +1,67 @@
+"""Blender's own joint limits of a rig's bones, read into plain data (solver.rig_limits.BoneLimitSpec): the
+per-bone IK settings (``lock_ik_x/y/z``, ``use_ik_limit_x/y/z`` with ``ik_min_*``/``ik_max_*``) and the
+enabled Limit Rotation constraints in LOCAL space (``use_limit_x/y/z``, ``min_*``/``max_*``). Both measure the
+bone's rotation relative to its rest orientation in its parent's frame, the frame the spec is written in;
+where both set an axis the solve keeps to both (a lock wins, ranges intersect).
+
+Limit Rotation constraints in any other owner space (World, Pose, Custom, Local With Parent) are left out:
+they bound the bone against a frame that turns with other things than its parent, which a joint limit
+between the bone and its parent cannot express. A constraint's Euler order is not read: the solver turns a
+ranged bone about one rest axis at a time, and a turn about one axis reads the same angle in every order
+(solver/rig_limits.py). A constraint with any influence above 0 counts in full (holding its whole range
+keeps the solved pose and the pose Blender evaluates from it the same at any influence).
+"""
+
+import numpy as np
+
+from ..solver.body import default_limits
+from ..solver.rig_limits import AXES, BoneLimitSpec, rig_limits
+from .errors import AdjustError
+
+
+def bone_limits(pose_bone):
+    """The BoneLimitSpec of one pose bone (its own IK settings and LOCAL Limit Rotation constraints, its rest
+    orientation in its parent's). AdjustError (one line) for a constraint range that is empty."""
+    bone = pose_bone.bone
+    rest = bone.matrix_local.to_3x3().normalized()
+    if bone.parent is not None:
+        rest = bone.parent.matrix_local.to_3x3().normalized().inverted() @ rest
+    locked = tuple(getattr(pose_bone, f"lock_ik_{a}") for a in "xyz")
+    ranges = [(getattr(pose_bone, f"ik_min_{a}"), getattr(pose_bone, f"ik_max_{a}"))
+              if getattr(pose_bone, f"use_ik_limit_{a}") else None for a in "xyz"]
+    for con in pose_bone.constraints:
+        if con.type != 'LIMIT_ROTATION' or not con.enabled or con.influence <= 0.0 or con.owner_space != 'LOCAL':
+            continue
+        for k, a in enumerate("xyz"):
+            if not getattr(con, f"use_limit_{a}"):
+                continue
+            lo, hi = getattr(con, f"min_{a}"), getattr(con, f"max_{a}")
+            if lo > hi:
+                raise AdjustError(f"Bone '{pose_bone.name}': Limit Rotation '{con.name}' has its minimum "
+                                  f"{AXES[k]} above its maximum: fix the constraint")
+            if ranges[k] is not None:
+                lo, hi = max(lo, ranges[k][0]), min(hi, ranges[k][1])
+                if lo > hi:
+                    raise AdjustError(f"Bone '{pose_bone.name}': the {AXES[k]} range of Limit Rotation "
+                                      f"'{con.name}' and the bone's other {AXES[k]} limits do not overlap")
+            ranges[k] = (lo, hi)
+    return BoneLimitSpec(locked, tuple(ranges), np.array(rest, dtype=np.float64))
+
+
+def joint_limits(obj, model, heads, tails, pose_matrices, settings, defaults=None):
+    """The limits a solve of armature ``obj`` should use: ``defaults`` ({limb: LimbLimits}; None: the default
+    human limits, which the solver computes itself) with the rig's own limits of the limbs' chain bones in
+    place (solver.rig_limits). heads, tails (F,J,3) and pose_matrices (F,J,4,4) are the start poses of
+    ``model``'s bones in the solve's space. Returns ``defaults`` as given when joint limits are off or no
+    chain bone limits its direction, so such a rig is solved exactly as without this reading."""
+    if not settings.use_limits:
+        return defaults
+    bones = obj.pose.bones
+    chain = {model.names[b] for limb in model.limbs.values() for b in limb.bones}
+    specs = {name: spec for name in chain if (spec := bone_limits(bones[name])).limits_direction}
+    if not specs:
+        return defaults
+    rotations = pose_matrices[..., :3, :3]
+    if defaults is None:
+        defaults = default_limits(model, heads, tails, settings.human_limits, rotations[..., 0])
+    return rig_limits(defaults, model, heads, tails, rotations, specs)
