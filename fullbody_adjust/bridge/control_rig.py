@@ -110,6 +110,26 @@ def describe(obj):
     return f"Rigify rig ({', '.join(parts)}): keys controls"
 
 
+def fk_control(obj, bone):
+    """The control that poses ORG- ``bone`` in FK with the same rest relation to its parent as the bone has to
+    its own (the FK chain and the clavicles copy the metarig's bones), or None. Its joint limits are the bone's:
+    an animator sets them on the control."""
+    bones = obj.pose.bones
+    name = bone[len(ORG):] if bone.startswith(ORG) else None
+    if name is None or "." not in name:
+        return None
+    base, side = name.rsplit(".", 1)
+    controls = {"shoulder": "shoulder"}
+    for _switch, chain, fk, *_ik in _LIMBS.values():
+        controls.update(zip(chain, fk))
+    control = bones.get(f"{controls.get(base)}.{side}")
+    org = bones.get(bone)
+    if control is None or org is None or control.parent is None or org.parent is None:
+        return None
+    relation = [np.array(b.parent.bone.matrix_local.inverted() @ b.bone.matrix_local) for b in (control, org)]
+    return control if np.allclose(relation[0][:3, :3], relation[1][:3, :3], atol=1e-4) else None
+
+
 def control_pairs(obj, bone_map):
     """The ControlPairs that place the ORG- bones of ``bone_map`` through the rig's controls."""
     bones = obj.pose.bones

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..solver.body import default_limits
 from ..solver.rig_limits import AXES, BoneLimitSpec, rig_limits
+from . import control_rig
 from .errors import AdjustError
 
 
@@ -48,6 +49,16 @@ def bone_limits(pose_bone):
     return BoneLimitSpec(locked, tuple(ranges), np.array(rest, dtype=np.float64))
 
 
+def _limits_of(obj, pose_bone):
+    """A bone's own limits; on a control rig, where it sets none, those of the control that poses it."""
+    spec = bone_limits(pose_bone)
+    if not spec.limits_direction and control_rig.is_generated_rigify(obj):
+        control = control_rig.fk_control(obj, pose_bone.name)
+        if control is not None:
+            return bone_limits(control)
+    return spec
+
+
 def joint_limits(obj, model, heads, tails, pose_matrices, settings, defaults=None):
     """The limits a solve of armature ``obj`` should use: ``defaults`` ({limb: LimbLimits}; None: the default
     human limits, which the solver computes itself) with the rig's own limits of the limbs' chain bones in
@@ -58,7 +69,7 @@ def joint_limits(obj, model, heads, tails, pose_matrices, settings, defaults=Non
         return defaults
     bones = obj.pose.bones
     chain = {model.names[b] for limb in model.limbs.values() for b in limb.bones}
-    specs = {name: spec for name in chain if (spec := bone_limits(bones[name])).limits_direction}
+    specs = {name: spec for name in chain if (spec := _limits_of(obj, bones[name])).limits_direction}
     if not specs:
         return defaults
     rotations = pose_matrices[..., :3, :3]

@@ -203,3 +203,26 @@ def test_unknown_rig_driven_by_constraints_is_refused(capfd):
     with pytest.raises(RuntimeError, match="forearm.L' of 'metarig' follows its constraint 'Copy Rotation'"):
         bpy.ops.fullbody_adjust.adjust_pose()
     assert obj.animation_data is None or obj.animation_data.action is None
+
+
+def test_ik_locks_on_a_control_hold_the_joint(capfd):
+    """The forearm's FK control has its IK X and Z locked: the elbow keeps its angle while the hand reaches as
+    far as the rest of the body lets it; the same target without the lock bends the elbow."""
+    angles = {}
+    for locked in (False, True):
+        bpy.ops.wm.read_homefile(use_empty=True)
+        rig = generated_rig("basic", "FK")
+        control = rig.pose.bones["forearm_fk.L"]
+        control.lock_ik_x = control.lock_ik_z = locked
+        before = Pose(rig)
+        reach_left_hand(rig, before, "arm")
+        adjust(capfd)
+        after = Pose(rig)
+
+        def elbow(pose):
+            upper = pose.tail("DEF-upper_arm.L.001") - pose.head("DEF-upper_arm.L")
+            lower = pose.tail("DEF-forearm.L.001") - pose.head("DEF-forearm.L")
+            return np.arccos(upper @ lower / np.linalg.norm(upper) / np.linalg.norm(lower))
+
+        angles[locked] = abs(elbow(after) - elbow(before))
+    assert angles[True] < 1e-4 and angles[False] > 0.05, angles
