@@ -39,7 +39,7 @@ import addon_utils  # noqa: E402
 import fullbody_adjust  # noqa: E402
 from fullbody_adjust.bridge import mapping, targets  # noqa: E402
 
-MOCAP = Path(os.environ.get("FBA_MOCAP_DIR", REPO.parent / "shared" / "mocap"))
+MOCAP = Path(os.environ.get("FBA_MOCAP_DIR", REPO / "tests" / "data" / "mocap"))
 PICKUP_CLIP = "cmu_02_06_pickup_f0-1349.bvh"
 CMU_SCALE = 0.056444  # metres per CMU BVH unit (mocap/README.md)
 CMU_CREDIT = ("The data used in this project was obtained from mocap.cs.cmu.edu. The database was created with "

@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-CMU_SCALE = 0.056444  # metres per CMU BVH unit (mocap/README.md)
-# The shared clips sit next to the repository (../shared/mocap); FBA_MOCAP_DIR overrides.
-MOCAP_DIR = Path(os.environ.get("FBA_MOCAP_DIR", Path(__file__).resolve().parents[3] / "shared" / "mocap"))
+CMU_SCALE = 0.056444  # metres per CMU BVH unit (tests/data/mocap/README.md)
+# The CMU clips the tests and benches use ship with the repository; FBA_MOCAP_DIR overrides.
+MOCAP_DIR = Path(os.environ.get("FBA_MOCAP_DIR", Path(__file__).resolve().parents[1] / "data" / "mocap"))
 
 # Body-model groups for the MotionBuilder-style CMU skeleton (team brief, "Body model groups").
 CMU_GROUPS = {
@@ -221,5 +221,5 @@ def read_bvh(path, scale: float = 1.0) -> BvhClip:
 
 
 def read_cmu(filename: str) -> BvhClip:
-    """A clip from the shared mocap folder, in metres."""
+    """A clip from the mocap folder, in metres."""
     return read_bvh(MOCAP_DIR / filename, scale=CMU_SCALE)
