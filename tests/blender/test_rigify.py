@@ -52,12 +52,22 @@ def switch_values(rig):
     return {name: (rig.pose.bones[name]["IK_FK"], rig.pose.bones[name].get("pole_vector")) for name in SWITCHES}
 
 
-@pytest.mark.parametrize("kind, limbs, task", [
-    ("basic", "FK", "arm"), ("basic", "FK", "trunk"), ("basic", "IK", "arm"), ("basic", "IK", "trunk"),
-    ("basic", "IK", "pelvis"), ("full", "IK", "arm"), ("full", "FK", "trunk"),
+def move_rotate_scale(rig):
+    """The rig's object moved, turned about its up axis and scaled uniformly; the targets back on its wrists
+    and ankles."""
+    rig.location, rig.rotation_euler, rig.scale = (1.5, -2.0, 0.4), (0.0, 0.0, 1.1), (1.3, 1.3, 1.3)
+    bpy.ops.fullbody_adjust.create_targets(reset=True)
+
+
+@pytest.mark.parametrize("kind, limbs, task, moved", [
+    ("basic", "FK", "arm", False), ("basic", "FK", "trunk", False), ("basic", "IK", "arm", False),
+    ("basic", "IK", "trunk", False), ("basic", "IK", "pelvis", False), ("full", "IK", "arm", False),
+    ("full", "FK", "trunk", False), ("basic", "FK", "arm", True), ("basic", "IK", "trunk", True),
 ])
-def test_reach_through_the_controls(kind, limbs, task, capfd):
+def test_reach_through_the_controls(kind, limbs, task, moved, capfd):
     rig = generated_rig(kind, limbs)
+    if moved:
+        move_rotate_scale(rig)
     assert all(bone.startswith("ORG-") for bones in bone_map(rig).values() for bone in bones)
     switches = switch_values(rig)
     before = Pose(rig)
@@ -97,8 +107,7 @@ def test_moved_rotated_scaled_rig_with_an_obstacle(extension_module_name):
     no deform joint ends inside it and the hand still reaches."""
     adjustment = importlib.import_module(f"{extension_module_name}.bridge.adjustment")
     rig = generated_rig("basic", "FK")
-    rig.location, rig.rotation_euler, rig.scale = (1.5, -2.0, 0.4), (0.0, 0.0, 1.1), (1.3, 1.3, 1.3)
-    bpy.ops.fullbody_adjust.create_targets(reset=True)
+    move_rotate_scale(rig)
     start = {pb.name: pb.matrix_basis.copy() for pb in rig.pose.bones}
     before = Pose(rig)
     reach_left_hand(rig, before, "arm")
