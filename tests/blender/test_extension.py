@@ -180,6 +180,21 @@ def test_package_and_solver_import_in_a_python_without_bpy():
     assert done.returncode == 0, done.stderr
 
 
+def test_without_bpy_every_blender_test_module_is_reported_skipped_with_the_reason():
+    # A Python without bpy (the import blocked here) collects this folder's modules as skipped, not silently
+    # left out, and imports none of them.
+    modules = sorted(path.name for path in Path(__file__).parent.glob("test_*.py"))
+    code = ("import sys; sys.modules['bpy'] = None; import pytest; "
+            "sys.exit(pytest.main(['tests/blender', '-q', '-rs', '-p', 'no:cacheprovider']))")
+    done = subprocess.run([sys.executable, "-c", code], cwd=EXTENSION_DIR, capture_output=True, text=True,
+                          timeout=120)
+    # Nothing to run but no error either: pytest's 'no tests collected'.
+    assert done.returncode == pytest.ExitCode.NO_TESTS_COLLECTED, done.stdout + done.stderr
+    summary = done.stdout.strip().splitlines()[-1]
+    assert re.match(rf"{len(modules)} skipped in ", summary), done.stdout
+    assert f"SKIPPED [{len(modules)}]" in done.stdout and "bpy is not importable" in done.stdout
+
+
 # --- settings -----------------------------------------------------------------------------------------------
 
 def test_settings_defaults_follow_the_design():
