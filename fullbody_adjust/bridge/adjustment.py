@@ -13,9 +13,9 @@ import numpy as np
 
 from ..solver import Boxes, ChainSettings, SolverInputError
 from ..solver.adjust import AdjustSettings, adjust_frames as solve_frames
-from ..solver.body import CHAIN, END, ROOT, BodyModel
+from ..solver.body import CHAIN, END, ROOT
 from ..solver.obstacles import penetrations
-from . import keyframes, mapping, obstacles, pose, targets
+from . import keyframes, mapping, obstacles, pose, rig_cache, targets
 from .errors import AdjustError
 
 # UI names of the sub-base variants -> the solver's.
@@ -135,7 +135,7 @@ def adjust_frames(context, obj, frame_start, frame_end, options=Options(), progr
 def _run(context, obj, frames, options, *, apply_pose, progress=None):
     progress = progress or (lambda stage, fraction: None)
     check_armature(obj)
-    bone_map = mapping.ensure_map(obj)
+    rig = rig_cache.rig_of(obj)
     settings = settings_of(obj, options)
     keep_hands = options.keep_hand_orientation
     keep_hands = obj.fullbody_adjust.keep_hand_orientation if keep_hands is None else keep_hands
@@ -162,7 +162,7 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None):
             snapshot = pose.read_pose_frames(obj, frames, each_frame=read_others)
             corners = np.stack(corner_rows)
     _check_object_scale(obj, snapshot)
-    model = _model(snapshot, bone_map)
+    model = rig.model
     _check_driven_bones(model, snapshot)
     _check_target_distances(obj, world_targets, snapshot)
     priorities = _priorities(obj)
@@ -269,14 +269,6 @@ def _current_targets(obj, context):
 def _priorities(obj):
     by_effector = {slot.effector: int(slot.priority) for slot in obj.fullbody_adjust.targets}
     return np.array([by_effector.get(e, targets.DEFAULT_PRIORITY[e]) for e in targets.EFFECTORS], dtype=np.float64)
-
-
-def _model(snapshot, bone_map):
-    try:
-        return BodyModel.from_description(snapshot.names, snapshot.parents,
-                                          {group: list(bones) for group, bones in bone_map.groups.items()})
-    except SolverInputError as ex:
-        raise AdjustError(f"Bone mapping does not fit the rig: {ex}") from None
 
 
 def _check_object_scale(obj, snapshot):

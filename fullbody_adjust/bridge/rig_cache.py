@@ -1,0 +1,88 @@
+"""Per-armature cache of what a click rebuilds although it depends only on the rig: the stored bone map
+(checked against the rig) and the solver's BodyModel.
+
+An entry is found again only while the armature's fingerprint is unchanged: bone names and parents, connect
+flags, rest heads, tails and matrices (read in bulk), and the stored map's items. The cached values are a
+function of exactly these (a stored map that fits the rig is used as it is, and the model is built from the
+names, parents and map), so a hit is never stale. No setting of ``obj.fullbody_adjust`` other than the map
+enters them. Entries are keyed by object name; a renamed or replaced object simply misses once.
+"""
+
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..solver import SolverInputError
+from ..solver.body import BodyModel
+from . import mapping
+from .errors import AdjustError
+
+# Armatures remembered at once (a scene rarely has more characters being adjusted).
+_CAPACITY = 16
+
+_entries = OrderedDict()  # object name -> _Entry
+
+
+@dataclass(frozen=True)
+class Rig:
+    """What a solve needs of the rig that does not change between clicks."""
+
+    bone_map: mapping.BoneMap
+    model: BodyModel
+
+
+@dataclass(frozen=True)
+class _Entry:
+    fingerprint: tuple
+    rig: Rig
+
+
+def rig_of(obj):
+    """The armature's Rig, from the cache while its fingerprint is unchanged; otherwise mapped (the map stored
+    on the object as ``mapping.ensure_map`` does) and modelled afresh. AdjustError (one line) when the rig
+    cannot be mapped or the map does not fit it."""
+    fingerprint = _fingerprint(obj)
+    entry = _entries.get(obj.name)
+    if entry is not None and entry.fingerprint == fingerprint:
+        _entries.move_to_end(obj.name)
+        return entry.rig
+    bone_map = mapping.ensure_map(obj)  # may store a new map, which changes the fingerprint
+    rig = Rig(bone_map=bone_map, model=body_model(obj.data.bones.keys(), _parents(obj.data.bones), bone_map))
+    _entries[obj.name] = _Entry(_fingerprint(obj), rig)
+    _entries.move_to_end(obj.name)
+    while len(_entries) > _CAPACITY:
+        _entries.popitem(last=False)
+    return rig
+
+
+def body_model(names, parents, bone_map):
+    """The solver's BodyModel of a rig (bone names, parent indices) under ``bone_map``."""
+    try:
+        return BodyModel.from_description(tuple(names), np.asarray(parents),
+                                          {group: list(bones) for group, bones in bone_map.groups.items()})
+    except SolverInputError as ex:
+        raise AdjustError(f"Bone mapping does not fit the rig: {ex}") from None
+
+
+def clear():
+    """Forget every entry (e.g. when another file is loaded)."""
+    _entries.clear()
+
+
+def _fingerprint(obj):
+    bones = obj.data.bones
+    count = len(bones)
+    arrays = []
+    for prop, size, dtype in (("head_local", 3, np.float32), ("tail_local", 3, np.float32),
+                              ("matrix_local", 16, np.float32), ("use_connect", 1, bool)):
+        buffer = np.empty(count * size, dtype=dtype)
+        bones.foreach_get(prop, buffer)
+        arrays.append(buffer.tobytes())
+    stored = tuple((item.group, item.bone) for item in obj.fullbody_adjust.bone_map)
+    return (tuple(bones.keys()), tuple(_parents(bones)), *arrays, stored)
+
+
+def _parents(bones):
+    index = {name: i for i, name in enumerate(bones.keys())}
+    return [index[bone.parent.name] if bone.parent is not None else -1 for bone in bones]
