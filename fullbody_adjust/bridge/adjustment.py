@@ -42,6 +42,7 @@ class Options:
     max_iterations: int = None
     use_joint_limits: bool = None
     keep_hand_orientation: bool = None
+    skip_missing_targets: bool = False  # leave out an enabled slot whose target is gone instead of failing
     new_action: str = None  # write keys into a new action of this name (the original stays intact)
     insert_keys: bool = True
 
@@ -118,10 +119,11 @@ def settings_of(obj, options=Options()):
     return AdjustSettings(chain=chain, variant=VARIANTS[pick("variant")], use_limits=bool(pick("use_joint_limits")))
 
 
-def adjust_pose(context, obj, options=Options()):
-    """Adjust the armature's pose at the current frame, apply it, and key the bones that moved."""
+def adjust_pose(context, obj, options=Options(), start=None):
+    """Adjust the armature's pose at the current frame, apply it, and key the bones that moved. ``start``:
+    the pose to solve from, a PoseSnapshot of this frame (default: the pose as it is now)."""
     frame = context.scene.frame_current
-    return _run(context, obj, [frame], options, apply_pose=True)
+    return _run(context, obj, [frame], options, apply_pose=True, start=start)
 
 
 def adjust_frames(context, obj, frame_start, frame_end, options=Options(), progress=None):
@@ -132,7 +134,7 @@ def adjust_frames(context, obj, frame_start, frame_end, options=Options(), progr
     return _run(context, obj, frames, options, apply_pose=False, progress=progress)
 
 
-def _run(context, obj, frames, options, *, apply_pose, progress=None):
+def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None):
     progress = progress or (lambda stage, fraction: None)
     check_armature(obj)
     rig = rig_cache.rig_of(obj)
@@ -145,9 +147,9 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None):
     if apply_pose:
         # The current frame as the user sees it. Stepping to it with frame_set would evaluate the animation
         # again and throw away pose changes not keyed yet, even when the run then fails.
-        world_targets = _current_targets(obj, context)
+        world_targets = _current_targets(obj, context, options.skip_missing_targets)
         corners = obstacles.obstacle_boxes(obj, context)[None]
-        snapshot = pose.as_batch(pose.read_pose(obj))
+        snapshot = pose.as_batch(pose.read_pose(obj) if start is None else start)
     else:
         with _pose_kept(obj):  # stepping through the frames evaluates the animation into the pose bones
             target_at = targets.target_frame_reader(obj, context)
@@ -258,10 +260,10 @@ def _check_target_distances(obj, world_targets, snapshot):
                           f"too far to reach for (a location set to inf?)")
 
 
-def _current_targets(obj, context):
+def _current_targets(obj, context, skip_missing=False):
     """World positions (1,E,3) of the enabled targets at the current frame as evaluated; NaN: no target."""
     out = np.full((1, len(targets.EFFECTORS), 3), np.nan)
-    for spec in targets.read_targets(obj, context.evaluated_depsgraph_get()):
+    for spec in targets.read_targets(obj, context.evaluated_depsgraph_get(), skip_missing=skip_missing):
         out[0, targets.EFFECTORS.index(spec.effector)] = spec.position
     return out
 
