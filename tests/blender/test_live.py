@@ -8,8 +8,8 @@ import bpy
 import numpy as np
 import pytest
 
-from .scene_tools import (Pose, add_rig, animating_fcurves, bone_map, chain_joints, chain_length, drop_frame,
-                          keys_at, keys_state, place, pose_channels, residuals, slot, without_derived_handles)
+from .scene_tools import (Pose, add_rig, animating_fcurves, bone_map, drop_frame, keys_at, keys_state, place,
+                          pose_channels, residuals, slot, without_derived_handles)
 from .test_adjust_pose import KEY_FRAME, keyed_metarig, reach_left_hand
 
 # A met target is within this fraction of the rig's height (as for Adjust Pose).
@@ -242,3 +242,20 @@ def test_handler_works_after_undo(live):
     move_hand_target(obj)
     bpy.context.view_layer.update()
     assert hand_distance(obj) < REACH * Pose(obj).height()
+
+
+def test_frame_change_solves_from_that_frames_animation(live):
+    obj = live_rig(keyed=True)
+    scene = bpy.context.scene
+    scene.frame_set(1)
+    animated_at_1 = pose_channels(obj)
+    scene.frame_set(KEY_FRAME)
+    obj.fullbody_adjust.live = True
+    move_hand_target(obj)
+    bpy.context.view_layer.update()
+    height = Pose(obj).height()
+
+    scene.frame_set(1)
+    assert hand_distance(obj) < REACH * height
+    obj.fullbody_adjust.live = False
+    assert pose_channels(obj) == animated_at_1
