@@ -179,7 +179,8 @@ _HANDLERS = (
 def register():
     for event, handler in _HANDLERS:
         getattr(bpy.app.handlers, event).append(handler)
-    _resync()
+    if isinstance(bpy.data, bpy.types.BlendData):  # at start-up the file is not there yet: load_post follows
+        _resync()
 
 
 def unregister():

@@ -259,3 +259,34 @@ def test_frame_change_solves_from_that_frames_animation(live):
     assert hand_distance(obj) < REACH * height
     obj.fullbody_adjust.live = False
     assert pose_channels(obj) == animated_at_1
+
+
+def test_panel_shows_the_toggle_and_key_pose_while_live(live):
+    from .test_extension import draw_panel
+
+    obj = live_rig()
+    layout = draw_panel("FULLBODY_ADJUST_PT_main", obj)
+    assert (obj.fullbody_adjust, "live") in layout.all_props()
+    assert "fullbody_adjust.key_pose" not in layout.all_operators()
+    assert not bpy.ops.fullbody_adjust.key_pose.poll()
+
+    obj.fullbody_adjust.live = True
+    layout = draw_panel("FULLBODY_ADJUST_PT_main", obj)
+    assert "fullbody_adjust.key_pose" in layout.all_operators()
+    assert bpy.ops.fullbody_adjust.key_pose.poll()
+    assert not [text for text in layout.all_labels() if "missing" in text]
+    bpy.data.objects.remove(slot(obj, "foot.R").target)
+    bpy.context.view_layer.update()
+    move_hand_target(obj)
+    bpy.context.view_layer.update()
+    problems = [text for text in draw_panel("FULLBODY_ADJUST_PT_main", obj).all_labels() if "missing" in text]
+    assert len(problems) == 1 and "foot.R" in problems[0]
+
+
+def test_live_on_an_armature_without_targets_reports_once(live):
+    obj = add_rig("basic")
+    obj.fullbody_adjust.live = True  # no targets yet: nothing to solve, no exception
+    assert "target" in live.status(obj).lower()
+    assert bpy.ops.fullbody_adjust.key_pose.poll()
+    with pytest.raises(RuntimeError, match="Nothing to key"):
+        bpy.ops.fullbody_adjust.key_pose()
