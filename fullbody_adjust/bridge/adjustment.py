@@ -149,7 +149,7 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
         # again and throw away pose changes not keyed yet, even when the run then fails.
         world_targets = _current_targets(obj, context, options.skip_missing_targets)
         corners = obstacles.obstacle_boxes(obj, context)[None]
-        snapshot = pose.as_batch(pose.read_pose(obj) if start is None else start)
+        snapshot = pose.as_batch(pose.read_pose(obj, rig.static(obj)) if start is None else start)
     else:
         with _pose_kept(obj):  # stepping through the frames evaluates the animation into the pose bones
             target_at = targets.target_frame_reader(obj, context)
@@ -205,7 +205,7 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
     if apply_pose:
         # What the user sees is the pose Blender evaluates from the written channels (float32, constraints):
         # report the residuals of that pose rather than the solver's.
-        applied = pose.read_pose(obj)
+        applied = pose.read_pose(obj, rig.static(obj))
         world_effectors = _effector_positions(model, applied.heads[None], np.eye(4)[None])
     else:
         world_effectors = _effector_positions(model, result.heads, snapshot.matrix_world)

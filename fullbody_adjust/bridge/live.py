@@ -21,7 +21,7 @@ import bpy
 import numpy as np
 from bpy.app.handlers import persistent
 
-from . import adjustment, keyframes, pose, targets
+from . import adjustment, keyframes, pose, rig_cache, targets
 from .errors import AdjustError
 
 # How a live solve differs from Adjust Pose: no keys, and a deleted target's slot is left out.
@@ -202,7 +202,8 @@ def _solve(obj, state, context):
         frame = _current_frame(context.scene)
         if state.stale or state.start_frame != frame or state.start.names != tuple(obj.data.bones.keys()):
             _restore(obj, state, frame)
-            state.start, state.start_frame, state.written = pose.read_pose(obj), frame, ()
+            static = rig_cache.rig_of(obj).static(obj)
+            state.start, state.start_frame, state.written = pose.read_pose(obj, static), frame, ()
             state.stale = False
         state.solves += 1
         outcome = adjustment.adjust_pose(context, obj, LIVE_OPTIONS, start=state.start)

@@ -104,9 +104,13 @@ class PoseSnapshot:
         return cached
 
 
-def read_pose(obj):
-    """The evaluated pose of armature ``obj`` at the current frame (the caller sets it) as a PoseSnapshot."""
-    static = _read_static(obj)
+def read_pose(obj, static=None):
+    """The evaluated pose of armature ``obj`` at the current frame (the caller sets it) as a PoseSnapshot.
+    ``static``: the rig's rest data as ``read_static`` gives it, from a caller that keeps it between reads."""
+    if static is None:
+        static = read_static(obj)
+    else:
+        _check_readable(obj)
     return PoseSnapshot(**static, **_read_frame(obj))
 
 
@@ -117,7 +121,7 @@ def read_pose_frames(obj, frames, each_frame=None):
     frames = np.asarray(frames, dtype=np.float64).reshape(-1)
     if len(frames) == 0 or not np.all(np.isfinite(frames)):
         raise ValueError("read_pose_frames needs at least one finite frame")
-    static = _read_static(obj)
+    static = read_static(obj)
     rows = []
     for row, frame in step_frames(bpy.context.scene, frames):
         rows.append(_read_frame(obj))
@@ -222,11 +226,10 @@ def continuous_rotation(prop, mode, value, reference):
 # --- reading --------------------------------------------------------------------------------------------
 
 
-def _read_static(obj):
-    if obj is None or obj.type != 'ARMATURE':
-        raise AdjustError(f"'{getattr(obj, 'name', obj)}' is not an armature")
-    if obj.mode == 'EDIT':
-        raise AdjustError(f"Armature '{obj.name}' is in Edit Mode: leave it to read or write the pose")
+def read_static(obj):
+    """What a PoseSnapshot holds of the rig besides the pose: bone names, parents, connect flags, rotation
+    modes and rest matrices."""
+    _check_readable(obj)
     bones = obj.data.bones
     count = len(bones)
     if count == 0:
@@ -247,6 +250,13 @@ def _read_static(obj):
         "rotation_modes": tuple(pb.rotation_mode for pb in obj.pose.bones),
         "rest_matrices": _get_matrices(bones, "matrix_local", count),
     }
+
+
+def _check_readable(obj):
+    if obj is None or obj.type != 'ARMATURE':
+        raise AdjustError(f"'{getattr(obj, 'name', obj)}' is not an armature")
+    if obj.mode == 'EDIT':
+        raise AdjustError(f"Armature '{obj.name}' is in Edit Mode: leave it to read or write the pose")
 
 
 def _read_frame(obj):

@@ -1,11 +1,12 @@
 """Per-armature cache of what a click rebuilds although it depends only on the rig: the stored bone map
-(checked against the rig) and the solver's BodyModel.
+(checked against the rig), the solver's BodyModel and the rest data every pose read needs.
 
 An entry is found again only while the armature's fingerprint is unchanged: bone names and parents, connect
 flags, rest heads, tails and matrices (read in bulk), and the stored map's items. The cached values are a
-function of exactly these (a stored map that fits the rig is used as it is, and the model is built from the
-names, parents and map), so a hit is never stale. No setting of ``obj.fullbody_adjust`` other than the map
-enters them. Entries are keyed by object name; a renamed or replaced object simply misses once.
+function of exactly these (a stored map that fits the rig is used as it is, the model is built from the
+names, parents and map, the rest data from the bones), so a hit is never stale. Rotation modes belong to the
+pose, not the rig: ``Rig.static`` reads them on every call. No setting of ``obj.fullbody_adjust`` other than
+the map enters the cached values. Entries are keyed by object name; a renamed or replaced object simply misses once.
 """
 
 from collections import OrderedDict
@@ -15,7 +16,7 @@ import numpy as np
 
 from ..solver import SolverInputError
 from ..solver.body import BodyModel
-from . import mapping
+from . import mapping, pose
 from .errors import AdjustError
 
 # Armatures remembered at once (a scene rarely has more characters being adjusted).
@@ -30,6 +31,11 @@ class Rig:
 
     bone_map: mapping.BoneMap
     model: BodyModel
+    rest: dict  # pose.read_static's fields but the rotation modes
+
+    def static(self, obj):
+        """pose.read_static(obj) of this rig, the rotation modes read now."""
+        return {**self.rest, "rotation_modes": tuple(bone.rotation_mode for bone in obj.pose.bones)}
 
 
 @dataclass(frozen=True)
@@ -48,7 +54,9 @@ def rig_of(obj):
         _entries.move_to_end(obj.name)
         return entry.rig
     bone_map = mapping.ensure_map(obj)  # may store a new map, which changes the fingerprint
-    rig = Rig(bone_map=bone_map, model=body_model(obj.data.bones.keys(), _parents(obj.data.bones), bone_map))
+    rest = pose.read_static(obj)
+    del rest["rotation_modes"]
+    rig = Rig(bone_map=bone_map, model=body_model(rest["names"], rest["parents"], bone_map), rest=rest)
     _entries[obj.name] = _Entry(_fingerprint(obj), rig)
     _entries.move_to_end(obj.name)
     while len(_entries) > _CAPACITY:

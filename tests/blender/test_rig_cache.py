@@ -4,6 +4,7 @@ uses a stale one after the rig's bones or the stored map change."""
 import importlib
 
 import bpy
+import numpy as np
 import pytest
 
 
@@ -79,3 +80,18 @@ def test_map_that_no_longer_fits_is_replaced(rig, rig_cache):
     after = rig_cache.rig_of(rig)
     assert model_bones(after, "hand.R") == ["hand.R"]
     assert [i.bone for i in rig.fullbody_adjust.bone_map if i.group == "hand.R"] == ["hand.R"]
+
+
+def test_rest_data_is_the_rigs_and_rotation_modes_are_read_each_time(rig, rig_cache, extension_module_name):
+    pose = importlib.import_module(f"{extension_module_name}.bridge.pose")
+    cached = rig_cache.rig_of(rig)
+    fresh = pose.read_static(rig)
+    static = cached.static(rig)
+    assert set(static) == set(fresh)
+    for key, value in fresh.items():
+        np.testing.assert_array_equal(np.asarray(static[key]), np.asarray(value), err_msg=key)
+    rig.pose.bones["forearm.L"].rotation_mode = 'XZY'
+    assert rig_cache.rig_of(rig) is cached
+    modes = cached.static(rig)["rotation_modes"]
+    assert modes[list(rig.data.bones.keys()).index("forearm.L")] == 'XZY'
+    assert modes == pose.read_static(rig)["rotation_modes"]
