@@ -9,6 +9,7 @@ Cases, each with targets at every wrist and ankle (feet planted where they stand
             the pelvis moves as far as the planted feet allow;
   obstacle  the near targets, with a box where the left elbow goes without it.
 Every repetition moves the hand targets a little (a different spot each time), so every solve has work to do.
+Each measure of a case starts from the rest pose without keys (clicks then go on from the pose they keyed).
 
   adjust_pose_ms  the operator bpy.ops.fullbody_adjust.adjust_pose() as a click runs it (solve, apply, key);
                   the target moves and their depsgraph update before it are not timed;
@@ -38,7 +39,7 @@ sys.path.insert(0, str(REPO))
 
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402
-from mathutils import Vector  # noqa: E402
+from mathutils import Matrix, Vector  # noqa: E402
 
 import fullbody_adjust  # noqa: E402
 from bench.batch import stdout_to_stderr  # noqa: E402
@@ -106,6 +107,13 @@ class Scene:
         return max(float(np.linalg.norm(snapshot.heads[self.model.limbs[f"arm.{s}"].end_bone] - goals[f"hand.{s}"]))
                    / self.arm_reach[s] for s in "LR")
 
+    def reset(self):
+        """Back to the rest pose without keys, so every measure of a case starts from the same pose."""
+        self.obj.animation_data_clear()
+        for pose_bone in self.obj.pose.bones:
+            pose_bone.matrix_basis = Matrix.Identity(4)
+        bpy.context.view_layer.update()
+
     def place(self, goals):
         for effector, position in goals.items():
             self.slots[effector].target.location = position  # the targets have no parent
@@ -137,6 +145,7 @@ def summary(times):
 
 
 def time_adjust_pose(scene, case, repeat):
+    scene.reset()
     times = []
     for k in range(repeat):
         goals = scene.goals(case, k)
@@ -148,6 +157,7 @@ def time_adjust_pose(scene, case, repeat):
 
 
 def time_live(scene, case, repeat):
+    scene.reset()
     obj = scene.obj
     obj.fullbody_adjust.live = True
     try:
@@ -193,6 +203,7 @@ def add_blender_ik(scene):
 
 
 def time_blender_ik(scene, case, repeat):
+    scene.reset()
     place, added = add_blender_ik(scene)
     try:
         times = []

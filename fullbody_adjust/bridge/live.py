@@ -38,7 +38,8 @@ class LiveState:
     start_frame: float = None
     stale: bool = True  # read the base pose again before the next solve
     written: tuple = ()  # bones whose channels the last solve changed
-    error: str = ""  # the last solve's error, one line ("" when it went well)
+    error: str = ""  # why the last solve failed, one line ("" when it went well)
+    warning: str = ""  # what the last solve left out (a deleted target), one line
     solves: int = 0  # live solves so far (for tests and the bench)
 
 
@@ -53,9 +54,9 @@ def state_of(obj):
 
 
 def status(obj):
-    """One line for the panel: the last live solve's error, or '' when there is none."""
+    """One line for the panel: why the last live solve failed or what it left out, or '' when neither."""
     state = state_of(obj)
-    return state.error if state is not None else ""
+    return (state.error or state.warning) if state is not None else ""
 
 
 def live_toggled(obj, context):
@@ -114,6 +115,7 @@ def _on_depsgraph_update(scene, depsgraph):
     for name in list(_states):
         obj = _live_object(name)
         if obj is None:
+            _resync()  # renamed, or Live switched off some other way: follow what the file says
             continue
         state = _states[name]
         target_names = {slot.target.name for slot in obj.fullbody_adjust.targets if slot.target is not None}
@@ -208,14 +210,14 @@ def _solve(obj, state, context):
         state.solves += 1
         outcome = adjustment.adjust_pose(context, obj, LIVE_OPTIONS, start=state.start)
     except AdjustError as ex:
-        state.error = str(ex)
+        state.error, state.warning = str(ex), ""
         _restore(obj, state, frame)
         state.written = ()
     except Exception as ex:  # a handler must not raise: Blender would print it on every update
-        state.error = f"Live Adjust failed: {type(ex).__name__}: {ex}"
+        state.error, state.warning = f"Live Adjust failed: {type(ex).__name__}: {ex}", ""
         state.written = ()
     else:
-        state.error = _missing_targets(obj, context.scene)
+        state.error, state.warning = "", _missing_targets(obj, context.scene)
         # Bones the previous solve moved and this one leaves alone go back to the base pose.
         _restore(obj, state, frame, keep=set(outcome.moved_bones))
         state.written = outcome.moved_bones

@@ -290,3 +290,25 @@ def test_live_on_an_armature_without_targets_reports_once(live):
     assert bpy.ops.fullbody_adjust.key_pose.poll()
     with pytest.raises(RuntimeError, match="Nothing to key"):
         bpy.ops.fullbody_adjust.key_pose()
+
+
+def test_key_pose_with_a_deleted_target_keys_the_rest(live):
+    obj = live_rig()
+    obj.fullbody_adjust.live = True
+    bpy.data.objects.remove(slot(obj, "hand.R").target)
+    move_hand_target(obj)
+    bpy.context.view_layer.update()
+    assert "missing" in live.status(obj)
+    assert bpy.ops.fullbody_adjust.key_pose() == {'FINISHED'}
+    keyed = {fc.data_path.split('"')[1] for fc in animating_fcurves(obj)}
+    assert bone_map(obj)["arm.L"][-1] in keyed
+
+
+def test_renamed_armature_stays_live(live):
+    obj = live_rig()
+    obj.fullbody_adjust.live = True
+    obj.name = "Hero"
+    move_hand_target(obj)
+    bpy.context.view_layer.update()
+    assert live.state_of(obj) is not None
+    assert hand_distance(obj) < REACH * Pose(obj).height()
