@@ -21,7 +21,7 @@ import bpy
 import numpy as np
 from bpy.app.handlers import persistent
 
-from . import adjustment, keyframes, pose, rig_cache, targets
+from . import adjustment, frames, keyframes, pose, rig_cache, targets
 from .errors import AdjustError
 
 # How a live solve differs from Adjust Pose: no keys, and a deleted target's slot is left out.
@@ -128,7 +128,7 @@ def _on_depsgraph_update(scene, depsgraph):
 
 @persistent
 def _on_frame_change_pre(scene, depsgraph=None):
-    if not _states:
+    if not _states or frames.stepping():  # the bridge reading frames: Live solves when it is back
         return
     # Put back what Live changed, so the new frame evaluates to its base pose (animation over base).
     for name in list(_states):
@@ -141,7 +141,7 @@ def _on_frame_change_pre(scene, depsgraph=None):
 
 @persistent
 def _on_frame_change_post(scene, depsgraph=None):
-    if not _states:
+    if not _states or frames.stepping():
         return
     for name in list(_states):
         obj = _live_object(name)

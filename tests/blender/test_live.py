@@ -312,3 +312,29 @@ def test_renamed_armature_stays_live(live):
     bpy.context.view_layer.update()
     assert live.state_of(obj) is not None
     assert hand_distance(obj) < REACH * Pose(obj).height()
+
+
+def test_adjust_frames_steps_frames_without_live_solving_each(live):
+    obj = live_rig(keyed=True)
+    obj.fullbody_adjust.live = True
+    move_hand_target(obj)
+    bpy.context.view_layer.update()
+    count = solves(live, obj)
+    assert bpy.ops.fullbody_adjust.adjust_frames(frame_start=1, frame_end=10) == {'FINISHED'}
+    assert solves(live, obj) == count + 1  # once, back on the current frame
+    assert bpy.context.scene.frame_current == KEY_FRAME
+    assert hand_distance(obj) < REACH * Pose(obj).height()
+
+
+def test_key_pose_is_undone_by_undo(live):
+    obj = live_rig(keyed=True)
+    obj.fullbody_adjust.live = True
+    move_hand_target(obj)
+    bpy.context.view_layer.update()
+    keys = keys_state(obj)
+    bpy.ops.ed.undo_push(message="before keying")
+    assert bpy.ops.fullbody_adjust.key_pose('EXEC_DEFAULT', True) == {'FINISHED'}
+    assert keys_state(obj) != keys
+    bpy.ops.ed.undo()
+    obj = bpy.data.objects["metarig"]
+    assert keys_state(obj) == keys
