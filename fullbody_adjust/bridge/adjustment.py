@@ -170,7 +170,7 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
     priorities = _priorities(obj)
     progress("solving", 0.3)
 
-    to_arm = np.linalg.inv(snapshot.matrix_world)  # (F,4,4)
+    to_arm = pose.affine_inverse(snapshot.matrix_world)  # (F,4,4)
     heads = _apply(to_arm, snapshot.heads)
     tails = _apply(to_arm, snapshot.tails)
     arm_targets = _apply(to_arm, world_targets)

@@ -441,6 +441,20 @@ def as_batch(snapshot):
                    channels={key: value[None] for key, value in snapshot.channels.items()})
 
 
+def affine_inverse(matrices):
+    """Inverses of affine (...,4,4) matrices in closed form. np.linalg.inv goes through LAPACK, whose thread
+    pool wakes up for a single 4x4 and, right after Blender's own threads evaluated the scene, can take
+    milliseconds to get a core."""
+    a0, a1, a2 = (matrices[..., :3, k] for k in range(3))  # the linear part's columns
+    rows = np.stack([np.cross(a1, a2), np.cross(a2, a0), np.cross(a0, a1)], axis=-2)
+    linear = rows / np.sum(a0 * rows[..., 0, :], axis=-1)[..., None, None]
+    out = np.zeros(matrices.shape)
+    out[..., :3, :3] = linear
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", linear, matrices[..., :3, 3])
+    out[..., 3, 3] = 1.0
+    return out
+
+
 def _array(value, shape, name):
     value = np.asarray(value, dtype=np.float64)
     if value.shape != shape:
