@@ -18,6 +18,8 @@ Each measure of a case starts from the rest pose without keys (clicks then go on
   blender_ik_ms   the same target moves and view_layer.update() with Live off and Blender's IK constraints
                   on the same rig aiming at the same empties (arm chains from the clavicle, leg chains from the
                   hip); on the generated rig, its own IK controls moved to the same points;
+  outside_solver_median  the part of ours spent outside the solver (reading, checks, writing, keys, the
+                  handler, Blender's evaluation of the result);
   *_over_ik       ours / Blender's, medians of the same run;
   hand_residual   after the last repetition, the largest wrist-to-goal distance in arm lengths (so the
                   reference is seen to act: ~0 in the near case for both).
@@ -43,7 +45,7 @@ from mathutils import Matrix, Vector  # noqa: E402
 
 import fullbody_adjust  # noqa: E402
 from bench.batch import stdout_to_stderr  # noqa: E402
-from fullbody_adjust.bridge import live, pose, rig_cache  # noqa: E402
+from fullbody_adjust.bridge import adjustment, live, pose, rig_cache  # noqa: E402
 
 RIGS = ("basic", "full", "generated")
 CASES = ("near", "far", "obstacle")
@@ -134,14 +136,38 @@ class Scene:
         bpy.context.view_layer.update()
 
 
+class SolverClock:
+    """Milliseconds spent in the solver (solver.adjust.adjust_frames, as the bridge calls it) since reset."""
+
+    def __init__(self):
+        self.ms = 0.0
+        solve = adjustment.solve_frames
+
+        def timed_solve(*args, **kwargs):
+            start = time.perf_counter()
+            try:
+                return solve(*args, **kwargs)
+            finally:
+                self.ms += 1e3 * (time.perf_counter() - start)
+        adjustment.solve_frames = timed_solve
+
+
+SOLVER = None  # the SolverClock, made in main()
+
+
 def timed(function):
+    """(total ms, ms of it outside the solver) of one call."""
+    SOLVER.ms = 0.0
     start = time.perf_counter()
     function()
-    return 1e3 * (time.perf_counter() - start)
+    total = 1e3 * (time.perf_counter() - start)
+    return total, total - SOLVER.ms
 
 
-def summary(times):
-    return {"median": round(statistics.median(times), 3), "best": round(min(times), 3)}
+def summary(samples):
+    times, outside = zip(*samples)
+    return {"median": round(statistics.median(times), 3), "best": round(min(times), 3),
+            "outside_solver_median": round(statistics.median(outside), 3)}
 
 
 def time_adjust_pose(scene, case, repeat):
@@ -267,6 +293,8 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--repeat", type=int, default=15, help="repetitions per case and measure")
     args = parser.parse_args()
+    global SOLVER
+    SOLVER = SolverClock()
     with stdout_to_stderr():
         bpy.ops.wm.read_factory_settings(use_empty=True)
         fullbody_adjust.register()

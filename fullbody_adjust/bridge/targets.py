@@ -150,7 +150,10 @@ def _place(empty, position, size):
 
 
 def _in_scene(scene, ob):
-    return scene in ob.users_scene
+    # ob.users_scene looks through every scene's collections; a name lookup in the scene's objects is the
+    # quick answer unless another object (from a library) has the same name.
+    found = scene.objects.get(ob.name)
+    return found == ob or (found is not None and scene in ob.users_scene)
 
 
 def missing_target(slot, scene):
