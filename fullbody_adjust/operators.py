@@ -5,7 +5,7 @@ one line, so a bad input never shows a traceback and changes nothing."""
 import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
-from .bridge import adjustment, mapping
+from .bridge import adjustment, live, mapping
 from .bridge.errors import AdjustError
 from .properties import VARIANT_ITEMS
 
@@ -177,11 +177,35 @@ class FULLBODY_ADJUST_OT_adjust_frames(_SolverOptions, ArmatureOperator, bpy.typ
         super().draw(context)
 
 
+class FULLBODY_ADJUST_OT_key_pose(ArmatureOperator, bpy.types.Operator):
+    """Key the pose Live Adjust shows on the current frame (the bones it moved)"""
+    bl_idname = "fullbody_adjust.key_pose"
+    bl_label = "Key Pose"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    @classmethod
+    def poll(cls, context):
+        if not super().poll(context):
+            return False
+        if not context.active_object.fullbody_adjust.live:
+            cls.poll_message_set("Turn Live Adjust on first")
+            return False
+        return True
+
+    def execute(self, context):
+        keyed = self.run(context, lambda: live.key_pose(context, context.active_object))
+        if keyed is None:
+            return {'CANCELLED'}
+        self.report({'INFO'}, f"{len(keyed)} bones keyed" if keyed else "Nothing to key: the pose is the keyed one")
+        return {'FINISHED'}
+
+
 classes = (
     FULLBODY_ADJUST_OT_map_bones,
     FULLBODY_ADJUST_OT_create_targets,
     FULLBODY_ADJUST_OT_adjust_pose,
     FULLBODY_ADJUST_OT_adjust_frames,
+    FULLBODY_ADJUST_OT_key_pose,
 )
 
 register, unregister = bpy.utils.register_classes_factory(classes)

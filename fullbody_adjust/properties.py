@@ -15,6 +15,7 @@ from bpy.props import (
     StringProperty,
 )
 
+from .bridge import live
 # The effector vocabulary and default priorities belong to the bridge, which reads these slots.
 from .bridge.targets import DEFAULT_PRIORITY, EFFECTORS
 
@@ -34,6 +35,10 @@ VARIANT_ITEMS = (
     ('PRIORITY', "Priority", "Groups solved from lowest to highest priority, so the highest priority "
                              "target is met whenever it is reachable (paper variant 2)"),
 )
+
+
+def _live_toggled(settings, context):
+    live.live_toggled(settings.id_data, context)
 
 
 def _is_not_owner(slot, obj):
@@ -146,6 +151,13 @@ class FULLBODY_ADJUST_PG_settings(bpy.types.PropertyGroup):
         name="Keep Hand Orientation",
         description="Hands keep their world orientation while the arms move",
         default=True,
+    )
+    live: BoolProperty(
+        name="Live Adjust",
+        description="Re-solve and show the pose (without keys) whenever a target moves or the frame changes; "
+                    "Key Pose keys what is shown, turning it off returns to the keyed pose",
+        default=False,
+        update=_live_toggled,
     )
 
 

@@ -13,9 +13,9 @@ import numpy as np
 
 from ..solver import Boxes, ChainSettings, SolverInputError
 from ..solver.adjust import AdjustSettings, adjust_frames as solve_frames
-from ..solver.body import CHAIN, END, ROOT, BodyModel
+from ..solver.body import CHAIN, END, ROOT
 from ..solver.obstacles import penetrations
-from . import control_rig, frames as frames_module, ik_limits, keyframes, mapping, obstacles, pose, targets
+from . import control_rig, frames as frames_module, ik_limits, keyframes, mapping, obstacles, pose, rig_cache, targets
 from .control_match import control_channels
 from .errors import AdjustError
 
@@ -43,6 +43,7 @@ class Options:
     max_iterations: int = None
     use_joint_limits: bool = None
     keep_hand_orientation: bool = None
+    skip_missing_targets: bool = False  # leave out an enabled slot whose target is gone instead of failing
     new_action: str = None  # write keys into a new action of this name (the original stays intact)
     insert_keys: bool = True
 
@@ -119,10 +120,11 @@ def settings_of(obj, options=Options()):
     return AdjustSettings(chain=chain, variant=VARIANTS[pick("variant")], use_limits=bool(pick("use_joint_limits")))
 
 
-def adjust_pose(context, obj, options=Options()):
-    """Adjust the armature's pose at the current frame, apply it, and key the bones that moved."""
+def adjust_pose(context, obj, options=Options(), start=None):
+    """Adjust the armature's pose at the current frame, apply it, and key the bones that moved. ``start``:
+    the pose to solve from, a PoseSnapshot of this frame (default: the pose as it is now)."""
     frame = context.scene.frame_current
-    return _run(context, obj, [frame], options, apply_pose=True)
+    return _run(context, obj, [frame], options, apply_pose=True, start=start)
 
 
 def adjust_frames(context, obj, frame_start, frame_end, options=Options(), progress=None):
@@ -133,10 +135,10 @@ def adjust_frames(context, obj, frame_start, frame_end, options=Options(), progr
     return _run(context, obj, frames, options, apply_pose=False, progress=progress)
 
 
-def _run(context, obj, frames, options, *, apply_pose, progress=None):
+def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None):
     progress = progress or (lambda stage, fraction: None)
     check_armature(obj)
-    bone_map = mapping.ensure_map(obj)
+    rig = rig_cache.rig_of(obj)
     settings = settings_of(obj, options)
     keep_hands = options.keep_hand_orientation
     keep_hands = obj.fullbody_adjust.keep_hand_orientation if keep_hands is None else keep_hands
@@ -146,9 +148,9 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None):
     if apply_pose:
         # The current frame as the user sees it. Stepping to it with frame_set would evaluate the animation
         # again and throw away pose changes not keyed yet, even when the run then fails.
-        world_targets = _current_targets(obj, context)
+        world_targets = _current_targets(obj, context, options.skip_missing_targets)
         corners = obstacles.obstacle_boxes(obj, context)[None]
-        snapshot = pose.as_batch(pose.read_pose(obj))
+        snapshot = pose.as_batch(pose.read_pose(obj, rig.static(obj)) if start is None else start)
     else:
         with _pose_kept(obj):  # stepping through the frames evaluates the animation into the pose bones
             target_at = targets.target_frame_reader(obj, context)
@@ -163,27 +165,27 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None):
             snapshot = pose.read_pose_frames(obj, frames, each_frame=read_others)
             corners = np.stack(corner_rows)
     _check_object_scale(obj, snapshot)
+    bone_map, model = rig.bone_map, rig.model
     controlled = control_rig.is_generated_rigify(obj)
-    if controlled:  # solved on the metarig's hierarchy of the ORG- bones
-        snapshot = replace(snapshot, parents=control_rig.skeleton_parents(snapshot.names, snapshot.parents))
+    if controlled:  # solved on the metarig's hierarchy of the ORG- bones, as the model is
+        snapshot = replace(snapshot, parents=model.parents)
     else:
         _check_not_driven(obj, bone_map)
-    model = _model(snapshot, bone_map)
     _check_driven_bones(model, snapshot)
     _check_target_distances(obj, world_targets, snapshot)
     priorities = _priorities(obj)
     progress("solving", 0.3)
 
-    to_arm = np.linalg.inv(snapshot.matrix_world)  # (F,4,4)
+    to_arm = pose.affine_inverse(snapshot.matrix_world)  # (F,4,4)
     heads = _apply(to_arm, snapshot.heads)
     tails = _apply(to_arm, snapshot.tails)
     arm_targets = _apply(to_arm, world_targets)
     boxes = _armature_boxes(corners, to_arm)
     try:
+        limits = ik_limits.joint_limits(obj, model, heads, tails, snapshot.pose_matrices, settings)
         result = solve_frames(model, heads, tails, arm_targets, targets.EFFECTORS, priorities, obstacles=boxes,
                               settings=_in_armature_units(settings, snapshot.matrix_world),
-                              bone_x_axes=snapshot.pose_matrices[..., :3, 0],
-                              limits=ik_limits.joint_limits(obj, model, heads, tails, snapshot.pose_matrices, settings))
+                              bone_x_axes=snapshot.pose_matrices[..., :3, 0], limits=limits)
     except SolverInputError as ex:
         raise AdjustError(f"Cannot adjust '{obj.name}': {ex}") from None
     progress("writing", 0.8)
@@ -214,7 +216,7 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None):
     if apply_pose:
         # What the user sees is the pose Blender evaluates from the written channels (float32, constraints):
         # report the residuals of that pose rather than the solver's.
-        applied = pose.read_pose(obj)
+        applied = pose.read_pose(obj, rig.static(obj))
         world_effectors = _effector_positions(model, applied.heads[None], np.eye(4)[None])
     else:
         world_effectors = _effector_positions(model, result.heads, snapshot.matrix_world)
@@ -311,10 +313,10 @@ def _check_target_distances(obj, world_targets, snapshot):
                           f"too far to reach for (a location set to inf?)")
 
 
-def _current_targets(obj, context):
+def _current_targets(obj, context, skip_missing=False):
     """World positions (1,E,3) of the enabled targets at the current frame as evaluated; NaN: no target."""
     out = np.full((1, len(targets.EFFECTORS), 3), np.nan)
-    for spec in targets.read_targets(obj, context.evaluated_depsgraph_get()):
+    for spec in targets.read_targets(obj, context.evaluated_depsgraph_get(), skip_missing=skip_missing):
         out[0, targets.EFFECTORS.index(spec.effector)] = spec.position
     return out
 
@@ -322,14 +324,6 @@ def _current_targets(obj, context):
 def _priorities(obj):
     by_effector = {slot.effector: int(slot.priority) for slot in obj.fullbody_adjust.targets}
     return np.array([by_effector.get(e, targets.DEFAULT_PRIORITY[e]) for e in targets.EFFECTORS], dtype=np.float64)
-
-
-def _model(snapshot, bone_map):
-    try:
-        return BodyModel.from_description(snapshot.names, snapshot.parents,
-                                          {group: list(bones) for group, bones in bone_map.groups.items()})
-    except SolverInputError as ex:
-        raise AdjustError(f"Bone mapping does not fit the rig: {ex}") from None
 
 
 def _check_object_scale(obj, snapshot):
