@@ -290,14 +290,33 @@ def _channel_values(bones, prop, size):
 
 
 def _check_not_driven(obj, bone_map):
+    problem = driven_problem(obj, bone_map)
+    if problem:
+        raise AdjustError(problem)
+
+
+def driven_problem(obj, bone_map):
     """On a rig this extension does not know as a control rig, a mapped bone that follows a constraint would
-    override the keys written to it: say so instead of writing them. Limit constraints only bound the pose."""
+    override the keys written to it: the one line saying so, or None. Limit constraints only bound the pose."""
     for _group, name in bone_map.items():
         pose_bone = obj.pose.bones.get(name)
         for con in pose_bone.constraints if pose_bone is not None else ():
             if con.enabled and con.influence > 0.0 and not con.type.startswith("LIMIT_"):
-                raise AdjustError(f"Bone '{name}' of '{obj.name}' follows its constraint '{con.name}', which would "
-                                  f"override keys written to it: pose the controls that drive it, or map other bones")
+                return (f"Bone '{name}' of '{obj.name}' follows its constraint '{con.name}', which would override "
+                        f"keys written to it: pose the controls that drive it, or map other bones")
+    return None
+
+
+def rig_summary(obj):
+    """(line, ok) for the panel: what kind of rig ``obj`` is and what Adjust Pose keys on it, or why keys on
+    its mapped bones would not hold. None before the rig is mapped."""
+    if control_rig.is_generated_rigify(obj):
+        return control_rig.describe(obj), True
+    bone_map = mapping.load_map(obj)
+    if bone_map is None or obj.pose is None:  # not mapped yet, or an armature never evaluated
+        return None
+    problem = driven_problem(obj, bone_map)
+    return (problem, False) if problem else ("Keys the mapped bones", True)
 
 
 def _check_target_distances(obj, world_targets, snapshot):

@@ -235,3 +235,20 @@ def test_ik_locks_on_a_control_hold_the_joint(capfd):
 
         angles[locked] = abs(elbow(after) - elbow(before))
     assert angles[True] < 1e-4 and angles[False] > 0.05, angles
+
+
+def test_panel_says_what_it_found_and_what_it_keys():
+    """The panel's line: a generated rig and the limb modes; for a plain rig whose mapped forearm follows a
+    constraint, the one line saying keys would be overridden; otherwise that the mapped bones are keyed."""
+    from .test_extension import draw_panel
+
+    rig = generated_rig("basic", "FK")
+    assert "Rigify rig (FK arms, FK legs): keys controls" in draw_panel("FULLBODY_ADJUST_PT_main", rig).all_labels()
+    bpy.ops.object.armature_basic_human_metarig_add()
+    metarig = bpy.context.active_object
+    bpy.ops.fullbody_adjust.create_targets()
+    assert "Keys the mapped bones" in draw_panel("FULLBODY_ADJUST_PT_main", metarig).all_labels()
+    copy = metarig.pose.bones["forearm.L"].constraints.new('COPY_ROTATION')
+    copy.target, copy.subtarget = metarig, "upper_arm.L"
+    labels = draw_panel("FULLBODY_ADJUST_PT_main", metarig).all_labels()
+    assert any(f"'forearm.L' of '{metarig.name}' follows its constraint 'Copy Rotation'" in text for text in labels), labels
