@@ -90,9 +90,10 @@ def key_pose(context, obj):
         rotation = pose.ROTATION_PROPERTY[pose_bone.rotation_mode]
         props = {rotation: np.array(getattr(pose_bone, rotation), dtype=np.float64)}
         i = state.start.index(name)
-        location = np.array(pose_bone.location, dtype=np.float64)
-        if not np.array_equal(location, state.start.channels["location"][i]):
-            props["location"] = location  # as Adjust Pose: an unmoved location is not keyed
+        for prop in ("location", "scale"):  # as Adjust Pose: an unmoved location (or scale) is not keyed
+            value = np.array(getattr(pose_bone, prop), dtype=np.float64)
+            if not np.array_equal(value, state.start.channels[prop][i]):
+                props[prop] = value
         values[name] = props
     keyframes.key_bones_frames(obj, names, [context.scene.frame_current], values)
     _capture_base(obj, state, names)
@@ -240,7 +241,7 @@ def _restore(obj, state, frame, keep=()):
         if name in keep or pose_bone is None or name not in index:
             continue
         i = index[name]
-        for prop in ("location", pose.ROTATION_PROPERTY[pose_bone.rotation_mode]):
+        for prop in ("location", pose.ROTATION_PROPERTY[pose_bone.rotation_mode], "scale"):
             value = channels[prop][i]
             if not np.array_equal(np.array(getattr(pose_bone, prop), dtype=np.float32), value.astype(np.float32)):
                 setattr(pose_bone, prop, tuple(float(v) for v in value))

@@ -252,3 +252,32 @@ def test_panel_says_what_it_found_and_what_it_keys():
     copy.target, copy.subtarget = metarig, "upper_arm.L"
     labels = draw_panel("FULLBODY_ADJUST_PT_main", metarig).all_labels()
     assert any(f"'forearm.L' of '{metarig.name}' follows its constraint 'Copy Rotation'" in text for text in labels), labels
+
+
+def test_live_adjust_on_a_generated_rig():
+    """Live on a generated rig: moving the hand's target re-solves through the controls (the deform hand on
+    the target, nothing keyed); Key Pose keys controls only; Live off without keying puts the controls back."""
+    rig = generated_rig("basic", "IK")
+    start = {pb.name: pb.matrix_basis.copy() for pb in rig.pose.bones}
+    rig.fullbody_adjust.live = True
+    before = Pose(rig)
+    reach_left_hand(rig, before, "arm")
+    goal = np.array(slot(rig, "hand.L").target.matrix_world.translation)
+    after = Pose(rig)  # evaluates the scene: the live handler solves
+    assert np.linalg.norm(world_head(after, "DEF-hand.L") - goal) <= REACH * before.height()
+    assert not keyed_bones(rig)
+    moved = [name for name, basis in start.items() if rig.pose.bones[name].matrix_basis != basis]
+    assert moved and not any(name.startswith(INTERNAL) for name in moved), moved
+
+    rig.fullbody_adjust.live = False
+    bpy.context.view_layer.update()
+    assert all(rig.pose.bones[name].matrix_basis == basis for name, basis in start.items())
+
+    rig.fullbody_adjust.live = True
+    Pose(rig)
+    assert bpy.ops.fullbody_adjust.key_pose() == {'FINISHED'}
+    keyed = keyed_bones(rig)
+    assert "hand_ik.L" in keyed and not any(name.startswith(INTERNAL) for name in keyed), keyed
+    rig.fullbody_adjust.live = False
+    bpy.context.scene.frame_set(bpy.context.scene.frame_current)
+    assert np.linalg.norm(world_head(Pose(rig), "DEF-hand.L") - goal) <= REACH * before.height()
