@@ -22,6 +22,16 @@ def armature_poll_message(context):
     return None
 
 
+def report_outcome(operator, outcome):
+    """The run's summary: a WARNING naming what was missed when a target within reach was missed or a bone ends
+    inside an obstacle (as the command line's exit code 1), else INFO."""
+    warning = outcome.warning()
+    if warning:
+        operator.report({'WARNING'}, f"{warning}; {outcome.summary()}")
+    else:
+        operator.report({'INFO'}, outcome.summary())
+
+
 class ArmatureOperator:
     """Operators on the active armature: greyed out, with the reason, when there is none."""
 
@@ -128,7 +138,7 @@ class FULLBODY_ADJUST_OT_adjust_pose(_SolverOptions, ArmatureOperator, bpy.types
                                                                     self.solver_options()))
         if outcome is None:
             return {'CANCELLED'}
-        self.report({'INFO'}, outcome.summary())
+        report_outcome(self, outcome)
         return {'FINISHED'}
 
 
@@ -165,7 +175,7 @@ class FULLBODY_ADJUST_OT_adjust_frames(_SolverOptions, ArmatureOperator, bpy.typ
             wm.progress_end()
         if outcome is None:
             return {'CANCELLED'}
-        self.report({'INFO'}, outcome.summary())
+        report_outcome(self, outcome)
         return {'FINISHED'}
 
     def draw(self, context):

@@ -70,6 +70,23 @@ class Outcome:
     def met(self):
         return self.status == "reached"
 
+    def warning(self):
+        """One line naming what went wrong although the run finished (the command line exits 1 for the same):
+        a target within reach that was missed (the first effector, with its largest residual and why), or bones
+        that end inside an obstacle; None when neither happened."""
+        missed = self.constrained & ~self.met & (self.status != "unreachable")
+        if missed.any():
+            effector = int(np.nonzero(missed.any(axis=0))[0][0])
+            rows = np.nonzero(missed[:, effector])[0]
+            worst = rows[int(np.argmax(self.residuals[rows, effector]))]
+            frames = f" on {len(rows)} frames" if len(self.frames) > 1 else ""
+            return (f"{self.effectors[effector]} missed its target within reach{frames} by "
+                    f"{self.residuals[worst, effector]:.4g} ({self.reasons[worst, effector]})")
+        inside, crossing = int(np.sum(self.joints_inside)), int(np.sum(self.segments_crossing))
+        if inside or crossing:
+            return f"bones end inside obstacles: {inside} joints inside, {crossing} bones crossing"
+        return None
+
     def summary(self):
         """One line for the operator's report."""
         tasks = int(self.constrained.sum())
