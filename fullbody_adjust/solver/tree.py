@@ -26,7 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .chain import ChainModel, ChainSettings, solve_chain
+from .chain import ChainSettings, solve_chain
+from .chain_model import ChainModel
 from .errors import SolverInputError
 from .obstacles import as_boxes, points_inside, segments_cross
 
