@@ -2,6 +2,8 @@
 sphere within them, and the priority variants that decide where the balls do not intersect. Vectorised over
 frames (F rows)."""
 
+from itertools import combinations
+
 import numpy as np
 
 from .geometry import any_perpendicular, cross, dot, norm
@@ -92,32 +94,51 @@ def _nearest_candidate(points, centres, radii, active):
     """nearest_in_balls' candidates (projections, circle points, three-sphere points) for points outside
     some ball: the nearest valid one and its distance (inf where none is valid)."""
     k = radii.shape[1]
-    best = points.copy()
-    best_d = np.full(len(points), np.inf)
-    proj = project_onto_balls(points, centres, radii)
+    cands = [project_onto_balls(points, centres, radii)]
+    valid = [active]
+    pairs = list(combinations(range(k), 2))
+    if pairs:
+        a, b = np.array(pairs).T
+        pts, ok = _per_candidate(_circle_point, points[:, None], centres[:, a], radii[:, a], centres[:, b],
+                                 radii[:, b])
+        cands.append(pts)
+        valid.append(ok & active[:, a] & active[:, b])
+    triples = list(combinations(range(k), 3))
+    if triples:
+        a, b, c = np.array(triples).T
+        pts, ok = _per_candidate(_sphere_triple, centres[:, a], radii[:, a], centres[:, b], radii[:, b],
+                                 centres[:, c], radii[:, c])
+        both = ok & active[:, a] & active[:, b] & active[:, c]
+        cands.append(pts.reshape(len(points), -1, 3))  # each triple's two points in turn
+        valid.append(np.repeat(both, 2, axis=1))
+    return _nearest_valid(points, np.concatenate(cands, axis=1), np.concatenate(valid, axis=1), centres, radii,
+                          active)
 
-    def consider(cand, valid):
-        nonlocal best, best_d
-        valid = valid & _inside(cand, centres, radii, active)
-        dist = norm(cand - points)
-        take = valid & (dist < best_d)
-        best = np.where(take[:, None], cand, best)
-        best_d = np.where(take, dist, best_d)
 
-    for a in range(k):
-        consider(proj[:, a], active[:, a])
-    for a in range(k):
-        for b in range(a + 1, k):
-            cand, ok = _circle_point(points, centres[:, a], radii[:, a], centres[:, b], radii[:, b])
-            consider(cand, ok & active[:, a] & active[:, b])
-    for a in range(k):
-        for b in range(a + 1, k):
-            for c in range(b + 1, k):
-                pts, ok = _sphere_triple(centres[:, a], radii[:, a], centres[:, b], radii[:, b],
-                                         centres[:, c], radii[:, c])
-                both = ok & active[:, a] & active[:, b] & active[:, c]
-                consider(pts[0], both)
-                consider(pts[1], both)
+def _per_candidate(fn, *arrays):
+    """Row-wise `fn` (points (F,3), ... -> (F,3) or (2,F,3), valid (F,)) on arrays with a candidate axis
+    (F,C,...): the rows are stacked, so each candidate rounds exactly as a call of its own. Returns (F,C,3)
+    or (F,C,2,3), and valid (F,C)."""
+    f, c = np.broadcast_shapes(*(x.shape[:2] for x in arrays))
+    flat = [np.broadcast_to(x, (f, c) + x.shape[2:]).reshape((f * c,) + x.shape[2:]) for x in arrays]
+    pts, ok = fn(*flat)
+    if pts.ndim == 3:  # two points per candidate
+        return np.moveaxis(pts, 0, 1).reshape(f, c, 2, 3), ok.reshape(f, c)
+    return pts.reshape(f, c, 3), ok.reshape(f, c)
+
+
+def _nearest_valid(points, cands, valid, centres, radii, active):
+    """The candidate (F,C,3) nearest to `points` (F,3) among the valid ones (F,C) that lie in every active
+    ball, the first one on a tie; and its distance (inf and `points` where none is valid)."""
+    f, c = cands.shape[:2]
+    inside = _inside(cands.reshape(f * c, 3), np.repeat(centres, c, axis=0), np.repeat(radii, c, axis=0),
+                     np.repeat(active, c, axis=0)).reshape(f, c)
+    dist = norm(cands - points[:, None])
+    key = np.where(valid & inside & ~np.isnan(dist), dist, np.inf)
+    pick = np.argmin(key, axis=1)
+    rows = np.arange(f)
+    best_d = key[rows, pick]
+    best = np.where(np.isfinite(best_d)[:, None], cands[rows, pick], points)
     return best, best_d
 
 
@@ -131,29 +152,23 @@ def nearest_on_sphere_in_balls(points, centre, radius, centres, radii, active):
     dn = norm(d)
     radial = centre + d * (radius / np.where(dn > 0.0, dn, 1.0))[:, None]
     radial = np.where((dn > 0.0)[:, None], radial, centre + radius[:, None] * _EYE[0])  # any point will do
-    best = points.copy()
-    best_d = np.full(len(points), np.inf)
-
-    def consider(cand, valid):
-        nonlocal best, best_d
-        valid = valid & _inside(cand, centres, radii, active)
-        dist = norm(cand - points)
-        take = valid & (dist < best_d)
-        best = np.where(take[:, None], cand, best)
-        best_d = np.where(take, dist, best_d)
-
-    consider(radial, np.ones(len(points), dtype=bool))
-    for a in range(k):
-        cand, ok = _circle_point(points, centre, radius, centres[:, a], radii[:, a])
-        consider(cand, ok & active[:, a])
-    for a in range(k):
-        for b in range(a + 1, k):
-            pts, ok = _sphere_triple(centre, radius, centres[:, a], radii[:, a], centres[:, b], radii[:, b])
-            both = ok & active[:, a] & active[:, b]
-            consider(pts[0], both)
-            consider(pts[1], both)
+    cands = [radial[:, None]]
+    valid = [np.ones((len(points), 1), dtype=bool)]
+    if k:
+        pts, ok = _per_candidate(_circle_point, points[:, None], centre[:, None], radius[:, None], centres, radii)
+        cands.append(pts)
+        valid.append(ok & active)
+    pairs = list(combinations(range(k), 2))
+    if pairs:
+        a, b = np.array(pairs).T
+        pts, ok = _per_candidate(_sphere_triple, centre[:, None], radius[:, None], centres[:, a], radii[:, a],
+                                 centres[:, b], radii[:, b])
+        cands.append(pts.reshape(len(points), -1, 3))
+        valid.append(np.repeat(ok & active[:, a] & active[:, b], 2, axis=1))
+    best, best_d = _nearest_valid(points, np.concatenate(cands, axis=1), np.concatenate(valid, axis=1), centres,
+                                  radii, active)
     found = np.isfinite(best_d)
-    return np.where(found[:, None], best, points), found
+    return best, found
 
 
 def sub_base_point(points, centres, radii, active, priorities, variant):
