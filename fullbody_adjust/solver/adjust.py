@@ -291,17 +291,28 @@ class _Problem(SubBasePlacement):
         rows = np.arange(F)
         delta, sc_star, trunk_joints, trunk_solved, t_status, t_reason = self._sub_bases(rows, offsets0)
         # The chest turns, and the arm bases with it: re-place the SC with the turned offsets (fixed point).
+        # A frame whose turned offsets moved less than the tolerance since its last placement would get the same
+        # SC again (within tolerance): it stops there (a target out of reach converges to such a fixed point).
+        tol = self.settings.chain.tolerance
+        placed_with = dict(offsets0)
         for _ in range(self.settings.sub_base_passes - 1):
             chest_r = chest_rotation(trunk0, trunk_joints)
+            turned = {n: apply_matrix(chest_r, offsets0[n]) for n in upper}
             retry = np.zeros(F, dtype=bool)
+            changed = np.zeros(F, dtype=bool)
             for n in upper:
-                base = trunk_joints[:, -1] + apply_matrix(chest_r, offsets0[n])
-                far = norm(self.limb_target[n] - base) > self.reach_eff[n] + self.settings.chain.tolerance
+                base = trunk_joints[:, -1] + turned[n]
+                far = norm(self.limb_target[n] - base) > self.reach_eff[n] + tol
                 retry |= trunk_solved & self.limb_active[n] & far
+                changed |= norm(turned[n] - placed_with[n]) > tol
+            retry &= changed
             if not np.any(retry):
                 break
             r = np.nonzero(retry)[0]
-            offsets = {n: apply_matrix(chest_r[r], offsets0[n][r]) for n in upper}
+            offsets = {n: turned[n][r] for n in upper}
+            for n in upper:
+                placed_with[n] = placed_with[n].copy()
+                placed_with[n][r] = offsets[n]
             out = self._sub_bases(r, offsets, force_sc=np.ones(r.size, dtype=bool))
             delta[r], sc_star[r], trunk_joints[r] = out[0], out[1], out[2]
             trunk_solved[r], t_status[r], t_reason[r] = out[3], out[4], out[5]
