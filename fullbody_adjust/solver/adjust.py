@@ -322,8 +322,9 @@ class _Problem(SubBasePlacement):
         return self._result(heads, tails, rotations, limb_solves)
 
     def _propagate(self, delta, trunk):
-        """Top-down pass over the bones: new heads, tails and world rotation deltas; limbs other than the
-        trunk are solved when their first bone is reached (their base then rides on its parent)."""
+        """Top-down pass over the bones, one hierarchy level at a time: new heads, tails and world rotation
+        deltas; limbs other than the trunk are solved when their first bone is reached (their base then rides
+        on its parent)."""
         model, F, H0, T0 = self.model, self.F, self.H0, self.T0
         J = len(model.names)
         heads, tails = H0.copy(), T0.copy()
@@ -331,23 +332,26 @@ class _Problem(SubBasePlacement):
         moved = np.zeros((F, J), dtype=bool)
         solves = {"trunk": trunk}
 
-        for j in model.order:
-            role = model.roles[j]
-            if role == FIXED:
-                continue
-            p = model.parents[j]
-            if role == ROOT:
-                heads[:, j] = H0[:, j] + delta  # x + 0.0 == x: an unmoved root stays bit-exact
-                moved[:, j] = np.any(delta != 0.0, axis=1)
-            else:
-                if p >= 0 and moved[:, p].any():  # rigid child of its parent (overridden below for solved chain
-                    mp = moved[:, p]               # bones); of an unmoved parent it stays as initialised
-                    h = heads[:, p] + apply_matrix(rot[:, p], H0[:, j] - H0[:, p])
-                    heads[:, j] = np.where(mp[:, None], h, H0[:, j])
-                    rot[:, j] = rot[:, p]
-                    moved[:, j] = mp
+        for level in _levels(model):
+            root = level[model.roles[level] == ROOT]
+            if root.size:
+                heads[:, root[0]] = H0[:, root[0]] + delta  # x + 0.0 == x: an unmoved root stays bit-exact
+                moved[:, root[0]] = np.any(delta != 0.0, axis=1)
+            # Rigid children of their parents (overridden below for solved chain bones); where the parent did
+            # not move, a bone stays as initialised (its parent's rotation is then the identity).
+            rigid = level[(model.roles[level] != ROOT) & (model.parents[level] >= 0)]
+            if rigid.size:
+                par = model.parents[rigid]
+                mp = moved[:, par]
+                if mp.any():
+                    h = heads[:, par] + apply_matrix(rot[:, par], H0[:, rigid] - H0[:, par])
+                    heads[:, rigid] = np.where(mp[..., None], h, H0[:, rigid])
+                    rot[:, rigid] = rot[:, par]
+                    moved[:, rigid] = mp
+            for j in level[(model.roles[level] == CHAIN) | (model.roles[level] == END)]:
+                p = model.parents[j]
                 name = model.role_limb[j]
-                if role == CHAIN:
+                if model.roles[j] == CHAIN:
                     k = model.role_index[j]
                     if k == 0 and name not in solves:
                         solves[name] = self._solve_limb(name, heads[:, j], rot[:, p] if p >= 0 else None,
@@ -358,7 +362,7 @@ class _Problem(SubBasePlacement):
                         heads[s, j] = ls.joints[s, k]
                         rot[s, j] = ls.segment_rotations(self.chain0[name], self.limits.get(name))[s, k]
                         moved[s, j] = True
-                elif role == END:
+                else:
                     ls = solves[name]
                     s = ls.solved
                     if np.any(s):
@@ -366,9 +370,10 @@ class _Problem(SubBasePlacement):
                         heads[s, j] = ls.joints[s, -1]
                         rot[s, j] = _EYE
                         moved[s, j] = True
-            m = moved[:, j]
+            m = moved[:, level]
             if np.any(m):
-                tails[m, j] = heads[m, j] + apply_matrix(rot[m, j], T0[m, j] - H0[m, j])
+                t = heads[:, level] + apply_matrix(rot[:, level], T0[:, level] - H0[:, level])
+                tails[:, level] = np.where(m[..., None], t, T0[:, level])
         return heads, tails, rot, solves
 
     def _solve_limb(self, name, base, parent_rot, parent_moved):
@@ -446,6 +451,22 @@ class _Problem(SubBasePlacement):
                                  reasons.astype(str), moved, GROUP_NAMES, self.iterations.copy(), sc_disp,
                                  root_disp)
 
+
+
+def _levels(model):
+    """The bones that move (not FIXED) grouped by depth in the hierarchy, parents' levels first: (k,) index
+    arrays in model.order."""
+    depth = {}
+    levels = []
+    for j in model.order.tolist():
+        p = model.parents[j]
+        d = depth[j] = depth.get(p, -1) + 1 if p >= 0 else 0
+        if model.roles[j] == FIXED:
+            continue
+        while len(levels) <= d:
+            levels.append([])
+        levels[d].append(j)
+    return [np.array(level, dtype=np.int64) for level in levels if level]
 
 
 def _take_limits(limits, rows):
