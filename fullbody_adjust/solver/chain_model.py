@@ -371,16 +371,22 @@ class ChainModel(ObstacleResponse, TwoBoneFinish):
             # trapped there. A problem that is not reached gets a second start from the pose plain FABRIK
             # finds (no obstacles, no limits; the constrained iterations then push that pose out of the boxes
             # and into the limits), and keeps the better outcome: fewer penetrations, then the smaller residual.
+            # Where plain FABRIK leaves the start as it is (e.g. a start already at its target), the second start
+            # is the first one: its iterations would repeat the first attempt exactly, so it is skipped.
             retry = rows[(res > tol) & reachable[rows]] if self.boxes is not None else rows[:0]
             if retry.size:
                 free = ChainModel(start[retry], self.targets[retry], self.settings, None, None, None)
-                Q = P.copy()
                 unobstructed = free.solve(start[retry])
-                Q[retry] = unobstructed.positions
+                fresh = ~np.all(unobstructed.positions == start[retry], axis=(1, 2))
+                retry, free_positions = retry[fresh], unobstructed.positions[fresh]
+                free_iterations = unobstructed.iterations[fresh]
+            if retry.size:
+                Q = P.copy()
+                Q[retry] = free_positions
                 its2, res2, stl2, bind2, obst2, pen2 = self._iterate(Q, retry, True)
                 old_pen = pen[np.searchsorted(rows, retry)]
                 better = (pen2 < old_pen) | ((pen2 == old_pen) & (res2 < residual[retry]))
-                iterations[retry] += unobstructed.iterations + its2
+                iterations[retry] += free_iterations + its2
                 keep = retry[better]
                 P[keep], residual[keep], stalled[keep] = Q[keep], res2[better], stl2[better]
                 limit_binding[keep], obstacle_active[keep] = bind2[better], obst2[better]
