@@ -327,32 +327,26 @@ class _Problem(SubBasePlacement):
         on its parent)."""
         model, F, H0, T0 = self.model, self.F, self.H0, self.T0
         J = len(model.names)
-        heads, tails = H0.copy(), T0.copy()
+        heads = H0.copy()
         rot = np.broadcast_to(_EYE, (F, J, 3, 3)).copy()
         moved = np.zeros((F, J), dtype=bool)
         solves = {"trunk": trunk}
 
-        for level in _levels(model):
-            root = level[model.roles[level] == ROOT]
-            if root.size:
-                heads[:, root[0]] = H0[:, root[0]] + delta  # x + 0.0 == x: an unmoved root stays bit-exact
-                moved[:, root[0]] = np.any(delta != 0.0, axis=1)
+        for rigid, par, limb_bones in _levels(model):
             # Rigid children of their parents (overridden below for solved chain bones); where the parent did
             # not move, a bone stays as initialised (its parent's rotation is then the identity).
-            rigid = level[(model.roles[level] != ROOT) & (model.parents[level] >= 0)]
             if rigid.size:
-                par = model.parents[rigid]
                 mp = moved[:, par]
                 if mp.any():
                     h = heads[:, par] + apply_matrix(rot[:, par], H0[:, rigid] - H0[:, par])
                     heads[:, rigid] = np.where(mp[..., None], h, H0[:, rigid])
                     rot[:, rigid] = rot[:, par]
                     moved[:, rigid] = mp
-            for j in level[(model.roles[level] == CHAIN) | (model.roles[level] == END)]:
-                p = model.parents[j]
-                name = model.role_limb[j]
-                if model.roles[j] == CHAIN:
-                    k = model.role_index[j]
+            for j, p, role, name, k in limb_bones:
+                if role == ROOT:
+                    heads[:, j] = H0[:, j] + delta  # x + 0.0 == x: an unmoved root stays bit-exact
+                    moved[:, j] = np.any(delta != 0.0, axis=1)
+                elif role == CHAIN:
                     if k == 0 and name not in solves:
                         solves[name] = self._solve_limb(name, heads[:, j], rot[:, p] if p >= 0 else None,
                                                         moved[:, p] if p >= 0 else np.zeros(F, dtype=bool))
@@ -370,10 +364,7 @@ class _Problem(SubBasePlacement):
                         heads[s, j] = ls.joints[s, -1]
                         rot[s, j] = _EYE
                         moved[s, j] = True
-            m = moved[:, level]
-            if np.any(m):
-                t = heads[:, level] + apply_matrix(rot[:, level], T0[:, level] - H0[:, level])
-                tails[:, level] = np.where(m[..., None], t, T0[:, level])
+        tails = np.where(moved[..., None], heads + apply_matrix(rot, T0 - H0), T0) if np.any(moved) else T0.copy()
         return heads, tails, rot, solves
 
     def _solve_limb(self, name, base, parent_rot, parent_moved):
@@ -454,19 +445,26 @@ class _Problem(SubBasePlacement):
 
 
 def _levels(model):
-    """The bones that move (not FIXED) grouped by depth in the hierarchy, parents' levels first: (k,) index
-    arrays in model.order."""
+    """The bones that move (not FIXED) by depth in the hierarchy, parents' levels first: per level the rigidly
+    carried bones (k,) and their parents (k,) (every bone with a parent: chain bones are carried first, then
+    placed), and the root, chain and end bones as (bone, parent, role, limb name, index in the limb)."""
+    parents, roles = model.parents.tolist(), model.roles.tolist()
     depth = {}
     levels = []
     for j in model.order.tolist():
-        p = model.parents[j]
-        d = depth[j] = depth.get(p, -1) + 1 if p >= 0 else 0
-        if model.roles[j] == FIXED:
+        p = parents[j]
+        d = depth[j] = depth[p] + 1 if p >= 0 else 0
+        if roles[j] == FIXED:
             continue
         while len(levels) <= d:
-            levels.append([])
-        levels[d].append(j)
-    return [np.array(level, dtype=np.int64) for level in levels if level]
+            levels.append(([], [], []))
+        rigid, par, limb_bones = levels[d]
+        if roles[j] != ROOT and p >= 0:
+            rigid.append(j)
+            par.append(p)
+        if roles[j] in (ROOT, CHAIN, END):
+            limb_bones.append((j, p, roles[j], model.role_limb[j], int(model.role_index[j])))
+    return [(np.array(r, dtype=np.int64), np.array(p, dtype=np.int64), b) for r, p, b in levels if r or b]
 
 
 def _take_limits(limits, rows):
