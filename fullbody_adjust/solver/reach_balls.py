@@ -120,11 +120,17 @@ def _per_candidate(fn, *arrays):
     (F,C,...): the rows are stacked, so each candidate rounds exactly as a call of its own. Returns (F,C,3)
     or (F,C,2,3), and valid (F,C)."""
     f, c = np.broadcast_shapes(*(x.shape[:2] for x in arrays))
-    flat = [np.broadcast_to(x, (f, c) + x.shape[2:]).reshape((f * c,) + x.shape[2:]) for x in arrays]
-    pts, ok = fn(*flat)
+    pts, ok = fn(*(_stacked(x, f, c) for x in arrays))
     if pts.ndim == 3:  # two points per candidate
         return np.moveaxis(pts, 0, 1).reshape(f, c, 2, 3), ok.reshape(f, c)
     return pts.reshape(f, c, 3), ok.reshape(f, c)
+
+
+def _stacked(x, f, c):
+    """(F or 1, C or 1, ...) -> (F*C, ...), rows repeated where x has one."""
+    if x.shape[:2] != (f, c):
+        x = np.repeat(np.repeat(x, f // x.shape[0], axis=0), c // x.shape[1], axis=1)
+    return x.reshape((f * c,) + x.shape[2:])
 
 
 def _nearest_valid(points, cands, valid, centres, radii, active):
