@@ -217,9 +217,12 @@ class _Problem(SubBasePlacement):
                 axes[:, 0] = apply_matrix(carry, axes[:, 0])
                 pdir = None if pdir is None else apply_matrix(carry, pdir)
             if lim.kind[m - 1] == HINGE and m >= 2:
-                met = norm(start[:, -1] - targets) <= self.settings.chain.tolerance
-                at_start = carry_axis(axes[:, m - 1], reference[:, m - 1], start[:, m - 1] - start[:, m - 2])
-                start = np.where(met[:, None, None], start, two_bone_start(start, targets, at_start))
+                warm = np.nonzero(norm(start[:, -1] - targets) > self.settings.chain.tolerance)[0]
+                if warm.size:
+                    at_start = carry_axis(axes[warm, m - 1], reference[warm, m - 1],
+                                          start[warm, m - 1] - start[warm, m - 2])
+                    start = start.copy()
+                    start[warm] = two_bone_start(start[warm], targets[warm], at_start)
             kwargs["limits"] = lim.derived(hinge_axis=axes, hinge_reference=reference)
             kwargs["parent_directions"] = pdir
         if self.obstacles is not None:
