@@ -82,7 +82,6 @@ def adjust_frames(model, heads, tails, targets, effectors, priorities=None, *, o
     return problem.solve()
 
 
-
 # ----------------------------------------------------------------------------------------------------------
 # The solve
 
@@ -446,7 +445,6 @@ class _Problem(SubBasePlacement):
                                  root_disp)
 
 
-
 def _levels(model):
     """The bones that move (not FIXED) by depth in the hierarchy, parents' levels first: per level the rigidly
     carried bones (k,) and their parents (k,) (every bone with a parent: chain bones are carried first, then
@@ -475,7 +473,6 @@ def _take_limits(limits, rows):
     axes, ref = limits.hinge_axis, limits.hinge_reference
     return limits.derived(hinge_axis=axes[rows] if axes.ndim == 3 else axes,
                           hinge_reference=ref[rows] if ref is not None and ref.ndim == 3 else ref)
-
 
 
 def _frames_array(a, label, shape):

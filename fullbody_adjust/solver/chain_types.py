@@ -78,7 +78,6 @@ class ChainBatchResult:
                            bool(self.reachable[i]), str(self.status[i]), str(self.reason[i]))
 
 
-
 def _segment_lengths(p):
     """(..., n, 3) -> (..., n-1); raises for a zero-length segment."""
     seg = p[..., 1:, :] - p[..., :-1, :]
@@ -98,7 +97,6 @@ def _reach_bounds(lengths):
         total = total + lengths[..., i]
     inner = np.maximum(2.0 * lengths.max(axis=-1) - total, 0.0)
     return total, inner
-
 
 
 def _unreachable_reason(dist, total, inner):

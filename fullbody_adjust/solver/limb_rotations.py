@@ -34,7 +34,6 @@ class LimbSolve:
         return self.rotations
 
 
-
 def _segment_rotations(start, joints, limits, frames):
     """World rotation deltas (b,n-1,3,3) of chain segments from `start` (b,n,3) to `joints` (b,n,3) on frames
     `frames` (a row selector of the limbs' F frames), DESIGN §2.6: each segment turns by the minimal swing
