@@ -9,8 +9,8 @@ beyond any reach), 'obstacle' (a box where the left forearm would go). For each 
     and ratio_single_to_batch_frame = single_pose_us / batch_per_frame_us (the price of one frame alone);
   - max_difference: largest |single - batch row| over heads, tails, rotations and residuals, for the case's
     pose and every jittered frame solved alone.
-Timings are process CPU time (time.process_time), medians of --repeats runs, so other processes on a shared
-machine disturb them less; compare figures only within one run.
+Timings are process CPU time (time.process_time), medians of --repeats runs taken in turn with the figure they
+are compared to, so other processes on a shared machine disturb them less; compare figures only within one run.
 
 Run: .ci/with-bpy python bench/solver_speed.py [--repeats 30] [--frames 32]   (prints one JSON object)
 """
@@ -29,14 +29,17 @@ from fullbody_adjust.solver.adjust import adjust_frames, adjust_pose  # noqa: E4
 from tests.helpers import metarig  # noqa: E402
 
 
-def median_us(fn, repeats):
-    fn()  # warm-up
-    times = []
+def median_us(repeats, *fns):
+    """Median µs of each function, run in turn (a, b, a, b, ...) so a change of machine load hits them alike."""
+    for fn in fns:
+        fn()  # warm-up
+    times = [[] for _ in fns]
     for _ in range(repeats):
-        t0 = time.process_time()
-        fn()
-        times.append(time.process_time() - t0)
-    return 1e6 * float(np.median(times))
+        for fn, out in zip(fns, times):
+            t0 = time.process_time()
+            fn()
+            out.append(time.process_time() - t0)
+    return [1e6 * float(np.median(t)) for t in times]
 
 
 def max_difference(a, b):
@@ -79,9 +82,8 @@ def main():
                                  metarig.EFFECTORS, metarig.PRIORITIES, bone_x_axes=np.repeat(x_axes[None], n, 0),
                                  **kwargs)
 
-        single_us = median_us(single, args.repeats)
-        batch1_us = median_us(batch_one, args.repeats)
-        many_us = median_us(batch_many, max(3, args.repeats // 10)) / n
+        single_us, batch1_us = median_us(args.repeats, single, batch_one)
+        many_us = median_us(max(3, args.repeats // 10), batch_many)[0] / n
         many = batch_many()
         diff = max_difference(single(), batch_one()[0])
         for f in range(n):
