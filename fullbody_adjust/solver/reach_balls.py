@@ -109,7 +109,7 @@ def _nearest_candidate(points, centres, radii, active):
         pts, ok = _per_candidate(_sphere_triple, centres[:, a], radii[:, a], centres[:, b], radii[:, b],
                                  centres[:, c], radii[:, c])
         both = ok & active[:, a] & active[:, b] & active[:, c]
-        cands.append(pts.reshape(len(points), -1, 3))  # each triple's two points in turn
+        cands.append(pts.reshape(len(points), 2 * len(triples), 3))  # each triple's two points in turn
         valid.append(np.repeat(both, 2, axis=1))
     return _nearest_valid(points, np.concatenate(cands, axis=1), np.concatenate(valid, axis=1), centres, radii,
                           active)
@@ -129,7 +129,7 @@ def _per_candidate(fn, *arrays):
 def _stacked(x, f, c):
     """(F or 1, C or 1, ...) -> (F*C, ...), rows repeated where x has one."""
     if x.shape[:2] != (f, c):
-        x = np.repeat(np.repeat(x, f // x.shape[0], axis=0), c // x.shape[1], axis=1)
+        x = np.repeat(np.repeat(x, f // max(x.shape[0], 1), axis=0), c // max(x.shape[1], 1), axis=1)
     return x.reshape((f * c,) + x.shape[2:])
 
 
@@ -169,7 +169,7 @@ def nearest_on_sphere_in_balls(points, centre, radius, centres, radii, active):
         a, b = np.array(pairs).T
         pts, ok = _per_candidate(_sphere_triple, centre[:, None], radius[:, None], centres[:, a], radii[:, a],
                                  centres[:, b], radii[:, b])
-        cands.append(pts.reshape(len(points), -1, 3))
+        cands.append(pts.reshape(len(points), 2 * len(pairs), 3))
         valid.append(np.repeat(ok & active[:, a] & active[:, b], 2, axis=1))
     best, best_d = _nearest_valid(points, np.concatenate(cands, axis=1), np.concatenate(valid, axis=1), centres,
                                   radii, active)
