@@ -203,6 +203,9 @@ def sub_base_point(points, centres, radii, active, priorities, variant):
         for k in order:
             trial = kept.copy()
             trial[:, k] |= act[:, k]
+            if trial.sum(axis=1).max() <= 1:
+                kept = trial  # one ball (or none) always has a point
+                continue
             _, ok = nearest_in_balls(p, c, r, trial)
             kept = np.where(ok[:, None], trial, kept)
         y = p.copy()

@@ -55,6 +55,8 @@ class SubBasePlacement:
             pref, np.concatenate([centres, trunk_base[:, None]], axis=1),
             np.concatenate([radii, trunk_r[:, None]], axis=1),
             np.concatenate([active, np.ones((len(rows), 1), dtype=bool)], axis=1))
+        if np.all(ok_lean | ok_bend):
+            return np.where(ok_lean[:, None], lean, bend)
         arms_only, _ = sub_base_point(pref, centres, radii, active, prio, self.settings.variant)
         out = np.where(ok_bend[:, None], bend, arms_only)
         return np.where(ok_lean[:, None], lean, out)
