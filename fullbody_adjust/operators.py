@@ -3,11 +3,11 @@
 one line, so a bad input never shows a traceback and changes nothing."""
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, IntProperty, StringProperty
 
 from .bridge import adjustment, live, mapping
 from .bridge.errors import AdjustError
-from .properties import VARIANT_ITEMS
+from .properties import FULLBODY_ADJUST_PG_settings
 
 
 def armature_poll_message(context):
@@ -54,23 +54,20 @@ class ArmatureOperator:
 SOLVER_OPTIONS = ("variant", "margin", "use_joint_limits", "keep_hand_orientation")
 
 
-class _SolverOptions:
-    """Solver settings shown in the redo panel; invoke() fills them from the armature's stored settings, and
-    settings not passed to execute() come from there too. SKIP_SAVE: Blender would otherwise start each run
-    with the last run's values, marked as set, and the stored settings would never count again."""
+def _redo_option(name):
+    """The operator's copy of the stored setting ``name``: the same property (name, text, default, range), but
+    SKIP_SAVE, since Blender would otherwise start each run with the last run's value, marked as set, and the
+    stored setting would never count again."""
+    stored = FULLBODY_ADJUST_PG_settings.__annotations__[name]
+    keywords = {key: value for key, value in stored.keywords.items() if key != "update"}
+    return stored.function(**keywords, options={'SKIP_SAVE'})
 
-    variant: EnumProperty(
-        name="Variant",
-        items=VARIANT_ITEMS,
-        default='PRIORITY',
-        options={'SKIP_SAVE'},
-    )
-    margin: FloatProperty(name="Margin", description="Clearance kept from obstacle boxes", default=0.01, min=0.0,
-                          soft_max=0.5, subtype='DISTANCE', unit='LENGTH', options={'SKIP_SAVE'})
-    use_joint_limits: BoolProperty(name="Joint Limits", default=True, options={'SKIP_SAVE'},
-                                   description="Keep elbows and knees from bending backwards")
-    keep_hand_orientation: BoolProperty(name="Keep Hand Orientation", default=True, options={'SKIP_SAVE'},
-                                        description="Hands and feet keep their world orientation")
+
+class _SolverOptions:
+    """Solver settings shown in the redo panel, declared from the stored settings; invoke() fills them from the
+    armature's stored settings, and settings not passed to execute() come from there too."""
+
+    __annotations__ = {name: _redo_option(name) for name in SOLVER_OPTIONS}
 
     def invoke(self, context, event):
         stored = context.active_object.fullbody_adjust

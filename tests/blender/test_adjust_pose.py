@@ -294,6 +294,12 @@ def test_redo_panel_shows_main_settings():
     assert {item.identifier for item in properties["variant"].enum_items} == {'FABRIK', 'WEIGHTED', 'PRIORITY'}
     # Not remembered from the last run (Blender would mark them set): each run starts from the stored settings.
     assert all(properties[name].is_skip_save for name in main)
+    # The same properties as the stored settings: texts, defaults and ranges.
+    stored = bpy.types.Object.bl_rna.properties["fullbody_adjust"].fixed_type.properties
+    for name in main:
+        for attribute in ("name", "description", "default", "hard_min", "hard_max", "subtype", "unit"):
+            if hasattr(stored[name], attribute):
+                assert getattr(properties[name], attribute) == getattr(stored[name], attribute), (name, attribute)
     drawn = []
     layout = SimpleNamespace(prop=lambda data, name, **kw: drawn.append(name), use_property_split=False)
     operator.draw(SimpleNamespace(layout=layout), bpy.context)
