@@ -21,6 +21,7 @@ import traceback
 import bpy
 import numpy as np
 
+from .solver.vocabulary import VARIANTS
 from .bridge import adjustment, batch
 from .bridge.retarget import retarget as retarget_motion
 from .bridge.errors import AdjustError
@@ -45,7 +46,7 @@ exit codes:
      nothing written, the input file untouched
   3  internal error (a bug; --debug prints the traceback)"""
 
-_VARIANTS = {"priority": 'PRIORITY', "weighted": 'WEIGHTED', "fabrik": 'FABRIK'}
+_VARIANTS = {variant: variant.upper() for variant in VARIANTS}
 
 
 class CommandError(Exception):

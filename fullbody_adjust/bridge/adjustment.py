@@ -19,8 +19,6 @@ from . import control_rig, frames as frames_module, ik_limits, keyframes, mappin
 from .control_match import control_channels
 from .errors import AdjustError
 
-# UI names of the sub-base variants -> the solver's.
-VARIANTS = {'FABRIK': "fabrik", 'WEIGHTED': "weighted", 'PRIORITY': "priority"}
 
 # A bone counts as moved when its rotation changed by more than this (radians, about) or its head moved by
 # more than this fraction of the rig's size: below it, a key would only record float noise.
@@ -134,7 +132,7 @@ def settings_of(obj, options=Options()):
 
     chain = ChainSettings(tolerance=float(pick("tolerance")), max_iterations=int(pick("max_iterations")),
                           margin=float(pick("margin")))
-    return AdjustSettings(chain=chain, variant=VARIANTS[pick("variant")], use_limits=bool(pick("use_joint_limits")))
+    return AdjustSettings(chain=chain, variant=str(pick("variant")).lower(), use_limits=bool(pick("use_joint_limits")))
 
 
 def adjust_pose(context, obj, options=Options(), start=None):

@@ -33,14 +33,10 @@ import numpy as np
 from mathutils import Euler, Matrix, Vector
 
 from ..solver.geometry import swing_rotation
+from ..solver.vocabulary import EULER_ORDERS, ROTATION_PROPERTY
 from .errors import AdjustError
 from .frames import step_frames
 
-EULER_ORDERS = ("XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX")
-
-# Pose bone property holding the rotation of each rotation mode.
-ROTATION_PROPERTY = {"QUATERNION": "rotation_quaternion", "AXIS_ANGLE": "rotation_axis_angle",
-                     **{order: "rotation_euler" for order in EULER_ORDERS}}
 
 # Channel properties read per bone, with their sizes.
 CHANNEL_SIZES = {"location": 3, "rotation_quaternion": 4, "rotation_euler": 3, "rotation_axis_angle": 4,

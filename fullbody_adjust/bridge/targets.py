@@ -12,13 +12,10 @@ import math
 import bpy
 import numpy as np
 
+from ..solver.vocabulary import DEFAULT_PRIORITY, EFFECTORS
 from .errors import AdjustError
 from .frames import step_frames
 
-EFFECTORS = ("hand.L", "hand.R", "foot.L", "foot.R", "head")
-
-# Ankles highest, then wrists, then the head (paper §5.2.2: ankle tasks win by default).
-DEFAULT_PRIORITY = {"foot.L": 3, "foot.R": 3, "hand.L": 2, "hand.R": 2, "head": 1}
 
 # The head target is optional: without it the head rides on the chest (DESIGN.md §1), so linking a
 # head empty does not switch its slot on by itself.

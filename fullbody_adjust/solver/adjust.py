@@ -30,7 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from .adjust_types import UNCONSTRAINED, VARIANTS, AdjustBatchResult, AdjustResult, AdjustSettings
-from .body import CHAIN, END, FIXED, GROUP_NAMES, LIMB_OF_EFFECTOR, ROOT, BodyModel, LimbLimits, default_limits
+from .body import CHAIN, END, FIXED, GROUPS, LIMB_OF_EFFECTOR, ROOT, BodyModel, LimbLimits, default_limits
 from .chain import solve_chain_batch
 from .errors import SolverInputError
 from .geometry import apply_matrix, norm
@@ -431,8 +431,8 @@ class _Problem(SubBasePlacement):
             why[met & np.array([not r for r in why], dtype=bool)] = "reached"
             status[rows, k] = st
             reasons[rows, k] = why
-        moved = np.zeros((F, len(GROUP_NAMES)), dtype=bool)
-        for g, name in enumerate(GROUP_NAMES):
+        moved = np.zeros((F, len(GROUPS)), dtype=bool)
+        for g, name in enumerate(GROUPS):
             bones = list(model.groups.get(name, ()))
             if bones:
                 moved[:, g] = np.any(heads[:, bones] != self.H0[:, bones], axis=(1, 2)) | \
@@ -441,7 +441,7 @@ class _Problem(SubBasePlacement):
         sc_disp = norm(tails[:, chest] - self.T0[:, chest])
         root_disp = norm(heads[:, model.root] - self.H0[:, model.root])
         return AdjustBatchResult(heads, tails, rotations, self.effectors, residuals, status.astype(str),
-                                 reasons.astype(str), moved, GROUP_NAMES, self.iterations.copy(), sc_disp,
+                                 reasons.astype(str), moved, GROUPS, self.iterations.copy(), sc_disp,
                                  root_disp)
 
 

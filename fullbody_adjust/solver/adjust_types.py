@@ -9,8 +9,8 @@ import numpy as np
 from .body import HumanLimits
 from .chain import ChainSettings
 from .errors import SolverInputError
+from .vocabulary import DEFAULT_VARIANT, VARIANTS
 
-VARIANTS = ("weighted", "priority", "fabrik")
 UNCONSTRAINED = "unconstrained"  # status of an effector without a target on that frame
 
 
@@ -38,7 +38,7 @@ class AdjustSettings:
         Either way a limb that reaches its target alone leaves the SC and root exactly where they were."""
 
     chain: ChainSettings = ChainSettings()
-    variant: str = "weighted"
+    variant: str = DEFAULT_VARIANT
     feet_first: bool = True
     use_limits: bool = True
     human_limits: HumanLimits = HumanLimits()
