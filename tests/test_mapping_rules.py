@@ -15,8 +15,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fullbody_adjust.bridge.mapping import (
-    GROUPS,
-    REQUIRED_GROUPS,
     BoneMap,
     MappingError,
     RigDescription,
@@ -25,6 +23,7 @@ from fullbody_adjust.bridge.mapping import (
     preset_maps,
     side_of_name,
 )
+from fullbody_adjust.solver.vocabulary import GROUPS, REQUIRED_GROUPS
 from tests.helpers.bvh import CMU_GROUPS, read_cmu
 
 # BVH files are Y up, facing +Z; Blender's importer turns (x, y, z) into (x, -z, y).

@@ -33,7 +33,7 @@ import numpy as np
 from mathutils import Euler, Matrix, Vector
 
 from ..solver.geometry import swing_rotation
-from ..solver.vocabulary import EULER_ORDERS, ROTATION_PROPERTY
+from ..solver.vocabulary import ROTATION_PROPERTY
 from .errors import AdjustError
 from .frames import step_frames
 

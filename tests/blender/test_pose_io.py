@@ -14,9 +14,9 @@ from mathutils import Euler, Matrix, Quaternion
 
 from fullbody_adjust.bridge.errors import AdjustError
 from fullbody_adjust.bridge.keyframes import key_bones, key_bones_frames
+from fullbody_adjust.solver.vocabulary import EULER_ORDERS
 from fullbody_adjust.bridge.pose import (
     affine_inverse,
-    EULER_ORDERS,
     apply_channels,
     read_pose,
     read_pose_frames,

@@ -1,0 +1,206 @@
+"""A rig as plain data for bone mapping (no bpy): bone names, parents, rest heads and tails in armature space,
+and the hierarchy questions mapping asks of it (subtrees, paths, sides). Side markers in names are read here too:
+``L``/``R``/``Left``/``Right`` as whole name tokens, split at ``. _ - :``, spaces, digits and camelCase.
+"""
+
+from dataclasses import dataclass, field
+from functools import cached_property
+import math
+import re
+
+import numpy as np
+
+
+
+MIDLINE = 0.01  # a bone without side marker whose head is this close to the root's x is at the middle
+
+
+@dataclass(frozen=True, eq=False)
+class RigDescription:
+    """A rig as plain data: N bones with names, parent indices (-1: none), rest heads and tails (N, 3) in
+    armature space, the rig's name (for messages) and ``orientation``, the (3, 3) rotation from armature
+    space to the world (z up); identity unless the armature object is rotated."""
+
+    names: tuple
+    parents: np.ndarray
+    heads: np.ndarray
+    tails: np.ndarray
+    name: str = "Armature"
+    orientation: np.ndarray = field(default_factory=lambda: np.eye(3))
+
+    def __post_init__(self):
+        names = tuple(str(n) for n in self.names)
+        n = len(names)
+        parents = np.asarray(self.parents, dtype=np.int64).reshape(-1)
+        heads = np.asarray(self.heads, dtype=np.float64).reshape(-1, 3) if n else np.zeros((0, 3))
+        tails = np.asarray(self.tails, dtype=np.float64).reshape(-1, 3) if n else np.zeros((0, 3))
+        orientation = np.asarray(self.orientation, dtype=np.float64)
+        if len(set(names)) != n:
+            duplicate = next(x for x in names if names.count(x) > 1)
+            raise ValueError(f"rig '{self.name}': bone name '{duplicate}' is used twice")
+        if parents.shape != (n,) or heads.shape != (n, 3) or tails.shape != (n, 3):
+            raise ValueError(f"rig '{self.name}': {n} names but parents {parents.shape}, heads {heads.shape}, "
+                             f"tails {tails.shape}")
+        if n and (parents.min() < -1 or parents.max() >= n):
+            raise ValueError(f"rig '{self.name}': parent index out of range -1..{n - 1}")
+        if not (np.isfinite(heads).all() and np.isfinite(tails).all()):
+            raise ValueError(f"rig '{self.name}': bone positions have NaN/inf")
+        if orientation.shape != (3, 3) or not np.isfinite(orientation).all():
+            raise ValueError(f"rig '{self.name}': orientation must be a finite 3x3 matrix")
+        for attr, value in (("names", names), ("parents", parents), ("heads", heads), ("tails", tails),
+                            ("orientation", orientation)):
+            object.__setattr__(self, attr, value)
+        self._skeleton  # reject cycles now rather than at first use
+
+    @classmethod
+    def from_bones(cls, bones, name="Armature", orientation=None):
+        """From ``[(bone, parent name or None, head, tail), ...]`` in any order."""
+        bones = list(bones)
+        index = {b[0]: i for i, b in enumerate(bones)}
+        missing = [b[1] for b in bones if b[1] is not None and b[1] not in index]
+        if missing:
+            raise ValueError(f"rig '{name}': parent '{missing[0]}' is not a bone of the rig")
+        return cls(
+            names=tuple(b[0] for b in bones),
+            parents=[-1 if b[1] is None else index[b[1]] for b in bones],
+            heads=[b[2] for b in bones] or np.zeros((0, 3)),
+            tails=[b[3] for b in bones] or np.zeros((0, 3)),
+            name=name,
+            orientation=np.eye(3) if orientation is None else orientation,
+        )
+
+    def __len__(self):
+        return len(self.names)
+
+    def index(self, bone):
+        """Index of ``bone``; KeyError naming it when the rig has no such bone."""
+        try:
+            return self._index_of[bone]
+        except KeyError:
+            raise KeyError(f"rig '{self.name}' has no bone '{bone}'") from None
+
+    @cached_property
+    def _index_of(self):
+        return {n: i for i, n in enumerate(self.names)}
+
+    @cached_property
+    def _skeleton(self):
+        return _Skeleton(self)
+
+
+_TOKEN = re.compile(r"[A-Z]+(?=[A-Z][a-z])|[A-Z]?[a-z]+|[A-Z]+|\d+")
+_SIDE_TOKENS = {"l": "L", "left": "L", "r": "R", "right": "R"}
+
+
+def side_of_name(name):
+    """'L', 'R' or None from the side markers in a bone name (see the module docstring)."""
+    sides = {_SIDE_TOKENS[t] for t in (tok.lower() for tok in _TOKEN.findall(name)) if t in _SIDE_TOKENS}
+    return sides.pop() if len(sides) == 1 else None
+
+
+class _Skeleton:
+    """Derived data of a RigDescription: children, pre-order, world-oriented positions, sizes."""
+
+    def __init__(self, desc):
+        n = len(desc.names)
+        self.desc = desc
+        self.children = [[] for _ in range(n)]
+        roots = []
+        for i, p in enumerate(desc.parents.tolist()):
+            (roots if p < 0 else self.children[p]).append(i)
+        self.parent = desc.parents.tolist()
+        self.tin = [-1] * n
+        self.tout = [0] * n
+        self.depth = [0] * n
+        order = []
+        for r in roots:
+            stack = [(r, False)]
+            while stack:
+                b, done = stack.pop()
+                if done:
+                    self.tout[b] = len(order)
+                    continue
+                self.tin[b] = len(order)
+                order.append(b)
+                stack.append((b, True))
+                for c in reversed(self.children[b]):
+                    self.depth[c] = self.depth[b] + 1
+                    stack.append((c, False))
+        if len(order) < n:
+            looped = next(i for i in range(n) if self.tin[i] < 0)
+            raise ValueError(f"rig '{desc.name}': bone '{desc.names[looped]}' is its own ancestor")
+        self.order = np.array(order, dtype=np.int64)
+        self.heads = desc.heads @ desc.orientation.T
+        self.tails = desc.tails @ desc.orientation.T
+        points = np.concatenate([self.heads, self.tails]) if n else np.zeros((1, 3))
+        extent = points.max(axis=0) - points.min(axis=0)
+        self.size = float(np.linalg.norm(extent)) or 1.0
+        self.height = float(extent[2]) or self.size
+        self.tiny = 1e-6 * self.size
+        self.name_sides = [side_of_name(name) for name in desc.names]
+        # Highest point (heads and tails) of each bone's subtree.
+        self.top = np.maximum(self.heads[:, 2], self.tails[:, 2]) if n else np.zeros(0)
+        for b in reversed(order):
+            for c in self.children[b]:
+                self.top[b] = max(self.top[b], self.top[c])
+
+    def subtree(self, b):
+        return self.order[self.tin[b]:self.tout[b]]
+
+    def is_ancestor(self, a, b):
+        """a is a proper ancestor of b."""
+        return a != b and self.tin[a] <= self.tin[b] < self.tout[a]
+
+    def path(self, a, b):
+        """Bones from a down to b, both included (a must be b or an ancestor of b)."""
+        out = [b]
+        while out[-1] != a:
+            out.append(self.parent[out[-1]])
+        return out[::-1]
+
+    def lca(self, a, b):
+        while not (a == b or self.is_ancestor(a, b)):
+            a = self.parent[a]
+            if a < 0:
+                return -1
+        return a
+
+    def side(self, b, mid_x):
+        """Name marker first, else the x sign of the head relative to the midline (+X is left), else None."""
+        if self.name_sides[b]:
+            return self.name_sides[b]
+        dx = self.heads[b, 0] - mid_x
+        if abs(dx) <= MIDLINE * self.height:
+            return None
+        return "L" if dx > 0 else "R"
+
+    def joints(self, path):
+        """Heads of the bones on a path plus the tail of the last: (len+1, 3)."""
+        return np.concatenate([self.heads[path], self.tails[path[-1]][None]])
+
+    def longest_path(self, b):
+        """From b to the leaf that makes the longest run of joints (fingers beat twist bones)."""
+        best = {}
+        for x in reversed(self.subtree(b).tolist()):
+            kids = self.children[x]
+            if not kids:
+                best[x] = (float(np.linalg.norm(self.tails[x] - self.heads[x])), None)
+                continue
+            c = max(kids, key=lambda c: float(np.linalg.norm(self.heads[c] - self.heads[x])) + best[c][0])
+            best[x] = (float(np.linalg.norm(self.heads[c] - self.heads[x])) + best[c][0], c)
+        out = [b]
+        while best[out[-1]][1] is not None:
+            out.append(best[out[-1]][1])
+        return out
+
+
+def angle_between(v, w):
+    """Angle between two vectors (0 when either has no length)."""
+    norm = float(np.linalg.norm(v) * np.linalg.norm(w))
+    if norm == 0.0:
+        return 0.0
+    return math.acos(max(-1.0, min(1.0, float(np.dot(v, w)) / norm)))
+
+
+DOWN = np.array([0.0, 0.0, -1.0])
+UP = np.array([0.0, 0.0, 1.0])
