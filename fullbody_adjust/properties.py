@@ -1,5 +1,5 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
-"""Settings stored on the armature object as `obj.fullbody_adjust` (DESIGN.md §3).
+"""Settings stored on the armature object as `obj.fullbody_adjust`.
 
 They live on every Object (the contract is `obj.fullbody_adjust`) but only mean something on armatures.
 """

@@ -77,7 +77,7 @@ def detect_map(desc):
 
 def detect(desc):
     sk = desc._skeleton
-    # Root candidates: bones that branch, the biggest subtree first (the brief: the bone with most descendants
+    # Root candidates: bones that branch, the biggest subtree first (the bone with most descendants
     # where the legs and the spine branch). The failure that got furthest is reported; on a tie the first.
     candidates = sorted((b for b in range(len(desc)) if len(sk.children[b]) >= 2),
                         key=lambda b: (-(sk.tout[b] - sk.tin[b]), sk.depth[b], b))

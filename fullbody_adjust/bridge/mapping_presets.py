@@ -1,4 +1,4 @@
-"""Bone-name presets for the five-group body model (the brief's "Body model groups").
+"""Bone-name presets for the five-group body model (solver/vocabulary.py's groups).
 
 Pure data, no bpy. A preset names, per group, the chain's slots in parent → child order. A slot is a string:
 

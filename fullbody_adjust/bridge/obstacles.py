@@ -1,6 +1,6 @@
 """Obstacles: world-space bounding boxes of meshes, as corners for solver.obstacles.Boxes.from_corners.
 
-Which meshes (DESIGN.md §3): those of ``obj.fullbody_adjust.obstacles`` (child collections included),
+Which meshes: those of ``obj.fullbody_adjust.obstacles`` (child collections included),
 or, when that is None, every visible mesh that does not move with this armature.
 """
 

@@ -5,8 +5,8 @@ Reading: ``read_pose`` / ``read_pose_frames`` give a ``PoseSnapshot`` — per bo
 order, parents before children) world heads, tails, 4x4 matrices and lengths, plus what writing needs
 (rest matrices, parents, current channel values).
 
-Writing (DESIGN.md §2.6): the caller gives, for the bones it moved, new world matrices (rotation +
-translation; the bone's scale unchanged) — ``swing_world_matrices`` builds them the DESIGN way (the
+Writing: the caller gives, for the bones it moved, new world matrices (rotation +
+translation; the bone's scale unchanged) — ``swing_world_matrices`` builds them that way (the
 minimal swing of each segment applied to the bone's old rotation, so twist/roll is kept).
 ``world_rotations_to_channels`` converts them top-down with ``Bone.convert_local_to_pose``, never
 touching the scene; ``apply_channels`` writes the result. Bones not passed keep their local channels.

@@ -1,6 +1,6 @@
 """Target slots on the armature object and the empties they point at.
 
-Each armature carries ``obj.fullbody_adjust.targets``: one slot per effector (DESIGN.md §3) with
+Each armature carries ``obj.fullbody_adjust.targets``: one slot per effector with
 ``effector``, ``target`` (an Object, normally an empty), ``priority`` (higher wins) and ``enabled``.
 This module keeps those slots in shape, creates the target empties, and reads the targets' world
 transforms (evaluated, so animated or parented targets count) as plain numpy arrays for the solver.
@@ -17,7 +17,7 @@ from .errors import AdjustError
 from .frames import step_frames
 
 
-# The head target is optional: without it the head rides on the chest (DESIGN.md §1), so linking a
+# The head target is optional: without it the head rides on the chest, so linking a
 # head empty does not switch its slot on by itself.
 ENABLED_WHEN_LINKED = frozenset(("hand.L", "hand.R", "foot.L", "foot.R"))
 

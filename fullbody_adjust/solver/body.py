@@ -3,7 +3,7 @@
 The description is BONE-based (names, parents, per-bone head/tail), because bones are what the Blender bridge
 reads and must write back; any rig whose bones are mapped to the group vocabulary below can feed it.
 
-Groups (ordered bone lists, parent -> child; see the team brief "Body model groups"):
+Groups (ordered bone lists, parent -> child; the names are solver/vocabulary.py's):
     root            [pelvis]                translates only
     trunk           [spine bones...]        chain: heads + tail of the last bone (= the SC, sterno-clavicular)
     arm.L / arm.R   [clavicle?, upper, fore] chain: heads + head of the hand bone (the wrist, end effector)
@@ -148,7 +148,7 @@ class BodyModel:
     @classmethod
     def from_description(cls, names, parents, groups_by_name) -> "BodyModel":
         """Validate a rig description: bone names, parent indices (-1 for roots) and the group -> bone-name
-        lists of the brief's vocabulary. Raises SolverInputError with a one-line reason."""
+        lists of vocabulary.GROUPS. Raises SolverInputError with a one-line reason."""
         names, parents = _check_hierarchy(names, parents)
         index = {n: i for i, n in enumerate(names)}
         if not isinstance(groups_by_name, dict):

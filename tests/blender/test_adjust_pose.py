@@ -1,4 +1,4 @@
-"""bpy.ops.fullbody_adjust.adjust_pose end to end (issue 5, items 4 and 7), on the Rigify basic (29 bones) and full
+"""bpy.ops.fullbody_adjust.adjust_pose end to end, on the Rigify basic (29 bones) and full
 (159 bones) metarigs and on the CMU walk clip imported with Blender's BVH importer.
 
 Every target is reachable by construction (placed within the reach the rig has, computed from its own bones) and
@@ -17,7 +17,7 @@ from .scene_tools import (LAYERED_ACTIONS, RIG_KINDS, Pose, add_rig, animating_f
                           bone_map, chain_joints, chain_length, drop_frame, file_state, keys_at, keys_state,
                           parse_report, place, pose_channels, residuals, slot, without_derived_handles)
 
-# A met target is within this fraction of the rig's height (issue 5: 1e-4).
+# A met target is within this fraction of the rig's height.
 REACH = 1e-4
 # Bone lengths are read back from Blender's float32 pose matrices, and Rigify's own rest matrices are off
 # orthonormal by up to 6e-6, so a bone that turns shows a length a few 1e-6 (relative) off: allow 1e-5.

@@ -1,4 +1,4 @@
-"""Bad input to the adjust operators (issue 5, item 6): each gives one clear line (the operator raises RuntimeError
+"""Bad input to the adjust operators: each gives one clear line (the operator raises RuntimeError
 when called from Python) and leaves the file exactly as it was: objects, transforms, poses (also pose changes
 not keyed yet), keys, settings, actions.
 

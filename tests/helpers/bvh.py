@@ -24,7 +24,7 @@ CMU_SCALE = 0.056444  # metres per CMU BVH unit (tests/data/mocap/README.md)
 # The CMU clips the tests and benches use ship with the repository; FBA_MOCAP_DIR overrides.
 MOCAP_DIR = Path(os.environ.get("FBA_MOCAP_DIR", Path(__file__).resolve().parents[1] / "data" / "mocap"))
 
-# Body-model groups for the MotionBuilder-style CMU skeleton (team brief, "Body model groups").
+# Body-model groups for the MotionBuilder-style CMU skeleton.
 CMU_GROUPS = {
     "root": ["Hips"],
     "trunk": ["LowerBack", "Spine", "Spine1"],
