@@ -17,12 +17,10 @@ import bpy
 import numpy as np
 
 from .errors import AdjustError
-from .pose import CHANNEL_SIZES, ROTATION_PROPERTY
+from .pose import CHANNEL_SIZES
 
 # Blender's BEZT_BINARYSEARCH_THRESH: keys closer than this are at the same frame.
 SAME_FRAME = 0.01
-
-CHANNEL_KINDS = ("location", "rotation", "scale")
 
 _KEYFRAME_PROPS = bpy.types.Keyframe.bl_rna.properties
 _INTERPOLATION = {item.identifier: item.value for item in _KEYFRAME_PROPS["interpolation"].enum_items}
@@ -37,22 +35,6 @@ _AUTO_HANDLES = (_HANDLE_TYPE["AUTO"], _HANDLE_TYPE["AUTO_CLAMPED"])
 # 4.4 introduced slotted actions; 5.0 gave fcurve_ensure_for_datablock its group_name.
 _LAYERED = "layers" in bpy.types.Action.bl_rna.properties
 _ENSURE_TAKES_GROUP = bpy.app.version >= (5, 0, 0)
-
-
-def key_bones(obj, bone_names, frame, channels=("location", "rotation"), *, action_name=None):
-    """Key the current values of ``channels`` ('location', 'rotation' — the property of each bone's
-    rotation mode —, 'scale') of the pose bones ``bone_names`` at scene ``frame``. Creates the action
-    (and slot) if needed; with ``action_name`` writes into a new action instead (see ensure_action).
-    Returns the action written to."""
-    unknown = set(channels) - set(CHANNEL_KINDS)
-    if unknown:
-        raise ValueError(f"key_bones: unknown channel kinds {sorted(unknown)} (use {CHANNEL_KINDS})")
-    values = {}
-    for name in bone_names:
-        pose_bone = _pose_bone(obj, name)
-        props = [ROTATION_PROPERTY[pose_bone.rotation_mode] if kind == "rotation" else kind for kind in channels]
-        values[name] = {prop: np.array(getattr(pose_bone, prop), dtype=np.float64)[None] for prop in props}
-    return key_bones_frames(obj, bone_names, [frame], values, action_name=action_name)
 
 
 def key_bones_frames(obj, bone_names, frames, values_by_channel, *, action_name=None):

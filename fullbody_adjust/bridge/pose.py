@@ -6,8 +6,8 @@ order, parents before children) world heads, tails, 4x4 matrices and lengths, pl
 (rest matrices, parents, current channel values).
 
 Writing: the caller gives, for the bones it moved, new world matrices (rotation +
-translation; the bone's scale unchanged) — ``swing_world_matrices`` builds them that way (the
-minimal swing of each segment applied to the bone's old rotation, so twist/roll is kept).
+translation; the bone's scale unchanged), e.g. the minimal swing of each segment applied to the bone's old
+rotation, so twist/roll is kept.
 ``world_rotations_to_channels`` converts them top-down with ``Bone.convert_local_to_pose``, never
 touching the scene; ``apply_channels`` writes the result. Bones not passed keep their local channels.
 
@@ -17,8 +17,7 @@ rounding) as long as the rig allows it: a connected bone's head stays on its par
 non-uniform scale a rigid bone turning in world space changes its world length, so not every world
 matrix is reachable: the conversion then honours each bone's world head and world direction (its Y
 axis) exactly, takes its roll from the requested Z axis, and keeps the rig's bone lengths (fixed in
-armature space). ``swing_world_matrices`` computes the swing in armature space, so its matrices are
-always reachable. A caller that needs exact world lengths under non-uniform scale solves in armature
+armature space). A swing computed in armature space is always reachable. A caller that needs exact world lengths under non-uniform scale solves in armature
 space (``snapshot.matrix_world`` maps between the two).
 
 Bone constraints are not evaluated by the conversion: channels are computed as if the moved bones had
@@ -32,7 +31,6 @@ import bpy
 import numpy as np
 from mathutils import Euler, Matrix, Vector
 
-from ..solver.geometry import swing_rotation
 from ..solver.vocabulary import ROTATION_PROPERTY
 from .errors import AdjustError
 from .frames import step_frames
@@ -127,29 +125,6 @@ def read_pose_frames(obj, frames, each_frame=None):
     stacked["channels"] = {key: np.stack([row["channels"][key] for row in rows]) for key in rows[0]["channels"]}
     stacked["frame"] = frames.copy()
     return PoseSnapshot(**static, **stacked)
-
-
-def swing_world_matrices(snapshot, bones, old_dirs, new_dirs, new_heads):
-    """New world matrices (..., k, 4, 4) for ``bones`` (names or indices): each bone's old rotation turned by
-    the minimal swing taking its segment's old direction to the new one (twist kept), its head moved to
-    ``new_heads``, its scale unchanged. old_dirs, new_dirs, new_heads: (k,3), or (F,k,3) for a batched
-    snapshot. The swing is taken in armature space, so the result is reachable under any object scale
-    (under uniform scale it is the same as swinging in world space)."""
-    idx = snapshot.indices(bones)
-    lead = snapshot.pose_matrices.shape[:-3]
-    shape = lead + (len(idx), 3)
-    old_dirs, new_dirs, new_heads = (_array(a, shape, name) for a, name in
-                                     ((old_dirs, "old_dirs"), (new_dirs, "new_dirs"), (new_heads, "new_heads")))
-    world = snapshot.matrix_world[..., None, :, :]
-    to_armature = np.linalg.inv(snapshot.matrix_world)[..., None, :, :]
-    linear_inv = to_armature[..., :3, :3]
-    swing = swing_rotation(_apply(linear_inv, old_dirs), _apply(linear_inv, new_dirs))
-    old = snapshot.pose_matrices[..., idx, :, :]
-    new = np.zeros(old.shape)
-    new[..., :3, :3] = swing @ old[..., :3, :3]
-    new[..., :3, 3] = _apply(linear_inv, new_heads) + to_armature[..., :3, 3]
-    new[..., 3, 3] = 1.0
-    return world @ new
 
 
 def world_rotations_to_channels(obj, snapshot, new_world, bones):

@@ -291,3 +291,43 @@ def file_state():
     return {"objects": objects, "actions": sorted(a.name for a in bpy.data.actions),
             "collections": sorted(c.name for c in bpy.data.collections),
             "frame": (bpy.context.scene.frame_current, bpy.context.scene.frame_subframe)}
+
+
+def key_bones(obj, bone_names, frame, channels=("location", "rotation"), *, action_name=None):
+    """Key the current values of ``channels`` ('location', 'rotation' — the property of each bone's rotation
+    mode —, 'scale') of the pose bones ``bone_names`` at scene ``frame`` through the extension's keyframes
+    module; returns the action written to."""
+    from fullbody_adjust.bridge.keyframes import key_bones_frames
+    from fullbody_adjust.solver.vocabulary import ROTATION_PROPERTY
+
+    values = {}
+    for name in bone_names:
+        pose_bone = obj.pose.bones.get(name)
+        if pose_bone is None:
+            return key_bones_frames(obj, bone_names, [frame], values, action_name=action_name)  # its one-line error
+        props = [ROTATION_PROPERTY[pose_bone.rotation_mode] if kind == "rotation" else kind for kind in channels]
+        values[name] = {prop: np.array(getattr(pose_bone, prop), dtype=np.float64)[None] for prop in props}
+    return key_bones_frames(obj, bone_names, [frame], values, action_name=action_name)
+
+
+def swing_world_matrices(snapshot, bones, old_dirs, new_dirs, new_heads):
+    """New world matrices (..., k, 4, 4) for ``bones`` of a PoseSnapshot: each bone's old rotation turned by the
+    minimal swing taking its segment's old direction to the new one (twist kept), its head moved to
+    ``new_heads``, its scale unchanged; the swing taken in armature space, so the result is reachable under any
+    object scale. old_dirs, new_dirs, new_heads: (k,3), or (F,k,3) for a batched snapshot."""
+    from fullbody_adjust.solver.geometry import swing_rotation
+
+    idx = snapshot.indices(bones)
+    to_armature = np.linalg.inv(snapshot.matrix_world)[..., None, :, :]
+    linear_inv = to_armature[..., :3, :3]
+
+    def apply(matrix, vectors):
+        return np.einsum("...ij,...j->...i", matrix, np.asarray(vectors, dtype=np.float64))
+
+    swing = swing_rotation(apply(linear_inv, old_dirs), apply(linear_inv, new_dirs))
+    old = snapshot.pose_matrices[..., idx, :, :]
+    new = np.zeros(old.shape)
+    new[..., :3, :3] = swing @ old[..., :3, :3]
+    new[..., :3, 3] = apply(linear_inv, new_heads) + to_armature[..., :3, 3]
+    new[..., 3, 3] = 1.0
+    return snapshot.matrix_world[..., None, :, :] @ new

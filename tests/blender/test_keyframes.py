@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 
 from fullbody_adjust.bridge.errors import AdjustError
-from fullbody_adjust.bridge.keyframes import key_bones, key_bones_frames
+from fullbody_adjust.bridge.keyframes import key_bones_frames
 from fullbody_adjust.bridge.pose import apply_channels, read_pose, world_rotations_to_channels
+
+from .scene_tools import key_bones
 
 # name, rotation mode: one bone per kind of rotation property.
 BONES = (("a", "QUATERNION"), ("b", "XYZ"), ("c", "AXIS_ANGLE"))

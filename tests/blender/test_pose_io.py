@@ -13,17 +13,17 @@ import pytest
 from mathutils import Euler, Matrix, Quaternion
 
 from fullbody_adjust.bridge.errors import AdjustError
-from fullbody_adjust.bridge.keyframes import key_bones, key_bones_frames
+from fullbody_adjust.bridge.keyframes import key_bones_frames
 from fullbody_adjust.solver.vocabulary import EULER_ORDERS
 from fullbody_adjust.bridge.pose import (
     affine_inverse,
     apply_channels,
     read_pose,
     read_pose_frames,
-    swing_world_matrices,
     world_rotations_to_channels,
 )
 
+from .scene_tools import key_bones, swing_world_matrices
 from .test_keyframes import fcurves_of
 
 ROTATION_MODES = ("QUATERNION",) + EULER_ORDERS + ("AXIS_ANGLE",)
