@@ -61,12 +61,13 @@ from .body import BodyModel, HumanLimits, LimbLimits, default_limits
 from .geometry import apply_matrix, cross, dot, norm
 from .limits import HINGE
 # The retargeting API in one namespace (the bridge and tests use ``retarget.X``).
-from .contacts import (RetargetSettings, box_distance, detect_object_contacts, detect_plants,  # noqa: F401
-                       hold, intervals, still_frames)
-from .retarget_metrics import angular_roughness, roughness  # noqa: F401
+from .contacts import (GROUND, OBJECT, RAISED, Contact, RetargetSettings, box_distance,  # noqa: F401
+                       detect_contacts, detect_plants, hold, intervals)
+from .retarget_metrics import angular_roughness, contact_figures, roughness  # noqa: F401
 from .retarget_plan import RetargetPlan, body_shift, moving_average, plan_retarget  # noqa: F401
 from .retarget_rig import (EFFECTORS, Rig, affine_inverse, ankle_above_sole, basis_from_pose,  # noqa: F401
-                           body_frame, chain_joints, forward_kinematics, hip_centres, leg_length, leg_lengths,
+                           body_frame, chain_joints, effector_points, forward_kinematics, heading_rotation,
+                           hip_centres, leg_length, leg_lengths,
                            rest_points, sole_heights, unit_columns)
 from .retarget_transfer import BonePair, pair_bones, transfer_pose, translate_body  # noqa: F401
 from .rotation_channels import (EULER_ORDERS, ROTATION_PROPERTY, axis_angle_to_matrices,  # noqa: F401
@@ -140,3 +141,17 @@ def motion_limits(model, start_pose, heads, tails, human=HumanLimits()):
         axes[:, hinge] = apply_matrix(frame, local / norm(local))
         limits[name] = LimbLimits(replace(current.limits, hinge_axis=axes), current.parent_direction)
     return limits
+
+
+def carry_unsolved(rig, pose, bones, basis):
+    """Pose matrices (F,J,4,4) where every bone outside ``bones`` (the solved ones) follows its parent as its
+    own ``basis`` (J,4,4) says (fingers, toes, heels: as Blender will pose them once the solved bones are
+    keyed). ``pose``: as solved_pose gives it; a copy is returned."""
+    out = np.array(pose, dtype=np.float64)
+    local = rig.relative @ np.asarray(basis, dtype=np.float64)
+    local[rig.connected, :3, 3] = rig.relative[rig.connected, :3, 3]
+    solved = set(int(b) for b in bones)
+    for j, p in enumerate(rig.parents):
+        if j not in solved and p >= 0:
+            out[:, j] = out[:, p] @ local[j]
+    return out

@@ -1,10 +1,20 @@
-"""Measures of a retargeted motion: smoothness (pops show as spikes of the change of velocity)."""
+"""Measures of a retargeted motion: smoothness (pops show as spikes of the change of velocity), and how well
+the result keeps the source's contacts (contact error, sliding, frames below the floor, frame-to-frame
+pops), measured from world points of the result, not from the targets the solve was given."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from .contacts import OBJECT, box_distance
 from .geometry import norm
+
+# A step of an effector this much faster (leg lengths per second) than the source's own, scaled, is a pop.
+POP_SPEED = 1.5
+# Below the floor by more than this (leg lengths) counts: a sole exactly on it is not below it.
+FLOOR_TOLERANCE = 0.002
+# A contact is held when its error is at most this (leg lengths; a hand: beyond the source's own distance).
+HOLD_TOLERANCE = 0.01
 
 
 def roughness(positions, scale=1.0):
@@ -27,3 +37,85 @@ def angular_roughness(rotations):
     change = step[1:] @ np.swapaxes(step[:-1], -1, -2)
     cos = np.clip((np.trace(change, axis1=-2, axis2=-1) - 1.0) * 0.5, -1.0, 1.0)
     return np.arccos(cos).max(axis=0)
+
+
+def contact_errors(contact, points, boxes):
+    """(n,) error over a contact's frames of an effector's world points (n,P,3) (wrist or ankle first): a
+    foot, how far its lowest point is from the surface it rests on; a hand on an object, the distance of
+    its nearest point to the object's box."""
+    points = np.asarray(points, dtype=np.float64)
+    if _hand_on_object(contact):
+        k = slice(contact.box, contact.box + 1)
+        return box_distance(points, boxes[0][k], boxes[1][k])[..., 0].min(axis=1)
+    return np.abs(points[..., 2].min(axis=1) - contact.surface)
+
+
+def _hand_on_object(contact):
+    return contact.kind == OBJECT and not np.isfinite(contact.surface)  # a foot on one rests on its surface
+
+
+def sliding(points):
+    """How far a planted foot slides over a contact, of its world points (n,P,3): the point that rests lowest
+    on average (heel, ball or toes), its largest horizontal distance from where it was on the first frame."""
+    points = np.asarray(points, dtype=np.float64)
+    anchor = points[:, points[..., 2].mean(axis=0).argmin(), :2]
+    return float(np.hypot(*(anchor - anchor[0]).T).max())
+
+
+def step_lengths(points):
+    """(F,) distance each point (F,3) moved since the frame before (0 on the first)."""
+    points = np.asarray(points, dtype=np.float64)
+    return np.concatenate([[0.0], norm(np.diff(points, axis=0))])
+
+
+def contact_figures(contacts, points, source_points, boxes, ground, leg, ratio, fps, reachable=None):
+    """Per effector, how the result keeps the source's contacts. ``contacts`` {effector: [Contact]} (the
+    source's); ``points`` and ``source_points`` {effector: (F,P,3)} world points of the result's and the
+    source's hand or foot (solver.retarget_rig.effector_points); ``boxes`` the contact objects' (mins,
+    maxs) or None; ``ground`` the floor's height or None; ``leg`` the result's leg length, ``ratio`` its
+    ratio to the source's; ``reachable`` {effector: (F,) bool} frames whose target was within reach (None:
+    all). Returns {effector: {...}} (see ``summary_of``) and per effector (F,) contact error (NaN outside
+    contacts) for plotting."""
+    figures, curves = {}, {}
+    for e, pts in points.items():
+        frames = len(pts)
+        error = np.full(frames, np.nan)
+        source_error = np.full(frames, np.nan)
+        slides, not_held = [], np.zeros(frames, dtype=bool)
+        for c in contacts.get(e, ()):
+            a, b = c.start, c.stop
+            error[a:b] = contact_errors(c, pts[a:b], boxes)
+            source_error[a:b] = contact_errors(c, source_points[e][a:b], boxes)
+            allowed = HOLD_TOLERANCE * leg + (source_error[a:b] if _hand_on_object(c) else 0.0)
+            not_held[a:b] = error[a:b] > allowed
+            if e.startswith("foot"):
+                slides.append(sliding(pts[a:b]))
+        if reachable is not None:
+            not_held &= reachable[e]
+        steps = step_lengths(pts[:, 0])
+        pops = steps > ratio * step_lengths(source_points[e][:, 0]) + POP_SPEED * leg / fps
+        on_floor = ground is not None and e.startswith("foot")
+        depth = ground - pts[..., 2].min(axis=1) if on_floor else np.zeros(frames)
+        below = depth > FLOOR_TOLERANCE * leg
+        figures[e] = {
+            "contacts": [{"kind": c.kind, "start": c.start, "stop": c.stop} for c in contacts.get(e, ())],
+            "contact_frames": int(np.isfinite(error).sum()),
+            "contact_error": _stats(error[np.isfinite(error)]),
+            "source_contact_error": _stats(source_error[np.isfinite(source_error)]),
+            "not_held_frames": int(not_held.sum()),
+            "sliding": _stats(np.array(slides)),
+            "frames_below_floor": int(below.sum()),
+            "deepest_below_floor": float(max(0.0, depth.max(initial=0.0))),
+            "largest_step": float(steps.max()) if frames else 0.0,
+            "pops": int(pops.sum()),
+        }
+        curves[e] = error
+    return figures, curves
+
+
+def _stats(values):
+    values = np.asarray(values, dtype=np.float64).reshape(-1)
+    if values.size == 0:
+        return {"count": 0, "median": None, "p95": None, "max": None}
+    return {"count": int(values.size), "median": float(np.median(values)), "p95": float(np.percentile(values, 95)),
+            "max": float(values.max())}

@@ -3,16 +3,16 @@ step 2)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .adjust import sub_base_point
-from .contacts import RetargetSettings, detect_object_contacts, detect_plants, hold
+from .contacts import GROUND, RetargetSettings, detect_contacts, hold
 from .errors import SolverInputError
 from .geometry import norm
-from .retarget_rig import (EFFECTORS, FEET, EFFECTOR_CHAIN, Rig, ankle_above_sole, chain_joints, hip_centres,
-                           leg_length, rest_points, sole_heights)
+from .retarget_rig import (EFFECTOR_CHAIN, EFFECTORS, FEET, Rig, ankle_above_sole, chain_joints, effector_points,
+                           heading_rotation, hip_centres, leg_length, rest_points, sole_heights)
 from .retarget_transfer import transfer_pose, translate_body
 
 
@@ -54,8 +54,11 @@ class RetargetPlan:
 
     start_pose (F,Jt,4,4): the transferred pose (target armature space); heads/tails (F,Jt,3) of it in
     armature space; targets (F,4,3) for EFFECTORS in armature space, world_targets the same in world space;
-    contacts (F,4) bool: frames held at a contact (planted foot, object contact); leg_ratio target/source;
-    ground: world z of the ground (the source's lowest foot joints)."""
+    contacts (F,4) bool: frames held at a contact; contact_list {effector: [Contact]} the source's contacts
+    (contact_intervals the same as (start, stop) pairs); leg_ratio target/source; ground: world z of the floor
+    (the source's lowest foot points), None when the floor is not a contact; boxes: the contact objects'
+    world boxes (mins, maxs) or None; heading (3,3): the turn about Z from the source's heading to the
+    target's, applied to the motion."""
 
     start_pose: np.ndarray
     heads: np.ndarray
@@ -66,13 +69,17 @@ class RetargetPlan:
     contact_intervals: dict
     leg_ratio: float
     ground: float
+    contact_list: dict = None
+    boxes: tuple = None
+    heading: np.ndarray = None
     effectors: tuple = EFFECTORS
 
 
-def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSettings(), boxes=None):
+def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSettings(), boxes=None, ground=True):
     """The start pose and effector targets that carry ``source_pose`` (F,Js,4,4, source armature space)
     over to ``target`` (its unmapped bones at ``target_basis`` (Jt,4,4)). ``boxes``: (mins, maxs) (K,3)
-    each, world boxes of a contact object (None: the ground is the contact). See the module docstring."""
+    each, world boxes of contact objects (None: none); ``ground``: the floor is a contact. See the module
+    docstring of solver/retarget.py."""
     if not isinstance(source, Rig) or not isinstance(target, Rig):
         raise SolverInputError("source and target must be Rigs")
     source_pose = np.asarray(source_pose, dtype=np.float64)
@@ -83,49 +90,54 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     target_basis = np.asarray(target_basis, dtype=np.float64)
     if target_basis.shape != (len(target), 4, 4):
         raise SolverInputError(f"target basis must have shape ({len(target)},4,4), got {target_basis.shape}")
+    if boxes is not None:
+        boxes = tuple(np.asarray(b, dtype=np.float64).reshape(-1, 3) for b in boxes)
     leg_s, leg_t = leg_length(source), leg_length(target)
     if not (leg_s > 0.0 and leg_t > 0.0):
         raise SolverInputError("a rig's legs have zero length")
     ratio = leg_t / leg_s
 
-    s_heads, s_tails = source.world_points(source_pose)
-    ground = float(np.percentile(sole_heights(source, s_heads, s_tails), 2))
-    # Scale about the ground below each rig's rest hips: the source's motion, re-anchored on the target.
-    anchor_s = hip_centres(source, rest_points(source)[0])
+    # The motion turned to the target's heading (about the world origin; Z, so heights, unchanged).
+    heading = heading_rotation(target.rotation @ source.rotation.T)
+    turn = np.eye(4)
+    turn[:3, :3] = heading
+    turned = replace(source, matrix_world=turn @ source.matrix_world)
+    s_heads, s_tails = source.world_points(source_pose)  # where the source touches things
+    floor = float(np.percentile(sole_heights(source, s_heads, s_tails), 2))
+    # Scale about the floor below each rig's rest hips: the source's motion, re-anchored on the target.
+    anchor_s = hip_centres(turned, rest_points(turned)[0])
     anchor_t = hip_centres(target, rest_points(target)[0])
-    anchor_s[2] = anchor_t[2] = ground
+    anchor_s[2] = anchor_t[2] = floor
 
     def scaled(points):
-        return anchor_t + ratio * (points - anchor_s)
+        return anchor_t + ratio * (points @ heading.T - anchor_s)
 
-    start = transfer_pose(source, source_pose, target, target_basis, scaled(hip_centres(source, s_heads)))
-
-    free = {e: scaled(s_heads[:, source.groups[e][0]]) for e in EFFECTORS}
-    exact_source = {e: s_heads[:, source.groups[e][0]] for e in EFFECTORS}
-    blend = settings.frames(settings.blend_duration) if settings.blend_duration else 0
+    start = transfer_pose(turned, source_pose, target, target_basis, scaled(hip_centres(source, s_heads)))
     t_heads, t_tails = target.world_points(start)
     soles = ankle_above_sole(target, t_heads, t_tails)  # the transferred feet's own ankle heights
     frames = len(source_pose)
+    blend = settings.frames(settings.blend_duration) if settings.blend_duration else 0
     contacts = np.zeros((frames, len(EFFECTORS)), dtype=bool)
     found = {}
     world_targets = np.empty((frames, len(EFFECTORS), 3))
     for k, e in enumerate(EFFECTORS):
-        if boxes is None:
-            runs = detect_plants(exact_source[e], 2, settings.fps, leg_s, settings) if e in FEET else []
-        else:
-            runs = detect_object_contacts(exact_source[e], boxes[0], boxes[1], settings.fps, leg_s, settings)
+        s_points = effector_points(source, s_heads, s_tails, e)
+        free = scaled(s_points[:, 0])
+        found[e] = detect_contacts(e, s_points, floor if ground else None, boxes, leg_s, settings)
         holds = []
-        for a, b in runs:
-            if boxes is None:
-                point = free[e][a:b].mean(axis=0)
-                if settings.exact:  # the target's sole on the ground
-                    point[2] = ground + soles[a:b, FEET.index(e)].mean()
-            else:
-                point = (exact_source[e] if settings.exact else free[e])[a:b].mean(axis=0)
-            holds.append((a, b, point))
+        for c in found[e]:
+            a, b = c.start, c.stop
+            if e in FEET:
+                path = _foot_path(c, free[a:b], effector_points(target, t_heads[a:b], t_tails[a:b], e),
+                                  soles[a:b, FEET.index(e)], settings.exact or c.kind == GROUND, anchor_t[2], ratio)
+            else:  # a hand on an object: still, where the source's is (or its scaled place)
+                path = (s_points[a:b, 0] if settings.exact else free[a:b]).mean(axis=0)
+            step = settings.blend_speed * leg_t / settings.fps
+            holds.append((a, b, path, _blend_frames(path, free, a, b, blend, step)))
             contacts[a:b, k] = True
-        found[e] = runs
-        world_targets[:, k] = hold(free[e], holds, blend)
+        world_targets[:, k] = hold(free, holds, blend)
+        if e in FEET and ground:  # never below the floor: the lowest point of the foot at least on it
+            world_targets[:, k, 2] = np.maximum(world_targets[:, k, 2], floor + soles[:, FEET.index(e)])
     # Every target within its limb's reach (see reach_margin): shift the whole body, smoothly, where needed.
     bases, reach = [], []
     rest_heads, rest_tails = rest_points(target)
@@ -141,5 +153,28 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     heads = start[..., :3, 3]
     tails = heads + start[..., :3, 1] * target.lengths[:, None]
     return RetargetPlan(start_pose=start, heads=heads, tails=tails, targets=target.to_armature(world_targets),
-                        world_targets=world_targets, contacts=contacts, contact_intervals=found, leg_ratio=ratio,
-                        ground=ground)
+                        world_targets=world_targets, contacts=contacts,
+                        contact_intervals={e: [(c.start, c.stop) for c in found[e]] for e in EFFECTORS},
+                        leg_ratio=ratio, ground=floor if ground else None, contact_list=found, boxes=boxes,
+                        heading=heading)
+
+
+def _foot_path(contact, free, target_points, soles, on_surface, floor, ratio):
+    """The ankle's path (n,3) over a foot contact: the target's own foot (points (n,P,3), ankle first, as
+    transferred) turns as the source's does about its point that rests lowest over the contact (heel, ball or
+    toes), which stays still where the source's scaled one is on average; the lowest point of the foot on
+    the surface (its world height with ``on_surface``, else its height scaled about the floor)."""
+    rel = target_points[:, 0] - target_points[:, target_points[..., 2].mean(axis=0).argmin()]  # ankle - anchor
+    path = np.empty_like(free)
+    path[:, :2] = (free[:, :2] - rel[:, :2]).mean(axis=0) + rel[:, :2]
+    surface = contact.surface if on_surface else floor + ratio * (contact.surface - floor)
+    path[:, 2] = surface + soles
+    return path
+
+
+def _blend_frames(path, free, start, stop, shortest, step):
+    """(in, out) blend frames of a hold: at least ``shortest``, and long enough that moving between the free
+    trajectory (F,3) and the held path goes at most about ``step`` per frame (smoothstep's steepest slope)."""
+    first, last = (path, path) if np.ndim(path) == 1 else (path[0], path[-1])
+    return tuple(max(shortest, int(np.ceil(1.5 * float(norm(p - free[f])) / step)))
+                 for p, f in ((first, start), (last, stop - 1)))

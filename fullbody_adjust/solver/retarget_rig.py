@@ -239,3 +239,23 @@ def sole_heights(rig, heads, tails):
 def hip_centres(rig, heads):
     """Midpoint of the two hip joints (thigh heads), (…,3) of heads (…,J,3)."""
     return 0.5 * (heads[..., rig.groups["leg.L"][0], :] + heads[..., rig.groups["leg.R"][0], :])
+
+
+def effector_points(rig, heads, tails, effector):
+    """World points (…,P,3) of a hand or foot from heads/tails (…,J,3): the effector joint (wrist, ankle)
+    first, then the bone's tail and the heads and tails of every bone below it (fingers, toes, heel)."""
+    bone = rig.groups[effector][0]
+    below = rig.descendants(bone)[1:]
+    return np.concatenate([heads[..., [bone], :], tails[..., [bone], :], heads[..., below, :], tails[..., below, :]],
+                          axis=-2)
+
+
+def heading_rotation(matrix):
+    """(3,3) rotation about world Z by the heading (yaw) of a rotation (3,3): where it turns the X axis, seen
+    from above."""
+    if np.hypot(matrix[0, 0], matrix[1, 0]) > 1e-9:
+        angle = np.arctan2(matrix[1, 0], matrix[0, 0])
+    else:  # X turned upright: the heading of Y, less the quarter turn from X to Y
+        angle = np.arctan2(matrix[1, 1], matrix[0, 1]) - 0.5 * np.pi
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
