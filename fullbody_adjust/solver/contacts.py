@@ -39,7 +39,7 @@ class RetargetSettings:
     plant_speed: float = 0.3
     plant_height: float = 0.1
     plant_min_duration: float = 0.04
-    raised_min_duration: float = 0.25
+    raised_min_duration: float = 0.12
     gap_duration: float = 0.1
     contact_distance: float = 0.15
     touch_distance: float = 0.06

@@ -408,6 +408,12 @@ def test_retarget_of_an_unmappable_target_exits_2(cli, capsys, tmp_path):
     before.check()
 
 
+def test_contacts_may_be_given_more_than_once(cli):
+    args = cli.build_parser().parse_args(["retarget", "FILE", "--source", "S", "--target", "T", "--contacts", "ground",
+                                          "--contacts", "object", "Bar", "--contacts", "object", "Step"])
+    assert args.contacts == [("ground", None), ("object", "Bar"), ("object", "Step")]
+
+
 @pytest.mark.parametrize("target, contacts", [("Large", ["object", "Ball"]), ("Small", ["ground"])])
 def test_retarget_writes_the_targets_motion(cli, capsys, tmp_path, target, contacts):
     path = sample(tmp_path, "retarget_cmu")

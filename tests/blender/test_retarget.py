@@ -122,6 +122,19 @@ def foot_points(rig, frames, effector):
     return np.concatenate([snapshot.heads[:, bones], snapshot.tails[:, bones]], axis=1)
 
 
+def source_foot_points(source, frames, effector):
+    """foot_points of the source (its bone map read, not stored)."""
+    foot = source.data.bones[retarget._source_map(source).bones(effector)[0]]
+    bones = bone_indices(source, [foot.name] + [b.name for b in foot.children_recursive])
+    snapshot = read_pose_frames(source, np.asarray(frames, dtype=float))
+    return np.concatenate([snapshot.heads[:, bones], snapshot.tails[:, bones]], axis=1)
+
+
+def fcurves_of_object(obj):
+    """The object's own (not its bones') F-Curves in its action, on every Blender's action layout."""
+    return [fc for fc in retarget._action_fcurves(obj) if not fc.data_path.startswith("pose.")]
+
+
 def contacts_of(outcome, effector, kind=None):
     """[(start, stop)] of the source's contacts the outcome reports for ``effector`` (of one kind)."""
     return [(c["start"], c["stop"]) for c in outcome.contact_report["effectors"][effector]["contacts"]
@@ -326,6 +339,41 @@ def test_hands_on_a_bar_hold_it_on_a_character_of_any_size(scale):
         assert reported["contact_error"]["max"] == pytest.approx(on.max(), abs=1e-4)
         assert reported["not_held_frames"] == 0
     assert held > 60
+
+
+def test_feet_on_a_raised_step_stand_on_it():
+    """The walk whose second half is raised 0.25 (its object keyed up a step, as if onto a platform): the
+    plants up there are raised contacts; the target's soles rest at the height the source's rest there (its
+    own lowest foot points, measured here), within 5 mm, do not slide and never go below the floor."""
+    source = import_clip()
+    first, last, step = 2, 251, 140
+    for frame, height in ((first, 0.0), (step, 0.25)):
+        source.location.z = height
+        source.keyframe_insert("location", index=2, frame=frame)
+    for curve in fcurves_of_object(source):
+        for key in curve.keyframe_points:
+            key.interpolation = 'CONSTANT'
+    target = add_metarig(1.2)
+    outcome = retarget.retarget(bpy.context, source, target, first, last)
+    frames = frames_of(outcome)
+    floor = source_floor(source, frames[:step - first])
+    raised = 0
+    for effector in ("foot.L", "foot.R"):
+        points = foot_points(target, frames, effector)
+        assert points[..., 2].min() > floor - 1e-3
+        s_points = source_foot_points(source, frames, effector)
+        runs = contacts_of(outcome, effector, "raised")
+        for a, b in runs:
+            # A stance the step splits (the source jumps up mid-stance) may start its raised contact a
+            # moment early: by at most the gap a contact bridges.
+            assert frames[a] >= step - 0.1 * bpy.context.scene.render.fps
+            support = s_points[a:b, :, 2].min(axis=1).mean()
+            assert support == pytest.approx(floor + 0.25, abs=0.1)
+            assert np.abs(points[a:b, :, 2].min(axis=1) - support).max() < 5e-3
+            raised += b - a
+        assert np.percentile(slides(points, runs), 95) < 5e-3
+        assert all(frames[b - 1] < step for a, b in contacts_of(outcome, effector, "ground"))
+    assert raised > 60
 
 
 def test_bad_input_is_one_line_and_changes_nothing():

@@ -711,3 +711,39 @@ def test_retargeted_motion_reaches_keeps_plants_and_adds_no_pops(clip_name):
         for a, b in plan.contact_intervals[effector]:
             anchor = foot_anchor(points[a:b])
             assert np.linalg.norm(anchor - anchor[0], axis=1).max() <= 2 * tolerance
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Contact figures
+
+
+def test_contact_figures_measure_error_sliding_floor_and_pops():
+    """A foot planted over frames 10-30 that slides 0.03 along x and hovers 0.01 above the floor, dips 0.02
+    below it on frames 40-44, and jumps 0.5 at frame 50; a hand 0.04 from a box while touching it."""
+    frames = 60
+    foot = np.zeros((frames, 2, 3))
+    foot[:, 1, 0] = 0.2  # the toes, 0.2 ahead of the ankle, both at the same height
+    foot[:, :, 2] = 0.01
+    foot[10:30, :, 0] += np.linspace(0.0, 0.03, 20)[:, None]
+    foot[40:45, :, 2] = -0.02
+    foot[50:, :, 0] += 0.5
+    hand = np.zeros((frames, 1, 3))
+    hand[:, 0] = [0.0, 0.0, 1.04]
+    boxes = (np.array([[-0.1, -0.1, 0.9]]), np.array([[0.1, 0.1, 1.0]]))
+    contacts = {"foot.L": [rt.Contact("foot.L", 10, 30, rt.GROUND, 0.0)],
+                "hand.L": [rt.Contact("hand.L", 5, 25, rt.OBJECT, float("nan"), 0)]}
+    still_source = {"foot.L": np.zeros_like(foot), "hand.L": np.broadcast_to([0.0, 0.0, 1.0], hand.shape)}
+    figures, curves = rt.contact_figures(contacts, {"foot.L": foot, "hand.L": hand}, still_source, boxes, 0.0,
+                                         leg=1.0, ratio=1.0, fps=30.0)
+    f = figures["foot.L"]
+    assert f["contact_frames"] == 20 and f["contact_error"]["max"] == pytest.approx(0.01)
+    assert f["sliding"]["max"] == pytest.approx(0.03)
+    assert f["frames_below_floor"] == 5 and f["deepest_below_floor"] == pytest.approx(0.02)
+    # Steps faster than the (still) source's by 1.5 leg/s at 30 fps (0.05 per frame): the jump, not the dip.
+    steps = np.r_[0.0, np.linalg.norm(np.diff(foot[:, 0], axis=0), axis=1)]
+    assert f["pops"] == int(np.sum(steps > 0.05)) == 1 and f["largest_step"] == pytest.approx(0.5)
+    assert f["not_held_frames"] == 0  # 0.01 off: within the hold tolerance
+    h = figures["hand.L"]
+    assert h["contact_error"]["max"] == pytest.approx(0.04) and h["frames_below_floor"] == 0
+    assert h["not_held_frames"] == 20  # the source touches it (distance 0): 0.04 is not held
+    assert np.isnan(curves["hand.L"][:5]).all() and np.isfinite(curves["hand.L"][5:25]).all()
