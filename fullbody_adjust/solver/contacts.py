@@ -41,10 +41,10 @@ class RetargetSettings:
     plant_min_duration: float = 0.04
     raised_min_duration: float = 0.12
     gap_duration: float = 0.1
-    contact_distance: float = 0.15
-    touch_distance: float = 0.06
+    contact_distance: float = 0.08
+    touch_distance: float = 0.05
     blend_duration: float = 0.1
-    blend_speed: float = 1.5
+    blend_speed: float = 1.0
     reach_margin: float = 0.03
     settle_margin: float = 0.015
     exact: bool = True

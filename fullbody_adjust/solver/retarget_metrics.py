@@ -55,11 +55,15 @@ def _hand_on_object(contact):
 
 
 def sliding(points):
-    """How far a planted foot slides over a contact, of its world points (n,P,3): the point that rests lowest
-    on average (heel, ball or toes), its largest horizontal distance from where it was on the first frame."""
+    """How far a planted foot slides over a contact, of its world points (n,P,3): the horizontal distance
+    the point on the ground (the lowest on each frame: heel, ball or toes) moves to the next frame, summed.
+    A foot rolling from heel to toes does not slide; one dragged along the floor does."""
     points = np.asarray(points, dtype=np.float64)
-    anchor = points[:, points[..., 2].mean(axis=0).argmin(), :2]
-    return float(np.hypot(*(anchor - anchor[0]).T).max())
+    if len(points) < 2:
+        return 0.0
+    pivot = points[:-1, :, 2].argmin(axis=1)
+    f = np.arange(len(pivot))
+    return float(np.hypot(*(points[f + 1, pivot, :2] - points[f, pivot, :2]).T).sum())
 
 
 def step_lengths(points):

@@ -161,12 +161,16 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
 
 def _foot_path(contact, free, target_points, soles, on_surface, floor, ratio):
     """The ankle's path (n,3) over a foot contact: the target's own foot (points (n,P,3), ankle first, as
-    transferred) turns as the source's does about its point that rests lowest over the contact (heel, ball or
-    toes), which stays still where the source's scaled one is on average; the lowest point of the foot on
-    the surface (its world height with ``on_surface``, else its height scaled about the floor)."""
-    rel = target_points[:, 0] - target_points[:, target_points[..., 2].mean(axis=0).argmin()]  # ankle - anchor
+    transferred) rolls and turns as the source's does about whichever of its points is lowest on each frame
+    (heel, ball, toes: the one on the ground), which stays still from that frame to the next; the path is
+    centred on the source's scaled one. The lowest point of the foot on the surface (its world height with
+    ``on_surface``, else its height scaled about the floor)."""
+    rel = target_points[:, :1, :2] - target_points[..., :2]  # (n,P,2) ankle less each point
+    pivot = target_points[:-1, :, 2].argmin(axis=1)
+    f = np.arange(len(pivot))
+    travel = np.concatenate([np.zeros((1, 2)), np.cumsum(rel[f + 1, pivot] - rel[f, pivot], axis=0)])
     path = np.empty_like(free)
-    path[:, :2] = (free[:, :2] - rel[:, :2]).mean(axis=0) + rel[:, :2]
+    path[:, :2] = travel + (free[:, :2] - travel).mean(axis=0)
     surface = contact.surface if on_surface else floor + ratio * (contact.surface - floor)
     path[:, 2] = surface + soles
     return path

@@ -493,9 +493,12 @@ def plan_for(clip_name, target, frames, **settings):
     return source, pose, plan
 
 
-def foot_anchor(points):
-    """The horizontal path (n,2) of the foot point (of world points (n,P,3)) that rests lowest on average."""
-    return points[:, points[..., 2].mean(axis=0).argmin(), :2]
+def pivot_steps(points):
+    """(n-1,) horizontal steps of the foot point on the ground (the lowest on each frame, of world points
+    (n,P,3)) to the next frame."""
+    pivot = points[:-1, :, 2].argmin(axis=1)
+    f = np.arange(len(pivot))
+    return np.linalg.norm(points[f + 1, pivot, :2] - points[f, pivot, :2], axis=1)
 
 
 def planned_foot_points(target, plan, effector):
@@ -508,7 +511,7 @@ def planned_foot_points(target, plan, effector):
 
 
 def test_planted_feet_are_held_still_and_free_effectors_follow_the_scaled_source():
-    """Walk onto other proportions: the foot point each plant rests on (heel, ball) does not move while
+    """Walk onto other proportions: the foot point on the ground (heel, ball, toes) does not move while
     planted; the lowest point of each foot is on the floor while planted and never below it; the hands (no
     contact objects) follow the source's exactly, scaled about the floor below the hips."""
     target = cmu_rig(WALK, scale=0.85, group_scales={"leg.L": 1.1, "leg.R": 1.1}, rolls=0.1)
@@ -525,8 +528,7 @@ def test_planted_feet_are_held_still_and_free_effectors_follow_the_scaled_source
         lowest = points[..., 2].min(axis=1)
         assert lowest.min() >= plan.ground - 1e-12
         for a, b in plan.contact_intervals[effector]:
-            anchor = foot_anchor(points[a:b])
-            np.testing.assert_allclose(anchor, np.broadcast_to(anchor[0], anchor.shape), atol=1e-12)
+            assert pivot_steps(points[a:b]).max() < 1e-12
             np.testing.assert_allclose(lowest[a:b], plan.ground, atol=1e-12)
             planted += b - a
     assert planted > 0.5 * len(plan.contacts)  # a walk: each foot planted a good part of the time
@@ -709,8 +711,7 @@ def test_retargeted_motion_reaches_keeps_plants_and_adds_no_pops(clip_name):
         bone = target.groups[effector][0]
         points = np.concatenate([heads[:, target.descendants(bone)], tails[:, target.descendants(bone)]], axis=1)
         for a, b in plan.contact_intervals[effector]:
-            anchor = foot_anchor(points[a:b])
-            assert np.linalg.norm(anchor - anchor[0], axis=1).max() <= 2 * tolerance
+            assert pivot_steps(points[a:b]).sum() <= 2 * tolerance
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -724,7 +725,7 @@ def test_contact_figures_measure_error_sliding_floor_and_pops():
     foot = np.zeros((frames, 2, 3))
     foot[:, 1, 0] = 0.2  # the toes, 0.2 ahead of the ankle, both at the same height
     foot[:, :, 2] = 0.01
-    foot[10:30, :, 0] += np.linspace(0.0, 0.03, 20)[:, None]
+    foot[10:30, :, 0] += np.linspace(0.0, 0.03, 20)[:, None]  # dragged: 0.03 in all
     foot[40:45, :, 2] = -0.02
     foot[50:, :, 0] += 0.5
     hand = np.zeros((frames, 1, 3))
