@@ -31,16 +31,18 @@ Rz @ Ry @ Rx), quaternions (w, x, y, z), axis-angle (angle, x, y, z).
    of the hip joints) goes where the source's does, scaled about the ground below the rest hips by the
    leg-length ratio (target/source, hip joint to ankle).
 2. Effector targets (``plan_retarget``): wrists and ankles follow the source's, scaled the same way about
-   the ground (= relative to the source's hips, scaled, re-anchored on the target's). Contacts are held
-   still over each contact interval (no sliding), blended in and out over a few frames:
-     - ground contacts: a planted source foot (ankle slower than ``plant_speed`` for ``plant_min_duration``
-       and within ``plant_height`` of its lowest height in the range). Not exact: held at the mean of its
-       scaled positions; exact: the same x, y, and z such that the target's sole (the lowest joint of its
-       foot, toes and heel, in the transferred foot orientation) is on the ground exactly;
-     - object contacts (boxes given): a still effector within ``contact_distance`` of a box. Not exact: held
-       at the mean scaled position; exact: held at the mean of the source's own world positions.
-   Where a target lies out of its limb's reach, the whole body shifts (smoothly) so that it need not
-   stretch: see ``RetargetSettings.reach_margin``.
+   the ground (= relative to the source's hips, scaled, re-anchored on the target's) and turned by the
+   heading of the target's object relative to the source's. Each effector's contacts come from what it
+   touches in the source (contacts.detect_contacts: its slowest point still, speeds per second and
+   distances in leg lengths, so any frame rate and size): a contact object's box (hands and feet), the floor
+   (feet; the source's lowest foot points, 2nd percentile), or something raised (a foot still off both).
+   Over a contact the target is held, blended in and out over frames enough to move there without a jump:
+     - a foot: it rolls about whichever of its points is on the ground on each frame (no sliding), its
+       lowest point exactly on the floor, or on the raised support at its world height;
+     - a hand on an object: still at the mean of the source's own world positions (exact) or its scaled
+       ones (exact=False).
+   No foot goes below the floor. Where a target lies out of its limb's reach, the whole body shifts
+   (smoothly) so that it need not stretch: see ``RetargetSettings.reach_margin``.
 3. Back to channels (``basis_from_pose`` + ``rotation_channel``): inverse kinematics of the pose matrices,
    rotations in each bone's mode, continuous from frame to frame.
 Distances in settings are in source leg lengths (so they hold for any unit and size), durations in seconds.
