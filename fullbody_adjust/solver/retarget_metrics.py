@@ -55,15 +55,14 @@ def _hand_on_object(contact):
 
 
 def sliding(points):
-    """How far a planted foot slides over a contact, of its world points (n,P,3): the horizontal distance
-    the point on the ground (the lowest on each frame: heel, ball or toes) moves to the next frame, summed.
-    A foot rolling from heel to toes does not slide; one dragged along the floor does."""
+    """How far a planted foot slides over a contact, of its world points (n,P,3): from each frame to the
+    next, the horizontal distance its stillest point moves (the one it turns about), summed. A foot rolling
+    from heel to toes or turning on its heel does not slide; one dragged along the floor does."""
     points = np.asarray(points, dtype=np.float64)
     if len(points) < 2:
         return 0.0
-    pivot = points[:-1, :, 2].argmin(axis=1)
-    f = np.arange(len(pivot))
-    return float(np.hypot(*(points[f + 1, pivot, :2] - points[f, pivot, :2]).T).sum())
+    step = np.diff(points[..., :2], axis=0)
+    return float(np.hypot(step[..., 0], step[..., 1]).min(axis=1).sum())
 
 
 def step_lengths(points):

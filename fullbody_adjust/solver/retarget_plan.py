@@ -128,7 +128,7 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
         for c in found[e]:
             a, b = c.start, c.stop
             if e in FEET:
-                path = _foot_path(c, free[a:b], effector_points(target, t_heads[a:b], t_tails[a:b], e),
+                path = _foot_path(c, free[a:b], s_points[a:b], effector_points(target, t_heads[a:b], t_tails[a:b], e),
                                   soles[a:b, FEET.index(e)], settings.exact or c.kind == GROUND, anchor_t[2], ratio)
             else:  # a hand on an object: still, where the source's is (or its scaled place)
                 path = (s_points[a:b, 0] if settings.exact else free[a:b]).mean(axis=0)
@@ -159,14 +159,16 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
                         heading=heading)
 
 
-def _foot_path(contact, free, target_points, soles, on_surface, floor, ratio):
+def _foot_path(contact, free, source_points, target_points, soles, on_surface, floor, ratio):
     """The ankle's path (n,3) over a foot contact: the target's own foot (points (n,P,3), ankle first, as
-    transferred) rolls and turns as the source's does about whichever of its points is lowest on each frame
-    (heel, ball, toes: the one on the ground), which stays still from that frame to the next; the path is
-    centred on the source's scaled one. The lowest point of the foot on the surface (its world height with
+    transferred) rolls and turns as the source's (points (n,Q,3), ankle first) does, from each frame to the
+    next about the ankle where the source's ankle is its stillest point (a foot turning on its heel), else
+    about whichever of its points is lowest (heel, ball, toes: the one on the ground); the path is centred on
+    the source's scaled one. The lowest point of the foot on the surface (its world height with
     ``on_surface``, else its height scaled about the floor)."""
     rel = target_points[:, :1, :2] - target_points[..., :2]  # (n,P,2) ankle less each point
-    pivot = target_points[:-1, :, 2].argmin(axis=1)
+    on_ankle = norm(np.diff(source_points, axis=0)).argmin(axis=1) == 0
+    pivot = np.where(on_ankle, 0, target_points[:-1, :, 2].argmin(axis=1))
     f = np.arange(len(pivot))
     travel = np.concatenate([np.zeros((1, 2)), np.cumsum(rel[f + 1, pivot] - rel[f, pivot], axis=0)])
     path = np.empty_like(free)

@@ -45,12 +45,11 @@ def test_a_clip_onto_a_generated_rig_keys_its_controls():
     assert np.percentile(reach, 99) < 1e-4 * size and reach.max() < 1e-3 * size, reach.max() / size
     for k, effector in enumerate(rt.EFFECTORS):
         for c in outcome.contact_report["effectors"][effector]["contacts"]:
-            # Planted: the foot rolls about its point on the ground (ankle or ball), which stays still.
+            # Planted: the foot turns about one of its points (ankle or ball), which stays still.
             assert c["kind"] == "ground" and effector.startswith("foot")
     for effector, points in feet.items():
         for c in outcome.contact_report["effectors"][effector]["contacts"]:
             a, b = c["start"], c["stop"]
-            pivot = points[a:b - 1, :, 2].argmin(axis=1)  # the lowest point: the one on the ground
-            f = np.arange(a, b - 1)
-            assert np.linalg.norm(points[f + 1, pivot, :2] - points[f, pivot, :2], axis=1).sum() < 1e-3 * size
+            steps = np.linalg.norm(np.diff(points[a:b, :, :2], axis=0), axis=-1).min(axis=1)  # the stillest point
+            assert steps.sum() < 1e-3 * size
     assert outcome.contacts[:, 2:].any()  # the walk plants its feet in these frames

@@ -494,11 +494,9 @@ def plan_for(clip_name, target, frames, **settings):
 
 
 def pivot_steps(points):
-    """(n-1,) horizontal steps of the foot point on the ground (the lowest on each frame, of world points
+    """(n-1,) horizontal steps of the foot's stillest point (the one it turns about, of world points
     (n,P,3)) to the next frame."""
-    pivot = points[:-1, :, 2].argmin(axis=1)
-    f = np.arange(len(pivot))
-    return np.linalg.norm(points[f + 1, pivot, :2] - points[f, pivot, :2], axis=1)
+    return np.linalg.norm(np.diff(points[..., :2], axis=0), axis=-1).min(axis=1)
 
 
 def planned_foot_points(target, plan, effector):
@@ -511,8 +509,7 @@ def planned_foot_points(target, plan, effector):
 
 
 def test_planted_feet_are_held_still_and_free_effectors_follow_the_scaled_source():
-    """Walk onto other proportions: the foot point on the ground (heel, ball, toes) does not move while
-    planted; the lowest point of each foot is on the floor while planted and never below it; the hands (no
+    """Walk onto other proportions: the point a planted foot turns about (heel, ball, toes) does not move; the lowest point of each foot is on the floor while planted and never below it; the hands (no
     contact objects) follow the source's exactly, scaled about the floor below the hips."""
     target = cmu_rig(WALK, scale=0.85, group_scales={"leg.L": 1.1, "leg.R": 1.1}, rolls=0.1)
     source, pose, plan = plan_for(WALK, target, np.arange(1, 317))
