@@ -139,6 +139,12 @@ def _contact_report(prepared, pose, bones, reachable, scene):
         {e: rt.effector_points(target, t_heads, t_tails, e) for e in rt.EFFECTORS},
         {e: rt.effector_points(source, s_heads, s_tails, e) for e in rt.EFFECTORS},
         plan.boxes, plan.ground, rt.leg_length(target), plan.leg_ratio, fps, reachable)
+    objects = [name.split(" ", 1)[1] for name in prepared.contact_names if name.startswith("object ")]
+    for e, found in plan.contact_list.items():  # each contact by frame number, and what it touches
+        for listed, contact in zip(figures[e]["contacts"], found):
+            listed.update(frame_start=_frame_number(prepared.frames[contact.start]),
+                          frame_end=_frame_number(prepared.frames[contact.stop - 1]),
+                          touches=objects[contact.box] if contact.box >= 0 else contact.kind)
     report = {"contacts": list(prepared.contact_names), "floor": plan.ground, "effectors": figures}
     return {"report": report}, np.stack([curves[e] for e in rt.EFFECTORS], axis=1)
 
@@ -480,6 +486,10 @@ def _contact_boxes(context, objects):
         mins.append(points.min(axis=0))
         maxs.append(points.max(axis=0))
     return np.array(mins), np.array(maxs)
+
+
+def _frame_number(value):
+    return int(value) if float(value).is_integer() else float(value)
 
 
 def _action_name(obj):

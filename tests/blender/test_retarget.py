@@ -333,9 +333,14 @@ def test_hands_on_a_bar_hold_it_on_a_character_of_any_size(scale):
         assert on.max() < 0.05
         held += len(on)
         reported = outcome.contact_report["effectors"][effector]
+        assert {c["touches"] for c in reported["contacts"] if c["kind"] == "object"} == {"Bar"}
+        assert reported["contacts"][0]["frame_start"] == frames[reported["contacts"][0]["start"]]
         assert reported["contact_error"]["max"] == pytest.approx(on.max(), abs=1e-4)
         assert reported["not_held_frames"] == 0
     assert held > 60
+    # The same run holds the feet too: on the floor or on the rungs (raised), never on the bar.
+    feet = [c["kind"] for e in ("foot.L", "foot.R") for c in outcome.contact_report["effectors"][e]["contacts"]]
+    assert feet and set(feet) <= {"ground", "raised"}
 
 
 def test_feet_on_a_raised_step_stand_on_it():
