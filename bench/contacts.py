@@ -136,8 +136,8 @@ def measure(dirs):
             order = [names.index(n) for n in rig.names]
             s_heads, s_tails = prepared.source.world_points(prepared.source_pose)
             s_points = {e: rt.effector_points(prepared.source, s_heads, s_tails, e) for e in rt.EFFECTORS}
-            case = {"frames": len(frames), "contacts": {e: [f"{c.kind} {c.start}-{c.stop}" for c in plan.contact_list[e]]
-                                                       for e in rt.EFFECTORS}}
+            listed = {e: [f"{c.kind} {c.start}-{c.stop}" for c in plan.contact_list[e]] for e in rt.EFFECTORS}
+            case = {"frames": len(frames), "contacts": listed}
             for d in dirs:
                 saved = np.load(d / f"{clip}_{scale}.npz")
                 heads, tails = saved["heads"][:, order], saved["tails"][:, order]

@@ -509,8 +509,9 @@ def planned_foot_points(target, plan, effector):
 
 
 def test_planted_feet_are_held_still_and_free_effectors_follow_the_scaled_source():
-    """Walk onto other proportions: the point a planted foot turns about (heel, ball, toes) does not move; the lowest point of each foot is on the floor while planted and never below it; the hands (no
-    contact objects) follow the source's exactly, scaled about the floor below the hips."""
+    """Walk onto other proportions: the point a planted foot turns about (heel, ball, toes) does not move;
+    the lowest point of each foot is on the floor while planted and never below it; the hands (no contact
+    objects) follow the source's exactly, scaled about the floor below the hips."""
     target = cmu_rig(WALK, scale=0.85, group_scales={"leg.L": 1.1, "leg.R": 1.1}, rolls=0.1)
     source, pose, plan = plan_for(WALK, target, np.arange(1, 317))
     s_heads = world_heads(source, pose)
