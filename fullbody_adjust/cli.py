@@ -40,7 +40,8 @@ exit codes:
   0  done: every target within reach was met and no bone ends inside an obstacle (targets beyond the
      body's reach are stretched toward and listed in the report, but do not fail the run)
   1  done and written, but on some frame a target within reach was missed (an obstacle blocked it,
-     joint limits held it, or the iterations ran out) or a bone ends inside an obstacle: see --report
+     joint limits held it, or the iterations ran out), a retarget's contact within reach was not held, or
+     a bone ends inside an obstacle: see --report
   2  bad arguments or input (missing or unreadable file, unknown armature or object, frame range outside
      the action, a rig that cannot be mapped, an output that cannot be written...): one line on stderr,
      nothing written, the input file untouched
@@ -162,13 +163,13 @@ def build_parser(prog=f"blender -b FILE.blend -c {COMMAND}"):
     retarget.add_argument("--target", metavar="NAME", required=True, help="the armature that receives it")
     _add_frame_arguments(retarget, "the source's action")
     retarget.add_argument("--contacts", nargs="+", action=_ContactsAction, metavar=("ground|object", "NAME"),
-                          help="what must hold: 'ground' (planted feet stay where the source's feet are "
-                               "planted; default) or 'object NAME' (hands and feet touching object NAME in the "
-                               "source motion keep touching it)")
+                          help="what must hold, given once or more (e.g. --contacts ground --contacts object Bar): "
+                               "'ground' (planted feet rest on the floor and do not slide; the default) or 'object "
+                               "NAME' (hands and feet touching object NAME in the source motion keep touching it); "
+                               "feet still above the floor stand on something raised")
     retarget.add_argument("--exact", action="store_true",
-                          help="hold contacts exactly: soles exactly on the ground (ground), or hands and feet at "
-                               "the source's own world positions (object), instead of positions scaled to the "
-                               "target's proportions")
+                          help="the default, kept for older scripts: soles exactly on the ground, hands on objects "
+                               "at the source's own world positions")
     _add_output_arguments(retarget, "name of the new action the target's motion is written into (default: "
                                     "'<source action>_<target>'); the target's previous action is kept")
     retarget.set_defaults(work=_retarget)
@@ -208,6 +209,9 @@ def _add_output_arguments(parser, new_action_help):
 
 
 class _ContactsAction(argparse.Action):
+    """--contacts ground | --contacts object NAME, given once or more: a list of ('ground', None) and
+    ('object', NAME), in order, each once."""
+
     def __call__(self, parser, namespace, values, option_string=None):
         kind, names = values[0].lower(), values[1:]
         if kind == "ground" and not names:
@@ -220,7 +224,8 @@ class _ContactsAction(argparse.Action):
             raise argparse.ArgumentError(self, "'ground' takes no name")
         else:
             raise argparse.ArgumentError(self, f"expected 'ground' or 'object NAME', got '{values[0]}'")
-        setattr(namespace, self.dest, contact)
+        given = list(getattr(namespace, self.dest, None) or [])
+        setattr(namespace, self.dest, given + [contact] if contact not in given else given)
 
 
 def _positive(text):
@@ -304,6 +309,13 @@ def _exit_code(args, report):
         more = f" (and {len(missed) - 1} more, see the report)" if len(missed) > 1 else ""
         print(f"{COMMAND} {args.subcommand}: {run['effector']} missed within reach on {frames}: "
               f"{run['reason'] or run['status']}{more}", file=sys.stderr)
+        return EXIT_TARGETS_MISSED
+    not_held = summary.contacts_not_held(report)
+    if not_held:
+        effector, frames = not_held[0]
+        more = f" (and {len(not_held) - 1} more, see the report)" if len(not_held) > 1 else ""
+        print(f"{COMMAND} {args.subcommand}: {effector} does not hold its contact on {frames} frames within "
+              f"reach{more}", file=sys.stderr)
         return EXIT_TARGETS_MISSED
     if penetrations and penetrations["frames"]:
         print(f"{COMMAND} {args.subcommand}: bones inside obstacles on {penetrations['frames']} frames (first: "
@@ -443,16 +455,15 @@ def _retarget(args, context):
     adjustment.check_armature(target)
     batch.check_mappable(source, "--source")
     batch.check_mappable(target, "--target")
-    contacts, contact_name = args.contacts or ("ground", None)
-    contact_object = batch.object_named(context, contact_name, "--contacts object") if contact_name else None
+    contacts = [kind if name is None else (kind, batch.object_named(context, name, "--contacts object"))
+                for kind, name in args.contacts or [("ground", None)]]
     start, end = batch.frame_range(source, context.scene, args.frame_start, args.frame_end)
 
     frames = np.arange(start, end + 1, dtype=np.float64)
     shown = frames[preview.pick_snapshots(len(frames), args.preview_frames)]
     progress = _progress(args, len(frames), f"retarget '{source.name}' -> '{target.name}'")
     started = time.perf_counter()
-    outcome = retarget_motion(context, source, target, start, end, contacts=contacts,
-                              contact_object=contact_object, exact=args.exact, new_action=args.new_action,
+    outcome = retarget_motion(context, source, target, start, end, contacts=contacts, new_action=args.new_action,
                               progress=progress)
     seconds = time.perf_counter() - started
     progress.finish()
@@ -462,13 +473,14 @@ def _retarget(args, context):
         planned = getattr(outcome, "targets", None)  # (F,E,3) world
         figure = preview.FigureData(
             title=f"RETARGET '{source.name}' TO '{target.name}'  FRAMES {start}-{end}",
-            frames=outcome.frames, effectors=outcome.effectors, error_after=outcome.residuals,
+            frames=outcome.frames, effectors=outcome.effectors, error_after=outcome.contact_error,
+            error_before=outcome.contact_error_before, plot_title="CONTACT ERROR (SCENE UNITS) OVER FRAMES",
             snapshot_frames=shown, before_segments=batch.skeleton_segments(source, shown),
             after_segments=batch.skeleton_segments(target, shown),
             targets=None if planned is None else planned[np.searchsorted(outcome.frames, shown)])
     action = getattr(outcome, "action", None)
-    details = {"source": source.name, "target": target.name, "armature": target.name, "contacts": contacts,
-               "contact_object": contact_name, "exact": args.exact,
+    details = {"source": source.name, "target": target.name, "armature": target.name,
+               "contacts": outcome.contact_report,
                "action": action.name if action is not None else batch.action_name(target)}
     return WorkResult(outcome=outcome, seconds=seconds, figure=figure, details=details)
 

@@ -37,6 +37,16 @@ def source_armature(context, name=""):
     return candidates[0]
 
 
+def contact_list(kinds, object_names):
+    """bridge.retarget's contacts of the operator's settings: 'ground' if GROUND is among ``kinds``, and with
+    OBJECT one ('object', name) per comma-separated name (one with None when none is given: a clear error)."""
+    out = ["ground"] if 'GROUND' in kinds else []
+    if 'OBJECT' in kinds:
+        names = [n.strip() for n in object_names.split(",") if n.strip()]
+        out += [("object", n) for n in names] or [("object", None)]
+    return out
+
+
 class FULLBODY_ADJUST_OT_retarget(ArmatureOperator, bpy.types.Operator):
     """Retarget another armature's motion onto the active armature, into a new action (hands and feet keep \
 to the source's trajectories and contacts)"""
@@ -51,15 +61,18 @@ to the source's trajectories and contacts)"""
     frame_end: IntProperty(name="End", description="Last frame (default: the source action's last)")
     contacts: EnumProperty(
         name="Contacts",
-        items=(('GROUND', "Ground", "Planted feet are held still on the ground"),
+        items=(('GROUND', "Ground", "Planted feet rest on the floor and do not slide"),
                ('OBJECT', "Object", "Hands and feet touching the contact object are held on it")),
-        default='GROUND',
+        options={'ENUM_FLAG'},
+        default={'GROUND'},
+        description="What hands and feet may touch (one or both)",
     )
     contact_object: StringProperty(name="Contact Object", search=_object_names,
-                                   description="Object whose contacts are kept (for Object contacts)")
-    exact: BoolProperty(name="Exact Contacts", default=False,
-                        description="Contacts go exactly to the ground (feet soles) or to the source's own "
-                                    "positions on the object, instead of the source's scaled by the legs' ratio")
+                                   description="Object whose contacts are kept (for Object contacts; several: "
+                                               "names separated by commas)")
+    exact: BoolProperty(name="Exact Contacts", default=True,
+                        description="Hands on the object go to the source's own positions on it, instead of "
+                                    "the source's scaled by the legs' ratio (soles always rest on the floor)")
     new_action: StringProperty(name="New Action",
                                description="Name of the new action (default: <source action>_<target>)")
 
@@ -73,7 +86,7 @@ to the source's trajectories and contacts)"""
                 context, source, context.active_object,
                 self.frame_start if props.is_property_set("frame_start") else None,
                 self.frame_end if props.is_property_set("frame_end") else None,
-                contacts=self.contacts.lower(), contact_object=self.contact_object or None, exact=self.exact,
+                contacts=contact_list(self.contacts, self.contact_object), exact=self.exact,
                 new_action=self.new_action or None,
                 progress=lambda stage, fraction: wm.progress_update(int(100 * fraction)))
         except AdjustError as ex:
@@ -90,7 +103,7 @@ to the source's trajectories and contacts)"""
         for name in ("source", "frame_start", "frame_end", "contacts", "contact_object", "exact", "new_action"):
             row = layout.row()
             row.prop(self, name)
-            row.enabled = name != "contact_object" or self.contacts == 'OBJECT'
+            row.enabled = name != "contact_object" or 'OBJECT' in self.contacts
 
 
 classes = (FULLBODY_ADJUST_OT_retarget,)

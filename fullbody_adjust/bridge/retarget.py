@@ -6,14 +6,16 @@
            besides the action moves the bones (NLA, drivers, constraints, an animated or parented object,
            bones that do not inherit plainly) the evaluated pose is read frame by frame instead;
     plan   solver.retarget: rotations through both bone mappings, root and effector trajectories scaled by
-           the leg-length ratio, contacts held still, the whole body shifted (smoothly) where a limb could not
-           reach its target (solver/retarget.py says exactly how);
+           the leg-length ratio and turned to the target's heading, the source's contacts (floor, contact
+           objects' boxes, raised supports) found and held, the whole body shifted (smoothly) where a limb
+           could not reach its target (solver/retarget.py says exactly how);
     solve  solver.adjust.adjust_frames, one vectorised batch over every frame, in the target's armature space,
            over its mapped bones and their ancestors, with the target's stored solver settings and each elbow
            and knee hinge fixed in its upper bone (solver.retarget.motion_limits: no pops as a limb straightens);
     write  every mapped target bone's rotation (and the root's location), one foreach_set per F-Curve, into a
            NEW action assigned to the target. The source and its action are only read, never changed; the
            target's previous action, if it has no other user, gets a fake user so it is kept.
+    measure how the result keeps the source's contacts, on its own bones (solver.retarget_metrics).
 """
 
 from dataclasses import dataclass
@@ -29,8 +31,6 @@ from . import adjustment, control_rig, ik_limits, keyframes, mapping, pose, targ
 from .control_match import control_channels
 from .errors import AdjustError
 
-CONTACTS = ("ground", "object")
-
 _LAYERED = "layers" in bpy.types.Action.bl_rna.properties  # 4.4+: F-Curves live in a slot's channelbag
 _BONE_PATH = re.compile(r'^pose\.bones\["((?:[^"\\]|\\.)*)"\]\.(\w+)$')
 _SAME_FRAME = 1e-4  # a key this close to a frame is at it (keys are float32)
@@ -39,7 +39,11 @@ _SAME_FRAME = 1e-4  # a key this close to a frame is at it (keys are float32)
 @dataclass
 class RetargetOutcome:
     """What a retarget did, world units. Per frame and effector (solver.retarget.EFFECTORS order):
-    targets, residuals (effector -> target distance after the solve), status, contacts (held frames)."""
+    targets, residuals (effector -> target distance after the solve), status, contacts (held frames).
+    contact_report: how the result keeps the source's contacts, measured on its own bones
+    (solver.retarget_metrics.contact_figures: per effector contact error, sliding, frames below the floor,
+    pops; 'before' the same of the transferred motion before the adjustment, 'source' of the source);
+    contact_error (F,E): the result's contact error on contact frames, NaN elsewhere."""
 
     action: object
     frames: np.ndarray  # (F,)
@@ -51,31 +55,45 @@ class RetargetOutcome:
     leg_ratio: float
     read_from: str  # 'F-Curves' | 'frame by frame'
     keyed_bones: tuple
+    contact_report: dict = None
+    contact_error: np.ndarray = None
+    contact_error_before: np.ndarray = None
+
+    def contacts_not_held(self):
+        """Frames (summed over effectors) where a contact within reach is not held on the result."""
+        return sum(f["not_held_frames"] for f in (self.contact_report or {}).get("effectors", {}).values())
 
     def summary(self):
         """One line for the operator's report and the command line."""
         met = int(np.sum(self.status == "reached"))
         total = self.status.size
+        found = (self.contact_report or {}).get("effectors", {})
         held = ", ".join(f"{e} {int(self.contacts[:, k].sum())}" for k, e in enumerate(self.effectors)
                          if self.contacts[:, k].any())
-        return (f"Retargeted {len(self.frames)} frames into '{self.action.name}' (leg ratio "
+        line = (f"Retargeted {len(self.frames)} frames into '{self.action.name}' (leg ratio "
                 f"{self.leg_ratio:.3g}): {met} of {total} effector targets met, largest residual "
                 f"{float(np.max(self.residuals)):.3g}; contact frames held: {held or 'none'}")
+        if found:
+            line += (f"; below the floor on {sum(f['frames_below_floor'] for f in found.values())} frames, "
+                     f"{sum(f['pops'] for f in found.values())} pops, "
+                     f"{self.contacts_not_held()} contact frames not held")
+        return line
 
 
-def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, *, contacts="ground",
-             contact_object=None, exact=False, new_action=None, progress=None):
+def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, *, contacts=("ground",),
+             exact=True, new_action=None, progress=None):
     """Retarget ``source_obj``'s motion over [frame_start, frame_end] (default: its action's frame range)
     onto ``target_obj``, into a new action named ``new_action`` (default '<source action>_<target>').
 
-    contacts: 'ground' (planted feet are held still; exact: soles exactly on the ground) or 'object' (hands
-    and feet touching ``contact_object``, an Object or its name, are held; exact: at the source's own world
-    positions). Returns a RetargetOutcome; AdjustError (one line) on bad input, before anything changes
-    (but the bone map stored on the target, see mapping.ensure_map)."""
+    contacts: what hands and feet may touch, as ``contact_specs`` reads it: 'ground' (planted feet rest on
+    the floor, still) and any number of ('object', Object or name) (hands and feet touching the object's box
+    are held on it; feet still off the floor stand on something raised). exact: hands on objects at the
+    source's own world positions (else scaled like the motion). Returns a RetargetOutcome; AdjustError (one
+    line) on bad input, before anything changes (but the bone map stored on the target, see
+    mapping.ensure_map)."""
     progress = progress or (lambda stage, fraction: None)
     progress("reading", 0.0)
-    prepared = prepare(context, source_obj, target_obj, frame_start, frame_end, contacts=contacts,
-                       contact_object=contact_object, exact=exact)
+    prepared = prepare(context, source_obj, target_obj, frame_start, frame_end, contacts=contacts, exact=exact)
     target, plan = prepared.target, prepared.plan
 
     progress("solving", 0.2)
@@ -92,32 +110,87 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
 
     progress("writing", 0.8)
     name = new_action or f"{_action_name(source_obj)}_{target_obj.name}"
-    action, keyed = write_pose(context, target_obj, target, rt.solved_pose(plan, result.rotations, result.heads, bones),
-                               prepared.frames, name)
+    solved = rt.solved_pose(plan, result.rotations, result.heads, bones)
+    action, keyed = write_pose(context, target_obj, target, solved, prepared.frames, name)
     progress("done", 1.0)
 
     ends = [model.groups[e][0] for e in rt.EFFECTORS]
     residuals = np.linalg.norm(target.to_world(result.heads[:, ends]) - plan.world_targets, axis=-1)
+    reachable = {e: result.status[:, k] != "unreachable" for k, e in enumerate(rt.EFFECTORS)}
+    report, after = _contact_report(prepared, solved, bones, reachable, context.scene)
+    _, before = _contact_report(prepared, plan.start_pose, bones, None, context.scene)
     return RetargetOutcome(action=action, frames=prepared.frames, effectors=rt.EFFECTORS,
                            targets=plan.world_targets, residuals=residuals, status=result.status,
                            contacts=plan.contacts, leg_ratio=plan.leg_ratio, read_from=prepared.read_from,
-                           keyed_bones=keyed)
+                           keyed_bones=keyed, contact_report=report["report"], contact_error=after,
+                           contact_error_before=before)
+
+
+def _contact_report(prepared, pose, bones, reachable, scene):
+    """The contact figures of a pose (F,J,4,4) of the target whose ``bones`` were solved (the others follow
+    them as their channels say), against the source's contacts: ({'report': {...}}, (F,E) contact error)."""
+    target, source, plan = prepared.target, prepared.source, prepared.plan
+    posed = rt.carry_unsolved(target, pose, bones, prepared.target_basis)
+    t_heads, t_tails = target.world_points(posed)
+    s_heads, s_tails = source.world_points(prepared.source_pose)
+    fps = scene.render.fps / scene.render.fps_base
+    figures, curves = rt.contact_figures(
+        plan.contact_list,
+        {e: rt.effector_points(target, t_heads, t_tails, e) for e in rt.EFFECTORS},
+        {e: rt.effector_points(source, s_heads, s_tails, e) for e in rt.EFFECTORS},
+        plan.boxes, plan.ground, rt.leg_length(target), plan.leg_ratio, fps, reachable)
+    objects = [name.split(" ", 1)[1] for name in prepared.contact_names if name.startswith("object ")]
+    for e, found in plan.contact_list.items():  # each contact by frame number, and what it touches
+        for listed, contact in zip(figures[e]["contacts"], found):
+            listed.update(frame_start=_frame_number(prepared.frames[contact.start]),
+                          frame_end=_frame_number(prepared.frames[contact.stop - 1]),
+                          touches=objects[contact.box] if contact.box >= 0 else contact.kind)
+    report = {"contacts": list(prepared.contact_names), "floor": plan.ground, "effectors": figures}
+    return {"report": report}, np.stack([curves[e] for e in rt.EFFECTORS], axis=1)
 
 
 @dataclass
 class Prepared:
     """A retarget before its solve: both rigs (solver.retarget.Rig), the plan (start pose and targets), the
-    frames and how the source was read."""
+    frames, how the source was read, the source's pose (F,Js,4,4), the target's unmapped bases and the
+    contacts asked for, by name."""
 
     source: object
     target: object
     plan: object
     frames: np.ndarray
     read_from: str
+    source_pose: np.ndarray = None
+    target_basis: np.ndarray = None
+    contact_names: tuple = ()
 
 
-def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *, contacts="ground",
-            contact_object=None, exact=False):
+def contact_specs(context, contacts):
+    """(ground, [Object]) of what hands and feet may touch: 'ground', or ('object', Object or its name), one
+    or several (a single str or pair alone is one). AdjustError (one line) on anything else."""
+    if isinstance(contacts, str) or (isinstance(contacts, tuple) and len(contacts) == 2
+                                     and str(contacts[0]).lower() == "object"):
+        contacts = [contacts]
+    ground, objects = False, []
+    for spec in contacts or ():
+        kind, name = (spec, None) if isinstance(spec, str) else (spec[0], spec[1] if len(spec) > 1 else None)
+        kind = str(kind).lower()
+        if kind == "ground":
+            ground = True
+        elif kind == "object":
+            obj = bpy.data.objects.get(name) if isinstance(name, str) else name
+            if obj is None:
+                raise AdjustError(f"No contact object '{name}'" if name else
+                                  "Contacts with an object need a contact object: name it")
+            if obj not in objects:
+                objects.append(obj)
+        else:
+            raise AdjustError(f"Unknown contacts '{kind}' (use ground or object)")
+    return ground, objects
+
+
+def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *, contacts=("ground",),
+            exact=True):
     """Check the input, read the source's motion and plan the retarget (see ``retarget``); changes nothing
     but the target's stored bone map."""
     _check_source(source_obj)
@@ -126,10 +199,8 @@ def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *
         raise AdjustError(f"'{target_obj.name}' is in Edit Mode: leave it to retarget onto it")
     if source_obj == target_obj:
         raise AdjustError("Source and target are the same armature: pick another source")
-    contacts = str(contacts).lower()
-    if contacts not in CONTACTS:
-        raise AdjustError(f"Unknown contacts '{contacts}' (use ground or object)")
-    boxes = _contact_boxes(context, contact_object) if contacts == "object" else None
+    ground, objects = contact_specs(context, contacts)
+    boxes = _contact_boxes(context, objects) if objects else None
     frames = _frames(source_obj, frame_start, frame_end)
     anim = target_obj.animation_data
     if anim is not None and anim.use_tweak_mode:
@@ -147,10 +218,11 @@ def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *
         target_basis = _pose_property(target_obj.pose.bones, "matrix_basis", (4, 4)).transpose(0, 2, 1)
         if len(target.names) != len(target_basis):  # a control rig's skeleton: its bones' own bases
             target_basis = target_basis[[target_obj.pose.bones.find(name) for name in target.names]]
-        plan = rt.plan_retarget(source, source_pose, target, target_basis, settings, boxes)
+        plan = rt.plan_retarget(source, source_pose, target, target_basis, settings, boxes, ground=ground)
     except SolverInputError as ex:
         raise AdjustError(f"Cannot retarget '{source_obj.name}' onto '{target_obj.name}': {ex}") from None
-    return Prepared(source, target, plan, frames, read_from)
+    names = (("ground",) if ground else ()) + tuple(f"object {obj.name}" for obj in objects)
+    return Prepared(source, target, plan, frames, read_from, source_pose, target_basis, names)
 
 
 def write_pose(context, target_obj, target, pose_matrices, frames, action_name):
@@ -400,18 +472,24 @@ def _frames(source_obj, frame_start, frame_end):
     return np.arange(int(frame_start), int(frame_end) + 1, dtype=np.float64)
 
 
-def _contact_boxes(context, contact_object):
-    obj = bpy.data.objects.get(contact_object) if isinstance(contact_object, str) else contact_object
-    if obj is None:
-        raise AdjustError(f"No contact object '{contact_object}'" if contact_object else
-                          "Contacts with an object need a contact object: name it")
-    evaluated = obj.evaluated_get(context.evaluated_depsgraph_get())
-    world = np.array(evaluated.matrix_world, dtype=np.float64)
-    corners = np.array([tuple(c) for c in evaluated.bound_box], dtype=np.float64)
-    if len(corners) == 0:
-        raise AdjustError(f"Contact object '{obj.name}' has no extent")
-    points = corners @ world[:3, :3].T + world[:3, 3]
-    return points.min(axis=0)[None], points.max(axis=0)[None]
+def _contact_boxes(context, objects):
+    """World bounding boxes (mins, maxs) (K,3) of the contact objects, as evaluated."""
+    depsgraph = context.evaluated_depsgraph_get()
+    mins, maxs = [], []
+    for obj in objects:
+        evaluated = obj.evaluated_get(depsgraph)
+        world = np.array(evaluated.matrix_world, dtype=np.float64)
+        corners = np.array([tuple(c) for c in evaluated.bound_box], dtype=np.float64)
+        if len(corners) == 0:
+            raise AdjustError(f"Contact object '{obj.name}' has no extent")
+        points = corners @ world[:3, :3].T + world[:3, 3]
+        mins.append(points.min(axis=0))
+        maxs.append(points.max(axis=0))
+    return np.array(mins), np.array(maxs)
+
+
+def _frame_number(value):
+    return int(value) if float(value).is_integer() else float(value)
 
 
 def _action_name(obj):

@@ -3,8 +3,8 @@
 Top: skeleton snapshots at a few frames in two orthographic views (FRONT: world X right, Z up; SIDE: world Y
 right, Z up, as Blender's Right view), the pose before the run in grey, after in blue, targets as dots in their
 effector's colour, obstacle boxes shaded. One scale for every panel, so lengths compare across panels; each
-panel is centred on what it shows. Bottom: reach error over the frames, one line per effector (solid after,
-dashed before).
+panel is centred on what it shows. Bottom: reach error (or another error the caller names, e.g. a retarget's
+contact error) over the frames, one line per effector (solid after, dashed before).
 
 ``render(FigureData) -> (H,W,3) uint8``; ``encode_png(image) -> bytes``; ``write_png(path, image)``. ``Layout``
 says where things land (tests use it to find the pixels they expect).
@@ -58,6 +58,7 @@ class FigureData:
     targets: np.ndarray = None  # (S,E,3), NaN: no target
     boxes: np.ndarray = None  # (S,K,2,3) min and max corner
     error_before: np.ndarray = None  # (F,E)
+    plot_title: str = "REACH ERROR (SCENE UNITS) OVER FRAMES"
 
 
 def effector_colour(effectors, index):
@@ -330,7 +331,7 @@ def _draw_panel(canvas, layout, data, v, s):
 
 def _draw_plot(canvas, layout, data):
     x0, y0, x1, y1 = layout.plot_rect
-    canvas.text(MARGIN, layout.plot_top + 2, "REACH ERROR (SCENE UNITS) OVER FRAMES", INK)
+    canvas.text(MARGIN, layout.plot_top + 2, data.plot_title, INK)
     # Legend: one entry per effector with a target, then the line styles.
     after = np.asarray(data.error_after, dtype=np.float64)
     before = None if data.error_before is None else np.asarray(data.error_before, dtype=np.float64)

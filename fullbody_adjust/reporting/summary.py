@@ -149,7 +149,30 @@ def one_line(report):
     pen = report["penetrations"]
     if pen and pen["frames"]:
         line += f"; penetrations on {pen['frames']} frames"
-    return line
+    contacts = contacts_line(report)
+    return f"{line}; {contacts}" if contacts else line
+
+
+def contacts_not_held(report):
+    """[(effector, frames)] of a retarget report's contacts not held on frames whose target was within reach
+    ('contacts' of bridge.retarget's contact report; [] for a report without contacts)."""
+    figures = (report.get("contacts") or {}).get("effectors", {}) if isinstance(report.get("contacts"), dict) else {}
+    return [(e, f["not_held_frames"]) for e, f in figures.items() if f["not_held_frames"]]
+
+
+def contacts_line(report):
+    """The contact figures of a retarget report in a few words ('' without them)."""
+    figures = report.get("contacts")
+    if not isinstance(figures, dict) or not figures.get("effectors"):
+        return ""
+    found = figures["effectors"].values()
+    sliding = [f["sliding"]["p95"] for f in found if f["sliding"]["p95"] is not None]
+    errors = [f["contact_error"]["max"] for f in found if f["contact_error"]["max"] is not None]
+    return (f"contacts: {sum(f['contact_frames'] for f in found)} frames, largest contact error "
+            f"{max(errors) if errors else 0.0:.3g}, sliding p95 {max(sliding) if sliding else 0.0:.3g}, "
+            f"{sum(f['frames_below_floor'] for f in found)} frames below the floor, "
+            f"{sum(f['pops'] for f in found)} pops, "
+            f"{sum(f['not_held_frames'] for f in found)} frames not held")
 
 
 def to_json(report):

@@ -86,7 +86,8 @@ def keyed_values(action):
 
 def expected_exit_code(report):
     missed = report["tasks"]["missed_within_reach"] > 0
-    return 1 if missed or (report["penetrations"] or {}).get("frames") else 0
+    not_held = any(f["not_held_frames"] for f in (report.get("contacts") or {}).get("effectors", {}).values())
+    return 1 if missed or not_held or (report["penetrations"] or {}).get("frames") else 0
 
 
 # --- help and arguments -------------------------------------------------------------------------------------
@@ -407,6 +408,12 @@ def test_retarget_of_an_unmappable_target_exits_2(cli, capsys, tmp_path):
     before.check()
 
 
+def test_contacts_may_be_given_more_than_once(cli):
+    args = cli.build_parser().parse_args(["retarget", "FILE", "--source", "S", "--target", "T", "--contacts", "ground",
+                                          "--contacts", "object", "Bar", "--contacts", "object", "Step"])
+    assert args.contacts == [("ground", None), ("object", "Bar"), ("object", "Step")]
+
+
 @pytest.mark.parametrize("target, contacts", [("Large", ["object", "Ball"]), ("Small", ["ground"])])
 def test_retarget_writes_the_targets_motion(cli, capsys, tmp_path, target, contacts):
     path = sample(tmp_path, "retarget_cmu")
@@ -419,7 +426,8 @@ def test_retarget_writes_the_targets_motion(cli, capsys, tmp_path, target, conta
     report = json.loads(report_path.read_text())
     assert code == expected_exit_code(report)
     assert report["source"] == "Source" and report["target"] == target and report["frames"]["count"] == 3
-    assert report["contacts"] == contacts[0] and report["action"] == "Carried"
+    assert report["contacts"]["contacts"] == [" ".join(contacts)] and report["action"] == "Carried"
+    assert set(report["contacts"]["effectors"]) == {"hand.L", "hand.R", "foot.L", "foot.R"}
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     reopen(out_blend)
     action = bpy.data.objects[target].animation_data.action

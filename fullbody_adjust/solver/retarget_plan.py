@@ -1,0 +1,186 @@
+"""Planning a retarget: the start pose and the effector targets of every frame (see solver/retarget.py,
+step 2)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .adjust import sub_base_point
+from .contacts import GROUND, RetargetSettings, detect_contacts, hold
+from .errors import SolverInputError
+from .geometry import norm
+from .retarget_rig import (EFFECTOR_CHAIN, EFFECTORS, FEET, Rig, ankle_above_sole, chain_joints, effector_points,
+                           heading_rotation, hip_centres, leg_length, rest_points, sole_heights)
+from .retarget_transfer import transfer_pose, translate_body
+
+
+def moving_average(values, half_width):
+    """Mean over ±half_width frames (the ends repeated) of values (F,…)."""
+    values = np.asarray(values, dtype=np.float64)
+    if half_width <= 0 or len(values) < 2:
+        return values.copy()
+    w = int(half_width)
+    padded = np.concatenate([np.repeat(values[:1], w, axis=0), values, np.repeat(values[-1:], w, axis=0)])
+    total = np.cumsum(np.concatenate([np.zeros((1,) + values.shape[1:]), padded]), axis=0)
+    return (total[2 * w + 1:] - total[:-2 * w - 1]) / (2 * w + 1)
+
+
+def body_shift(bases, targets, reach, priorities, margin, settle_margin, half_width):
+    """World shifts (F,3) of the whole body that bring each target (F,E,3) within its limb's ``reach`` (E,)
+    less ``margin`` from the limb's base (F,E,3): the smallest shift on each frame (nearest point of the
+    intersection of the reach balls, the paper's two-sphere construction; where they do not meet, the
+    higher ``priorities`` first), smoothed over ±half_width frames, then the smallest further shift that
+    puts every target within its reach less ``settle_margin`` again. Zero where every target is in reach.
+    Continuous from frame to frame, as the nearest point of a convex set is."""
+    centres = targets - bases  # a shift d serves target k when |centres_k - d| <= radius_k
+    frames = len(targets)
+    active = np.ones(centres.shape[:2], dtype=bool)
+    zero = np.zeros((frames, 3))
+
+    def nearest(start, fraction):
+        radii = np.broadcast_to((1.0 - fraction) * np.asarray(reach, dtype=np.float64), active.shape)
+        point, _ = sub_base_point(start, centres, radii, active, priorities, "priority")
+        return point
+
+    first = nearest(zero, margin)
+    return nearest(moving_average(first, half_width), settle_margin)
+
+
+@dataclass
+class RetargetPlan:
+    """What the solve needs and what the caller reports, for F frames.
+
+    start_pose (F,Jt,4,4): the transferred pose (target armature space); heads/tails (F,Jt,3) of it in
+    armature space; targets (F,4,3) for EFFECTORS in armature space, world_targets the same in world space;
+    contacts (F,4) bool: frames held at a contact; contact_list {effector: [Contact]} the source's contacts
+    (contact_intervals the same as (start, stop) pairs); leg_ratio target/source; ground: world z of the floor
+    (the source's lowest foot points), None when the floor is not a contact; boxes: the contact objects'
+    world boxes (mins, maxs) or None; heading (3,3): the turn about Z from the source's heading to the
+    target's, applied to the motion."""
+
+    start_pose: np.ndarray
+    heads: np.ndarray
+    tails: np.ndarray
+    targets: np.ndarray
+    world_targets: np.ndarray
+    contacts: np.ndarray
+    contact_intervals: dict
+    leg_ratio: float
+    ground: float
+    contact_list: dict = None
+    boxes: tuple = None
+    heading: np.ndarray = None
+    effectors: tuple = EFFECTORS
+
+
+def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSettings(), boxes=None, ground=True):
+    """The start pose and effector targets that carry ``source_pose`` (F,Js,4,4, source armature space)
+    over to ``target`` (its unmapped bones at ``target_basis`` (Jt,4,4)). ``boxes``: (mins, maxs) (K,3)
+    each, world boxes of contact objects (None: none); ``ground``: the floor is a contact. See the module
+    docstring of solver/retarget.py."""
+    if not isinstance(source, Rig) or not isinstance(target, Rig):
+        raise SolverInputError("source and target must be Rigs")
+    source_pose = np.asarray(source_pose, dtype=np.float64)
+    if source_pose.ndim != 4 or source_pose.shape[1:] != (len(source), 4, 4) or len(source_pose) == 0:
+        raise SolverInputError(f"source pose must have shape (F,{len(source)},4,4), got {source_pose.shape}")
+    if not np.all(np.isfinite(source_pose)):
+        raise SolverInputError("source pose has NaN/inf")
+    target_basis = np.asarray(target_basis, dtype=np.float64)
+    if target_basis.shape != (len(target), 4, 4):
+        raise SolverInputError(f"target basis must have shape ({len(target)},4,4), got {target_basis.shape}")
+    if boxes is not None:
+        boxes = tuple(np.asarray(b, dtype=np.float64).reshape(-1, 3) for b in boxes)
+    leg_s, leg_t = leg_length(source), leg_length(target)
+    if not (leg_s > 0.0 and leg_t > 0.0):
+        raise SolverInputError("a rig's legs have zero length")
+    ratio = leg_t / leg_s
+
+    # The motion turned to the target's heading (about the world origin; Z, so heights, unchanged).
+    heading = heading_rotation(target.rotation @ source.rotation.T)
+    turn = np.eye(4)
+    turn[:3, :3] = heading
+    turned = replace(source, matrix_world=turn @ source.matrix_world)
+    s_heads, s_tails = source.world_points(source_pose)  # where the source touches things
+    floor = float(np.percentile(sole_heights(source, s_heads, s_tails), 2))
+    # Scale about the floor below each rig's rest hips: the source's motion, re-anchored on the target.
+    anchor_s = hip_centres(turned, rest_points(turned)[0])
+    anchor_t = hip_centres(target, rest_points(target)[0])
+    anchor_s[2] = anchor_t[2] = floor
+
+    def scaled(points):
+        return anchor_t + ratio * (points @ heading.T - anchor_s)
+
+    start = transfer_pose(turned, source_pose, target, target_basis, scaled(hip_centres(source, s_heads)))
+    t_heads, t_tails = target.world_points(start)
+    soles = ankle_above_sole(target, t_heads, t_tails)  # the transferred feet's own ankle heights
+    frames = len(source_pose)
+    blend = settings.frames(settings.blend_duration) if settings.blend_duration else 0
+    contacts = np.zeros((frames, len(EFFECTORS)), dtype=bool)
+    found = {}
+    world_targets = np.empty((frames, len(EFFECTORS), 3))
+    for k, e in enumerate(EFFECTORS):
+        s_points = effector_points(source, s_heads, s_tails, e)
+        free = scaled(s_points[:, 0])
+        found[e] = detect_contacts(e, s_points, floor if ground else None, boxes, leg_s, settings)
+        holds = []
+        for c in found[e]:
+            a, b = c.start, c.stop
+            if e in FEET:
+                path = _foot_path(c, free[a:b], s_points[a:b], effector_points(target, t_heads[a:b], t_tails[a:b], e),
+                                  soles[a:b, FEET.index(e)], settings.exact or c.kind == GROUND, anchor_t[2], ratio)
+            else:  # a hand on an object: still, where the source's is (or its scaled place)
+                path = (s_points[a:b, 0] if settings.exact else free[a:b]).mean(axis=0)
+            step = settings.blend_speed * leg_t / settings.fps
+            holds.append((a, b, path, _blend_frames(path, free, a, b, blend, step)))
+            contacts[a:b, k] = True
+        world_targets[:, k] = hold(free, holds, blend)
+        if e in FEET and ground:  # never below the floor: the lowest point of the foot at least on it
+            world_targets[:, k, 2] = np.maximum(world_targets[:, k, 2], floor + soles[:, FEET.index(e)])
+    # Every target within its limb's reach (see reach_margin): shift the whole body, smoothly, where needed.
+    bases, reach = [], []
+    rest_heads, rest_tails = rest_points(target)
+    for e in EFFECTORS:
+        chain = EFFECTOR_CHAIN[e]
+        bases.append(target.to_world(start[:, target.groups[chain][-2], :3, 3]))  # shoulder, hip joint
+        last_two = chain_joints(target, chain, rest_heads, rest_tails)[-3:]  # upper arm + forearm, thigh + shin
+        reach.append(float(norm(np.diff(last_two, axis=0)).sum()))
+    feet_first = [2.0 if e.startswith("hand") else 3.0 for e in EFFECTORS]
+    shift = body_shift(np.stack(bases, axis=1), world_targets, reach, feet_first, settings.reach_margin,
+                       settings.settle_margin, blend)
+    translate_body(target, start, shift)
+    heads = start[..., :3, 3]
+    tails = heads + start[..., :3, 1] * target.lengths[:, None]
+    return RetargetPlan(start_pose=start, heads=heads, tails=tails, targets=target.to_armature(world_targets),
+                        world_targets=world_targets, contacts=contacts,
+                        contact_intervals={e: [(c.start, c.stop) for c in found[e]] for e in EFFECTORS},
+                        leg_ratio=ratio, ground=floor if ground else None, contact_list=found, boxes=boxes,
+                        heading=heading)
+
+
+def _foot_path(contact, free, source_points, target_points, soles, on_surface, floor, ratio):
+    """The ankle's path (n,3) over a foot contact: the target's own foot (points (n,P,3), ankle first, as
+    transferred) rolls and turns as the source's (points (n,Q,3), ankle first) does, from each frame to the
+    next about the ankle where the source's ankle is its stillest point (a foot turning on its heel), else
+    about whichever of its points is lowest (heel, ball, toes: the one on the ground); the path is centred on
+    the source's scaled one. The lowest point of the foot on the surface (its world height with
+    ``on_surface``, else its height scaled about the floor)."""
+    rel = target_points[:, :1, :2] - target_points[..., :2]  # (n,P,2) ankle less each point
+    on_ankle = norm(np.diff(source_points, axis=0)).argmin(axis=1) == 0
+    pivot = np.where(on_ankle, 0, target_points[:-1, :, 2].argmin(axis=1))
+    f = np.arange(len(pivot))
+    travel = np.concatenate([np.zeros((1, 2)), np.cumsum(rel[f + 1, pivot] - rel[f, pivot], axis=0)])
+    path = np.empty_like(free)
+    path[:, :2] = travel + (free[:, :2] - travel).mean(axis=0)
+    surface = contact.surface if on_surface else floor + ratio * (contact.surface - floor)
+    path[:, 2] = surface + soles
+    return path
+
+
+def _blend_frames(path, free, start, stop, shortest, step):
+    """(in, out) blend frames of a hold: at least ``shortest``, and long enough that moving between the free
+    trajectory (F,3) and the held path goes at most about ``step`` per frame (smoothstep's steepest slope)."""
+    first, last = (path, path) if np.ndim(path) == 1 else (path[0], path[-1])
+    return tuple(max(shortest, int(np.ceil(1.5 * float(norm(p - free[f])) / step)))
+                 for p, f in ((first, start), (last, stop - 1)))
