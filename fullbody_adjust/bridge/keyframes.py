@@ -83,7 +83,7 @@ def ensure_action(obj, new_action_name=None):
     """The action keys go into, assigned to ``obj``: its current one, or a new one named
     '<object>Action' when it has none. With ``new_action_name``: a copy of the current action (or an
     empty one) under that name is assigned instead, so the original action stays intact; the original
-    gets a fake user so it is not lost on save. When the assigned action already has that name it is
+    is kept (see assign_action). When the assigned action already has that name it is
     used as it is, so keying frame by frame with the same name makes one new action."""
     anim = obj.animation_data or obj.animation_data_create()
     original = anim.action
@@ -99,13 +99,30 @@ def ensure_action(obj, new_action_name=None):
     action = original.copy() if original is not None else bpy.data.actions.new(new_action_name)
     action.name = new_action_name
     slot_identifier = anim.action_slot.identifier if _LAYERED and anim.action_slot else None
-    if original is not None:
-        original.use_fake_user = True
-    anim.action = action
+    assign_action(obj, action)
     if slot_identifier and anim.action_slot is None and slot_identifier in action.slots:
         # The copy has the same slots; keep animating through the one the object used.
         anim.action_slot = action.slots[slot_identifier]
     return action
+
+
+def assign_action(obj, action):
+    """Assign ``action`` to ``obj`` in place of its current one, which is kept: it gets a fake user when nothing
+    else uses it, so saving the file does not drop it."""
+    anim = obj.animation_data or obj.animation_data_create()
+    previous = anim.action
+    if previous is not None and previous != action and previous.users <= 1:
+        previous.use_fake_user = True
+    anim.action = action
+
+
+def animating_fcurves(obj):
+    """The F-Curves that animate ``obj`` through its action: the action's own (4.2), or those of the slot the
+    object animates through (4.4+; none without a slot)."""
+    anim = obj.animation_data
+    if anim is None or anim.action is None:
+        return []
+    return list(_FCurves(obj, anim.action).by_path.values())
 
 
 def merge_keys(fcurve, frames, values):

@@ -31,7 +31,6 @@ from . import adjustment, control_rig, ik_limits, keyframes, mapping, pose, targ
 from .control_match import control_channels
 from .errors import AdjustError
 
-_LAYERED = "layers" in bpy.types.Action.bl_rna.properties  # 4.4+: F-Curves live in a slot's channelbag
 _BONE_PATH = re.compile(r'^pose\.bones\["((?:[^"\\]|\\.)*)"\]\.(\w+)$')
 _SAME_FRAME = 1e-4  # a key this close to a frame is at it (keys are float32)
 
@@ -283,7 +282,7 @@ def _why_not_fcurves(obj):
         return "action influence"
     if obj.parent is not None or any(c.enabled for c in obj.constraints):
         return "the object is parented or constrained"
-    for fc in _action_fcurves(obj):
+    for fc in keyframes.animating_fcurves(obj):
         if not fc.data_path.startswith("pose.bones["):
             return "the action animates more than bones"
     for pb in obj.pose.bones:
@@ -294,17 +293,6 @@ def _why_not_fcurves(obj):
                 or bone.use_relative_parent):
             return "bones that do not inherit plainly"
     return None
-
-
-def _action_fcurves(obj):
-    anim = obj.animation_data
-    if not _LAYERED:
-        return list(anim.action.fcurves)
-    if anim.action_slot is None:
-        return []
-    from bpy_extras import anim_utils
-    channelbag = anim_utils.action_get_channelbag_for_slot(anim.action, anim.action_slot)
-    return list(channelbag.fcurves) if channelbag is not None else []
 
 
 def _basis_from_fcurves(obj, frames):
@@ -319,7 +307,7 @@ def _basis_from_fcurves(obj, frames):
     values = {prop: np.broadcast_to(_pose_property(pose_bones, prop, (size,)), (frames_n, count, size)).copy()
               for prop, size in pose.CHANNEL_SIZES.items() if prop in used}
     lookup = {}  # curves keyed on the same frames (a BVH import keys every frame) share one key search
-    for fc in _action_fcurves(obj):
+    for fc in keyframes.animating_fcurves(obj):
         match = _BONE_PATH.match(fc.data_path)
         if match is None or fc.mute or (fc.group is not None and fc.group.mute):
             continue
@@ -520,11 +508,8 @@ def _channels(obj, rig, basis, written, modes):
 
 
 def _new_action(obj, name):
-    """A new, empty action named ``name`` (Blender adds .001 if the name is taken) assigned to ``obj``."""
-    anim = obj.animation_data or obj.animation_data_create()
-    previous = anim.action
-    if previous is not None and previous.users <= 1:
-        previous.use_fake_user = True  # keep the target's own motion when the file is saved
+    """A new, empty action named ``name`` (Blender adds .001 if the name is taken) assigned to ``obj``; its
+    previous action is kept (keyframes.assign_action)."""
     action = bpy.data.actions.new(name)
-    anim.action = action
+    keyframes.assign_action(obj, action)
     return action

@@ -9,8 +9,9 @@ import numpy as np
 
 from .errors import SolverInputError
 from .geometry import cross, dot, norm, normalize
+from .vocabulary import LIMB_EFFECTORS
 
-EFFECTORS = ("hand.L", "hand.R", "foot.L", "foot.R")
+EFFECTORS = LIMB_EFFECTORS
 FEET = ("foot.L", "foot.R")
 EFFECTOR_CHAIN = {"hand.L": "arm.L", "hand.R": "arm.R", "foot.L": "leg.L", "foot.R": "leg.R"}
 _EYE4 = np.eye(4)

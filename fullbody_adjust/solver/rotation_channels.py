@@ -6,8 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import SolverInputError
-
-EULER_ORDERS = ("XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX")
+from .vocabulary import EULER_ORDERS, ROTATION_PROPERTY
 
 
 def _axis_rotations(axis, angles):
@@ -144,10 +143,6 @@ def matrices_to_axis_angle(matrices, reference=None):
         angle = angle + 2 * np.pi * np.round((np.asarray(reference, dtype=np.float64)[..., 0] - angle[0])
                                              / (2 * np.pi))
     return np.concatenate([angle[..., None], axis], axis=-1)
-
-
-ROTATION_PROPERTY = {"QUATERNION": "rotation_quaternion", "AXIS_ANGLE": "rotation_axis_angle",
-                     **{order: "rotation_euler" for order in EULER_ORDERS}}
 
 
 def rotation_matrices(mode, values):

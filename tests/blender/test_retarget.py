@@ -12,7 +12,7 @@ import bpy
 import numpy as np
 import pytest
 
-from fullbody_adjust.bridge import mapping, retarget
+from fullbody_adjust.bridge import keyframes, mapping, retarget
 from fullbody_adjust.bridge.errors import AdjustError
 from fullbody_adjust.bridge.pose import read_pose_frames
 from fullbody_adjust.solver import retarget as rt
@@ -132,7 +132,7 @@ def source_foot_points(source, frames, effector):
 
 def fcurves_of_object(obj):
     """The object's own (not its bones') F-Curves in its action, on every Blender's action layout."""
-    return [fc for fc in retarget._action_fcurves(obj) if not fc.data_path.startswith("pose.")]
+    return [fc for fc in keyframes.animating_fcurves(obj) if not fc.data_path.startswith("pose.")]
 
 
 def contacts_of(outcome, effector, kind=None):
