@@ -14,9 +14,12 @@ Frames 2-1001 (frame 1 is the conversion's T-pose).
                orientation (the rest alignment ours applies, W_t = W_s W_s_rest^-1 A W_t_rest), the root by
                Copy Location from an empty on the same root path ours plans; IK constraints on forearm
                (chain 3: forearm, upper arm, shoulder) and shin (chain 2) aim the wrists and ankles at empties
-               animated along the same targets ours computed; then bpy.ops.nla.bake(visual_keying,
-               clear_constraints, POSE) over the same frames. Timed: helpers, empties (keyed with
-               foreach_set), constraints and the bake; the source is in the scene, as it must be.
+               animated along the same targets ours computed; then a lean bake over the same frames:
+               bpy.ops.nla.bake(only_selected, visual_keying, clear_constraints, bake_types={'POSE'},
+               channel_types={'LOCATION', 'ROTATION'}) with only the mapped bones selected, so it keys what
+               ours keys (the mapped bones' location and rotation), not every channel of every bone
+               (channel_types exists in 4.2 through 5.x). Timed: helpers, empties (keyed with foreach_set),
+               constraints and the bake; the source is in the scene, as it must be.
   ik_only      A lower bound for Blender: the transferred motion is keyed on the rig beforehand (NOT timed),
                the scene holds nothing else; only the goal empties, the IK constraints and the bake are timed.
 
@@ -108,20 +111,42 @@ def copy_target(target, name):
     return copy
 
 
-def select_pose_bones(rig):
+def select_pose_bones(rig, names):
+    """Pose mode on ``rig`` with exactly the bones ``names`` selected."""
     for ob in bpy.context.scene.objects:
         ob.select_set(False)
     rig.select_set(True)
     bpy.context.view_layer.objects.active = rig
     bpy.ops.object.mode_set(mode='POSE')
-    bpy.ops.pose.select_all(action='SELECT')
+    wanted = set(names)
+    for pose_bone in rig.pose.bones:
+        # 5.0 moved bone selection from Bone to PoseBone.
+        owner = pose_bone if "select" in pose_bone.bl_rna.properties else pose_bone.bone
+        owner.select = pose_bone.name in wanted
 
 
-def bake(rig, frames):
-    select_pose_bones(rig)
+def bake(rig, frames, bones):
+    """The lean bake: location and rotation channels of ``bones`` only."""
+    select_pose_bones(rig, bones)
     bpy.ops.nla.bake(frame_start=int(frames[0]), frame_end=int(frames[-1]), only_selected=True,
-                     visual_keying=True, clear_constraints=True, bake_types={'POSE'})
+                     visual_keying=True, clear_constraints=True, bake_types={'POSE'},
+                     channel_types={'LOCATION', 'ROTATION'})
     bpy.ops.object.mode_set(mode='OBJECT')
+
+
+def keyed_channels(rig):
+    """What the rig's action keys: {"bones": how many pose bones, "fcurves": how many F-Curves}."""
+    anim = rig.animation_data
+    if anim is None or anim.action is None:
+        return {"bones": 0, "fcurves": 0}
+    if LAYERED:
+        from bpy_extras import anim_utils
+        bag = anim_utils.action_get_channelbag_for_slot(anim.action, anim.action_slot)
+        fcurves = bag.fcurves if bag is not None else ()
+    else:
+        fcurves = anim.action.fcurves
+    paths = [fc.data_path for fc in fcurves]
+    return {"bones": len({p.split('"')[1] for p in paths if p.startswith("pose.bones")}), "fcurves": len(paths)}
 
 
 def animated_empty(name, frames, locations):
@@ -156,7 +181,7 @@ def run_ours(source, target, frames):
     return time.perf_counter() - start, outcome
 
 
-def run_constraints(rig, source, prepared, frames, world_targets, effectors):
+def run_constraints(rig, source, prepared, frames, world_targets, effectors, mapped):
     """Blender's way end to end on ``rig``: returns the seconds it took."""
     source_rig, target_rig, plan = prepared.source, prepared.target, prepared.plan
     start = time.perf_counter()
@@ -192,16 +217,16 @@ def run_constraints(rig, source, prepared, frames, world_targets, effectors):
     place.target = animated_empty(f"{rig.name}_root_path", frames,
                                   target_rig.to_world(plan.start_pose[:, target_rig.groups["root"][0], :3, 3]))
     add_ik(rig, frames, world_targets, effectors)
-    bake(rig, frames)
+    bake(rig, frames, mapped)
     return time.perf_counter() - start
 
 
-def run_ik_only(rig, target_rig, base_pose, frames, world_targets, effectors):
+def run_ik_only(rig, target_rig, base_pose, frames, world_targets, effectors, mapped):
     """IK and bake on ``rig`` already carrying the transferred motion (keyed untimed): the seconds it took."""
     retarget.write_pose(bpy.context, rig, target_rig, base_pose, frames, f"{rig.name}_base")
     start = time.perf_counter()
     add_ik(rig, frames, world_targets, effectors)
-    bake(rig, frames)
+    bake(rig, frames, mapped)
     return time.perf_counter() - start
 
 
@@ -276,6 +301,7 @@ def measure(args):
     hand_foot = [mapping.load_map(target).bones(e)[-1] for e in outcome.effectors]
     mapped = [bone for _, bone in mapping.load_map(target).items()]
     errors = {"ours": reach_errors(target, hand_foot, frames, outcome.targets)}
+    keyed = {"ours": keyed_channels(target)}
     ours_directions = bone_directions(target, mapped, frames)
     prepared = retarget.prepare(bpy.context, source, target, int(frames[0]), int(frames[-1]))
     unlink(target)  # each reference run sees only what it needs
@@ -284,8 +310,9 @@ def measure(args):
     for i in range(args.repeat):
         rig = copy_target(target, f"constraints{i}")
         times["constraints"].append(run_constraints(rig, source, prepared, frames, outcome.targets,
-                                                    outcome.effectors))
+                                                    outcome.effectors, mapped))
         if i == 0:
+            keyed["constraints"] = keyed_channels(rig)
             errors["constraints"] = reach_errors(rig, hand_foot, frames, outcome.targets)
             turn = np.degrees(np.arccos(np.clip(np.sum(bone_directions(rig, mapped, frames) * ours_directions,
                                                        axis=-1), -1.0, 1.0)))
@@ -295,8 +322,9 @@ def measure(args):
     for i in range(args.repeat):
         rig = copy_target(target, f"ik_only{i}")
         times["ik_only"].append(run_ik_only(rig, prepared.target, prepared.plan.start_pose, frames,
-                                            outcome.targets, outcome.effectors))
+                                            outcome.targets, outcome.effectors, mapped))
         if i == 0:
+            keyed["ik_only"] = keyed_channels(rig)
             errors["ik_only"] = reach_errors(rig, hand_foot, frames, outcome.targets)
         remove_run(rig)
 
@@ -307,6 +335,9 @@ def measure(args):
         "clip": CLIP,
         "frames": int(args.frames),
         "target": f"Rigify basic human metarig, object scale {TARGET_SCALE}",
+        "reference_bake": "nla.bake of the mapped bones only (%d of %d), channel_types LOCATION+ROTATION"
+                          % (len(mapped), len(target.pose.bones)),
+        "keyed_after_run": keyed,
         "leg_ratio": outcome.leg_ratio,
         "source_read_from": outcome.read_from,
         "seconds": median,
