@@ -250,6 +250,8 @@ class _Problem(SubBasePlacement):
 
     def solve(self) -> AdjustBatchResult:
         result = self._solve_once()
+        # Fixed-width string arrays would cut a longer status or reason copied in from a re-solve short.
+        result.status, result.reasons = result.status.astype(object), result.reasons.astype(object)
         tol = self.settings.chain.tolerance
         for _ in range(self.settings.limit_passes):
             held = np.isin(result.status, ("limited", "max_iterations")) & (result.residuals > tol)
@@ -281,6 +283,7 @@ class _Problem(SubBasePlacement):
                       "sc_displacement", "root_displacement"):
                 getattr(result, f)[take] = getattr(again, f)[better]
         result.iterations = self.iterations.copy()
+        result.status, result.reasons = result.status.astype(str), result.reasons.astype(str)
         return result
 
     def _solve_once(self) -> AdjustBatchResult:

@@ -41,6 +41,9 @@ def _circle_point(point, c1, r1, c2, r2):
     h = np.sqrt(np.maximum(h2, 0.0))
     m = c1 + a[:, None] * u
     w = point - m
+    # Twice: for a point near the axis, the in-plane part left by one pass is so small that that pass's rounding
+    # tilts it out of the plane (2e-12 off the axis tilted it 1e-4 rad, off the sphere by 2e-5).
+    w = w - dot(w, u)[:, None] * u
     w = w - dot(w, u)[:, None] * u
     wn = norm(w)
     # On the axis every circle point is equally near: take a deterministic one.

@@ -65,3 +65,11 @@ def test_no_frames_give_no_rows(k):
     assert nearest_on_sphere_in_balls(p, p, np.zeros(0), c, r, a)[0].shape == (0, 3)
     for variant in ("weighted", "priority", "fabrik"):
         assert sub_base_point(p, c, r, a, np.ones(k), variant)[0].shape == (0, 3)
+
+
+def test_a_point_next_to_the_spheres_centre():
+    """Every point of the sphere is about equally near a point 2e-12 off its centre: the answer is one of them,
+    on the sphere and in the balls, not a point tilted off the sphere by rounding (hypothesis found this)."""
+    centres = np.array([[0.625, 0.625, 0.625], [0.625, 0.625, 0.625], [0.625, 0.625, 0.625]])
+    _check_against_samples(np.zeros(3), np.array([2.05703663e-12, 0.0, 0.0]), 1.0, centres,
+                           np.array([1.5, 1.5, 1.5]), np.array([True, True, True]))
