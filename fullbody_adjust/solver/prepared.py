@@ -1,0 +1,123 @@
+"""Work of a solve that depends only on the start pose, done once per start pose and reused while it is the same.
+
+Live Adjust solves every update from one start pose while only the targets move; a frame range solves its
+start poses once. What does not depend on the targets is kept here, keyed on the start pose's bytes (heads,
+tails, bone X axes) and the settings it depends on, so an entry can never be stale: any change of the pose
+is a different key.
+
+  - the default human limits of every limb (body.default_limits);
+  - the model's hierarchy levels (the order the top-down pass visits the bones in);
+  - per limb, whether its start chain keeps its default limits (the check a chain solve runs before it
+    returns a start pose that already meets its target untouched).
+
+The cache holds the last few start poses only (a bounded, least recently used dict).
+"""
+
+from collections import OrderedDict
+
+import numpy as np
+
+from .body import CHAIN, END, FIXED, ROOT, default_limits
+from .chain_model import ChainModel
+
+_CAPACITY = 4
+_cache = OrderedDict()
+
+
+class PreparedStart:
+    """The target-independent part of a solve of `model` from start poses heads, tails (F,J,3)."""
+
+    def __init__(self, model, heads, tails, settings, bone_x_axes):
+        self.model = model
+        self.levels = levels_of(model)
+        # Copies: the caller may change its arrays in place after the solve.
+        self._heads, self._tails = heads.copy(), tails.copy()
+        self._x_axes = None if bone_x_axes is None else bone_x_axes.copy()
+        self._settings = settings
+        self._limits = None
+        self._start_ok = {}
+
+    @property
+    def limits(self):
+        """{limb name: LimbLimits}: the default human limits (none when the settings turn limits off)."""
+        if self._limits is None:
+            s = self._settings
+            self._limits = default_limits(self.model, self._heads, self._tails, s.human_limits, self._x_axes) \
+                if s.use_limits else {}
+        return self._limits
+
+    def start_keeps_limits(self, name, chain_settings):
+        """(F,) bool: limb `name`'s start chain keeps its default limits on each frame, as the chain solve
+        checks it for a start already at its target whose parent did not move (no obstacles)."""
+        ok = self._start_ok.get(name)
+        if ok is None:
+            ll = self.limits.get(name)
+            if ll is None or not ll.limits.any_active:
+                ok = np.ones(self._heads.shape[0], dtype=bool)
+            else:
+                c0 = self.model.limbs[name].joints(self._heads, self._tails)
+                reference = np.diff(c0, axis=1)
+                reference = np.concatenate([reference[:, :1], reference[:, :-1]], axis=1)
+                lim = ll.limits
+                axes = np.broadcast_to(lim.hinge_axis, (c0.shape[0],) + lim.hinge_axis.shape[-2:]).copy()
+                chain = ChainModel(c0, c0[:, -1].copy(), chain_settings,
+                                   lim.derived(hinge_axis=axes, hinge_reference=reference), None,
+                                   ll.parent_direction)
+                ok = ~chain.violations(c0, np.arange(c0.shape[0]))
+            self._start_ok[name] = ok
+        return ok
+
+
+def prepare(model, heads, tails, settings, bone_x_axes=None) -> PreparedStart:
+    """The PreparedStart of these start poses, from the cache when the same poses were prepared lately.
+    heads, tails (F,J,3) float64; bone_x_axes None, (J,3) or (F,J,3)."""
+    x = None if bone_x_axes is None else np.asarray(bone_x_axes, dtype=np.float64)
+    key = (id(model), heads.shape, heads.tobytes(), tails.tobytes(),
+           None if x is None else (x.shape, x.tobytes()), settings.use_limits, settings.human_limits)
+    entry = _cache.get(key)
+    if entry is not None and entry.model is model:
+        _cache.move_to_end(key)
+        return entry
+    entry = PreparedStart(model, heads, tails, settings, x)
+    _cache[key] = entry
+    while len(_cache) > _CAPACITY:
+        _cache.popitem(last=False)
+    return entry
+
+
+def levels_of(model):
+    """The model's levels (_levels), computed once per model."""
+    cached = _levels_cache.get(id(model))
+    if cached is not None and cached[0] is model:
+        return cached[1]
+    levels = _levels(model)
+    _levels_cache[id(model)] = (model, levels)
+    while len(_levels_cache) > _CAPACITY:
+        _levels_cache.pop(next(iter(_levels_cache)))
+    return levels
+
+
+_levels_cache = {}
+
+
+def _levels(model):
+    """The bones that move (not FIXED) by depth in the hierarchy, parents' levels first: per level the rigidly
+    carried bones (k,) and their parents (k,) (every bone with a parent: chain bones are carried first, then
+    placed), and the root, chain and end bones as (bone, parent, role, limb name, index in the limb)."""
+    parents, roles = model.parents.tolist(), model.roles.tolist()
+    depth = {}
+    levels = []
+    for j in model.order.tolist():
+        p = parents[j]
+        d = depth[j] = depth[p] + 1 if p >= 0 else 0
+        if roles[j] == FIXED:
+            continue
+        while len(levels) <= d:
+            levels.append(([], [], []))
+        rigid, par, limb_bones = levels[d]
+        if roles[j] != ROOT and p >= 0:
+            rigid.append(j)
+            par.append(p)
+        if roles[j] in (ROOT, CHAIN, END):
+            limb_bones.append((j, p, roles[j], model.role_limb[j], int(model.role_index[j])))
+    return [(np.array(r, dtype=np.int64), np.array(p, dtype=np.int64), b) for r, p, b in levels if r or b]
