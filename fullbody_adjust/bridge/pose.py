@@ -145,7 +145,7 @@ def swing_world_matrices(snapshot, bones, old_dirs, new_dirs, new_heads):
     old_dirs, new_dirs, new_heads = (_array(a, shape, name) for a, name in
                                      ((old_dirs, "old_dirs"), (new_dirs, "new_dirs"), (new_heads, "new_heads")))
     world = snapshot.matrix_world[..., None, :, :]
-    to_armature = np.linalg.inv(snapshot.matrix_world)[..., None, :, :]
+    to_armature = affine_inverse(snapshot.matrix_world)[..., None, :, :]
     linear_inv = to_armature[..., :3, :3]
     swing = swing_rotation(_apply(linear_inv, old_dirs), _apply(linear_inv, new_dirs))
     old = snapshot.pose_matrices[..., idx, :, :]
@@ -377,7 +377,7 @@ def _reachable_armature_matrices(snapshot, new_world, idx):
     """new_world mapped to armature space and reduced to what a rigid bone can do: its Y axis (the bone's
     direction) exactly, X/Z re-orthogonalised around it (Z's roll kept), each axis with the length of the
     bone's current pose matrix axis (its scale unchanged). A no-op (to rounding) for reachable input."""
-    armature = np.linalg.inv(snapshot.matrix_world)[:, None] @ new_world
+    armature = affine_inverse(snapshot.matrix_world)[:, None] @ new_world
     linear = armature[..., :3, :3]
     y = linear[..., :, 1]
     z = linear[..., :, 2]
