@@ -135,22 +135,9 @@ class _Problem(SubBasePlacement):
                 obstacles = None
         self.obstacles = obstacles
 
-        # Limb chains at the start poses, their targets and reach.
-        self.chain0 = {}
-        self.reach = {}
-        for name, limb in model.limbs.items():
-            joints = limb.joints(self.H0, self.T0)
-            lengths = norm(joints[:, 1:] - joints[:, :-1])
-            short = lengths <= 1e-12
-            if np.any(short):
-                i = int(np.nonzero(short.any(axis=0))[0][0])
-                what = model.names[limb.bones[i]]
-                raise SolverInputError(f"{name}: chain segment {i} (from bone {what!r}) has zero length")
-            self.chain0[name] = joints
-            total = lengths[:, 0].copy()
-            for i in range(1, lengths.shape[1]):
-                total = total + lengths[:, i]
-            self.reach[name] = total
+        # Limb chains at the start poses and their reach (read-only, kept with the prepared start pose).
+        self.prepared = prepare(model, self.H0, self.T0, settings, bone_x_axes)
+        self.chain0, self.reach = self.prepared.chains()
         # Reach used for the sub-base decisions; cut where joint limits held a limb short (limit_passes).
         self.reach_eff = {n: r.copy() for n, r in self.reach.items()}
         self.limb_target = {}
@@ -166,7 +153,6 @@ class _Problem(SubBasePlacement):
             self.limb_active[name] = self.active_e[:, k].copy()
             self.limb_priority[name] = float(pr[k])
 
-        self.prepared = prepare(model, self.H0, self.T0, settings, bone_x_axes)
         self.default_limits = limits is None
         if limits is None:
             limits = self.prepared.limits

@@ -5,6 +5,7 @@ start poses once. What does not depend on the targets is kept here, keyed on the
 tails, bone X axes) and the settings it depends on, so an entry can never be stale: any change of the pose
 is a different key.
 
+  - the limbs' start chains and their reach;
   - the default human limits of every limb (body.default_limits);
   - the model's hierarchy levels (the order the top-down pass visits the bones in);
   - per limb, whether its start chain keeps its default limits (the check a chain solve runs before it
@@ -19,6 +20,8 @@ import numpy as np
 
 from .body import CHAIN, END, FIXED, ROOT, default_limits
 from .chain_model import ChainModel
+from .errors import SolverInputError
+from .geometry import norm
 
 _CAPACITY = 4
 _cache = OrderedDict()
@@ -35,7 +38,28 @@ class PreparedStart:
         self._x_axes = None if bone_x_axes is None else bone_x_axes.copy()
         self._settings = settings
         self._limits = None
+        self._chains = None
         self._start_ok = {}
+
+    def chains(self):
+        """({limb: start chain (F,n,3)}, {limb: reach (F,)}), read-only; the reach is the sum of the segment
+        lengths from the base out. SolverInputError for a zero-length segment."""
+        if self._chains is None:
+            chain0, reach = {}, {}
+            for name, limb in self.model.limbs.items():
+                joints = limb.joints(self._heads, self._tails)
+                lengths = norm(joints[:, 1:] - joints[:, :-1])
+                short = lengths <= 1e-12
+                if np.any(short):
+                    i = int(np.nonzero(short.any(axis=0))[0][0])
+                    what = self.model.names[limb.bones[i]]
+                    raise SolverInputError(f"{name}: chain segment {i} (from bone {what!r}) has zero length")
+                total = lengths[:, 0].copy()
+                for i in range(1, lengths.shape[1]):
+                    total = total + lengths[:, i]
+                chain0[name], reach[name] = _read_only(joints), _read_only(total)
+            self._chains = chain0, reach
+        return dict(self._chains[0]), dict(self._chains[1])  # the caller may add to its dicts
 
     @property
     def limits(self):
@@ -55,12 +79,12 @@ class PreparedStart:
             if ll is None or not ll.limits.any_active:
                 ok = np.ones(self._heads.shape[0], dtype=bool)
             else:
-                c0 = self.model.limbs[name].joints(self._heads, self._tails)
+                c0 = self.chains()[0][name]
                 reference = np.diff(c0, axis=1)
                 reference = np.concatenate([reference[:, :1], reference[:, :-1]], axis=1)
                 lim = ll.limits
                 axes = np.broadcast_to(lim.hinge_axis, (c0.shape[0],) + lim.hinge_axis.shape[-2:]).copy()
-                chain = ChainModel(c0, c0[:, -1].copy(), chain_settings,
+                chain = ChainModel(c0.copy(), c0[:, -1].copy(), chain_settings,
                                    lim.derived(hinge_axis=axes, hinge_reference=reference), None,
                                    ll.parent_direction)
                 ok = ~chain.violations(c0, np.arange(c0.shape[0]))
@@ -83,6 +107,11 @@ def prepare(model, heads, tails, settings, bone_x_axes=None) -> PreparedStart:
     while len(_cache) > _CAPACITY:
         _cache.popitem(last=False)
     return entry
+
+
+def _read_only(a):
+    a.flags.writeable = False
+    return a
 
 
 def levels_of(model):
