@@ -377,12 +377,13 @@ class _Problem(SubBasePlacement):
         reason = np.full(F, "", dtype=object)
         joints = carried
         rows = np.nonzero(solved)[0]
-        untouched = rows[self._untouched_start(name, rows, parent_moved)]
-        if untouched.size:
-            solved[untouched] = False
-            for f in untouched.tolist():
+        untouched = self._untouched_start(name, rows, parent_moved)
+        if untouched.any():
+            # The chain solve's status of a start at its target within reach: reached in 0 iterations.
+            for f in rows[untouched].tolist():
                 status[f], reason[f] = _final_status(True, True, 0.0, 1.0, 0.0, False, 0, False, False)
-            rows = np.setdiff1d(rows, untouched, assume_unique=True)
+            solved[rows[untouched]] = False
+            rows = rows[~untouched]
         if rows.size:
             res = self._solve(name, rows, carried[rows], self.limb_target[name][rows], carry=r[rows])
             joints = carried.copy()
