@@ -109,6 +109,11 @@ def prepare(model, heads, tails, settings, bone_x_axes=None) -> PreparedStart:
     return entry
 
 
+def clear():
+    """Forget every prepared start pose (timings of a first solve; tests)."""
+    _cache.clear()
+
+
 def _read_only(a):
     a.flags.writeable = False
     return a

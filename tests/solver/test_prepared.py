@@ -91,7 +91,7 @@ def test_a_start_pose_changed_in_place_is_a_new_start(rig):
     first = _solve(rig, targets, heads=heads)
     heads[model.limbs["arm.L"].bones[-1]] += np.array([0.0, -0.02, 0.0])  # the left elbow moved in place
     moved = _solve(rig, targets, heads=heads)
-    prepared._cache.clear()
+    prepared.clear()
     _assert_same(moved, _solve(rig, targets, heads=heads.copy()))
     assert not np.array_equal(moved.heads, first.heads)
     heads[:] = h  # back to the first start: the same answer as the first time
@@ -114,7 +114,7 @@ def test_frames_sharing_a_start_pose_equal_their_solves_alone(rig):
     batch = adjust_frames(model, heads, tails, targets, metarig.EFFECTORS, metarig.PRIORITIES,
                           bone_x_axes=np.repeat(x[None], n, 0))
     for f in range(n):
-        prepared._cache.clear()
+        prepared.clear()
         one = adjust_pose(model, heads[f], tails[f], targets[f], metarig.EFFECTORS, metarig.PRIORITIES,
                           bone_x_axes=x)
         np.testing.assert_allclose(one.heads, batch.heads[f], atol=1e-9, rtol=0)
