@@ -22,7 +22,8 @@ Everything is vectorised over frames; a frame's result depends only on its own d
 converged problems and every other step is row-wise), so adjust_pose equals a row of adjust_frames.
 
 Modules: adjust_types.py (settings, results), reach_balls.py (sub-base geometry), sub_bases.py (step 1),
-two_bone_start.py (a hinged limb's warm start), limb_rotations.py (bone rotations).
+two_bone_start.py (a hinged limb's warm start), limb_rotations.py (bone rotations), prepared.py (the work that
+depends only on the start pose, kept while it is the same: Live's updates share it).
 """
 
 from __future__ import annotations

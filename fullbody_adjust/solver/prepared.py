@@ -11,7 +11,8 @@ is a different key.
   - per limb, whether its start chain keeps its default limits (the check a chain solve runs before it
     returns a start pose that already meets its target untouched).
 
-The cache holds the last few start poses only (a bounded, least recently used dict).
+The cache holds the last few start poses of up to _MAX_CACHED_FRAMES frames (a bounded, least recently used
+dict); a longer frame range is prepared for its one solve only.
 """
 
 from collections import OrderedDict
@@ -24,6 +25,7 @@ from .errors import SolverInputError
 from .geometry import norm
 
 _CAPACITY = 4
+_MAX_CACHED_FRAMES = 16
 _cache = OrderedDict()
 
 
@@ -103,6 +105,8 @@ def prepare(model, heads, tails, settings, bone_x_axes=None) -> PreparedStart:
         _cache.move_to_end(key)
         return entry
     entry = PreparedStart(model, heads, tails, settings, x)
+    if heads.shape[0] > _MAX_CACHED_FRAMES:
+        return entry  # a long frame range is solved once: remembering it would only hold its memory
     _cache[key] = entry
     while len(_cache) > _CAPACITY:
         _cache.popitem(last=False)
