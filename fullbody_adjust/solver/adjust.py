@@ -38,7 +38,7 @@ from .errors import SolverInputError
 from .geometry import apply_matrix, norm
 from .limb_rotations import _EYE, LimbSolve, chest_rotation
 from .limits import FREE, HINGE, carry_axis
-from .obstacles import Boxes
+from .obstacles import Boxes, points_inside, segments_cross
 from .prepared import prepare
 from .reach_balls import nearest_in_balls, project_onto_balls, sub_base_point
 from .sub_bases import SubBasePlacement
@@ -398,14 +398,20 @@ class _Problem(SubBasePlacement):
 
     def _untouched_start(self, name, rows, parent_moved):
         """(b,) bool over frames `rows`: the chain solve would return limb `name`'s start chain untouched (0
-        iterations: no obstacles, parent not moved, the target within reach and met at the start, the start
-        within the limb's limits), known from the prepared start pose without building a chain solve."""
+        iterations, status reached: parent not moved, the target within reach and met at the start, the start
+        within the limb's limits and, with obstacles, every joint and segment and the target outside every
+        box), known from the prepared start pose without building a chain solve."""
         keep = ~parent_moved[rows]
-        if self.obstacles is not None or not keep.any():
-            return np.zeros(rows.size, dtype=bool)
+        if not keep.any():
+            return keep
         c0, target = self.chain0[name][rows], self.limb_target[name][rows]
         keep &= (norm(c0[:, -1] - target) <= self.settings.chain.tolerance) \
             & ~(norm(target - c0[:, 0]) > self.reach[name][rows])
+        if keep.any() and self.obstacles is not None:
+            # Clear of every box, the chain solve finds nothing to respond to and nothing to note.
+            boxes = self.obstacles.select(rows)
+            keep &= ~points_inside(c0, boxes).any(axis=(1, 2)) & ~points_inside(target, boxes).any(axis=1) \
+                & ~segments_cross(c0[:, :-1], c0[:, 1:], boxes).any(axis=(1, 2))
         ll = self.limits.get(name)
         if keep.any() and ll is not None and ll.limits.any_active:
             if not self.default_limits:  # the caller's limits: only a chain solve checks them
