@@ -2,7 +2,10 @@
 
 Cases (tests/helpers/metarig.py): 'near' (both hands within their arms' reach), 'far' (the left hand's target
 beyond any reach), 'obstacle' (a box where the left forearm would go). For each case, in the same run:
-  - single_pose_us: median µs of solver.adjust.adjust_pose (one pose, what Adjust Pose and Live call);
+  - single_pose_us: median µs of solver.adjust.adjust_pose (one pose, what Adjust Pose and Live call) from a
+    start pose prepared before (solver/prepared.py: what every Live update after the first one costs);
+  - single_pose_cold_us: the same with the prepared start poses forgotten before each call (an Adjust Pose
+    click from a pose not solved from before), and ratio_prepared_to_cold = single_pose_us / that;
   - batch_one_frame_us: median µs of solver.adjust.adjust_frames with F = 1 (the batch path);
   - ratio_single_to_batch: single_pose_us / batch_one_frame_us;
   - batch_per_frame_us: µs per frame of adjust_frames over --frames frames of the case (targets jittered),
@@ -25,6 +28,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from fullbody_adjust.solver import prepared  # noqa: E402
 from fullbody_adjust.solver.adjust import adjust_frames, adjust_pose  # noqa: E402
 from tests.helpers import metarig  # noqa: E402
 
@@ -68,6 +72,10 @@ def main():
             return adjust_pose(model, heads, tails, t, metarig.EFFECTORS, metarig.PRIORITIES,
                                bone_x_axes=x_axes, **kwargs)
 
+        def cold():
+            prepared.clear()
+            return single()
+
         def batch_one():
             return adjust_frames(model, heads[None], tails[None], targets[None], metarig.EFFECTORS,
                                  metarig.PRIORITIES, bone_x_axes=x_axes[None], **kwargs)
@@ -82,7 +90,7 @@ def main():
                                  metarig.EFFECTORS, metarig.PRIORITIES, bone_x_axes=np.repeat(x_axes[None], n, 0),
                                  **kwargs)
 
-        single_us, batch1_us = median_us(args.repeats, single, batch_one)
+        single_us, batch1_us, cold_us = median_us(args.repeats, single, batch_one, cold)
         many_us = median_us(max(3, args.repeats // 10), batch_many)[0] / n
         many = batch_many()
         diff = max_difference(single(), batch_one()[0])
@@ -91,6 +99,8 @@ def main():
         result = single()
         out["cases"][kind] = {
             "single_pose_us": round(single_us, 1),
+            "single_pose_cold_us": round(cold_us, 1),
+            "ratio_prepared_to_cold": round(single_us / cold_us, 3),
             "batch_one_frame_us": round(batch1_us, 1),
             "ratio_single_to_batch": round(single_us / batch1_us, 3),
             "batch_per_frame_us": round(many_us, 1),

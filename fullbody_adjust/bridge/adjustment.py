@@ -264,7 +264,7 @@ def _control_channels(context, obj, frames, snapshot, result, bone_map, keep_han
         position = {name: k for k, name in enumerate(names)}
         for end, limb in (("hand.L", "arm.L"), ("hand.R", "arm.R"), ("foot.L", "leg.L"), ("foot.R", "leg.R")):
             k, p = position[bone_map.bones(end)[0]], position[bone_map.bones(limb)[-1]]
-            desired[:, k] = desired[:, p] @ np.linalg.inv(old[:, p]) @ old[:, k]
+            desired[:, k] = desired[:, p] @ pose.affine_inverse(old[:, p]) @ old[:, k]
     pairs = control_rig.control_pairs(obj, bone_map)
     if apply_pose:
         return control_channels(obj, context.view_layer, pairs, names, desired, tolerance, [0])

@@ -348,7 +348,7 @@ def _reachable_armature_matrices(snapshot, new_world, idx):
     """new_world mapped to armature space and reduced to what a rigid bone can do: its Y axis (the bone's
     direction) exactly, X/Z re-orthogonalised around it (Z's roll kept), each axis with the length of the
     bone's current pose matrix axis (its scale unchanged). A no-op (to rounding) for reachable input."""
-    armature = np.linalg.inv(snapshot.matrix_world)[:, None] @ new_world
+    armature = affine_inverse(snapshot.matrix_world)[:, None] @ new_world
     linear = armature[..., :3, :3]
     y = linear[..., :, 1]
     z = linear[..., :, 2]

@@ -22,7 +22,8 @@ Everything is vectorised over frames; a frame's result depends only on its own d
 converged problems and every other step is row-wise), so adjust_pose equals a row of adjust_frames.
 
 Modules: adjust_types.py (settings, results), reach_balls.py (sub-base geometry), sub_bases.py (step 1),
-two_bone_start.py (a hinged limb's warm start), limb_rotations.py (bone rotations).
+two_bone_start.py (a hinged limb's warm start), limb_rotations.py (bone rotations), prepared.py (the work that
+depends only on the start pose, kept while it is the same: Live's updates share it).
 """
 
 from __future__ import annotations
@@ -30,13 +31,15 @@ from __future__ import annotations
 import numpy as np
 
 from .adjust_types import UNCONSTRAINED, VARIANTS, AdjustBatchResult, AdjustResult, AdjustSettings
-from .body import CHAIN, END, FIXED, GROUPS, LIMB_OF_EFFECTOR, ROOT, BodyModel, LimbLimits, default_limits
+from .body import CHAIN, GROUPS, LIMB_OF_EFFECTOR, ROOT, BodyModel, LimbLimits
 from .chain import solve_chain_batch
+from .chain_types import _final_status
 from .errors import SolverInputError
 from .geometry import apply_matrix, norm
 from .limb_rotations import _EYE, LimbSolve, chest_rotation
 from .limits import FREE, HINGE, carry_axis
-from .obstacles import Boxes
+from .obstacles import Boxes, points_inside, segments_cross
+from .prepared import prepare
 from .reach_balls import nearest_in_balls, project_onto_balls, sub_base_point
 from .sub_bases import SubBasePlacement
 from .two_bone_start import two_bone_start
@@ -133,22 +136,9 @@ class _Problem(SubBasePlacement):
                 obstacles = None
         self.obstacles = obstacles
 
-        # Limb chains at the start poses, their targets and reach.
-        self.chain0 = {}
-        self.reach = {}
-        for name, limb in model.limbs.items():
-            joints = limb.joints(self.H0, self.T0)
-            lengths = norm(joints[:, 1:] - joints[:, :-1])
-            short = lengths <= 1e-12
-            if np.any(short):
-                i = int(np.nonzero(short.any(axis=0))[0][0])
-                what = model.names[limb.bones[i]]
-                raise SolverInputError(f"{name}: chain segment {i} (from bone {what!r}) has zero length")
-            self.chain0[name] = joints
-            total = lengths[:, 0].copy()
-            for i in range(1, lengths.shape[1]):
-                total = total + lengths[:, i]
-            self.reach[name] = total
+        # Limb chains at the start poses and their reach (read-only, kept with the prepared start pose).
+        self.prepared = prepare(model, self.H0, self.T0, settings, bone_x_axes)
+        self.chain0, self.reach = self.prepared.chains()
         # Reach used for the sub-base decisions; cut where joint limits held a limb short (limit_passes).
         self.reach_eff = {n: r.copy() for n, r in self.reach.items()}
         self.limb_target = {}
@@ -164,9 +154,9 @@ class _Problem(SubBasePlacement):
             self.limb_active[name] = self.active_e[:, k].copy()
             self.limb_priority[name] = float(pr[k])
 
+        self.default_limits = limits is None
         if limits is None:
-            limits = default_limits(model, self.H0, self.T0, settings.human_limits, bone_x_axes) \
-                if settings.use_limits else {}
+            limits = self.prepared.limits
         elif not isinstance(limits, dict) or any(not isinstance(v, LimbLimits) for v in limits.values()):
             raise SolverInputError("limits must be a dict of limb name -> LimbLimits")
         for name, ll in limits.items():
@@ -183,6 +173,7 @@ class _Problem(SubBasePlacement):
             if pd is None and ll.limits.kind[0] != FREE:
                 raise SolverInputError(f"limits for {name!r}: joint 0 is limited but has no parent_direction")
         self.limits = limits
+        self.start_frames = np.arange(F)  # each frame's row in self.prepared
         self.iterations = np.zeros(F, dtype=np.int64)
 
     # -- chain solves on a subset of frames --------------------------------------------------------------
@@ -239,6 +230,8 @@ class _Problem(SubBasePlacement):
         for name in self._PER_FRAME:
             setattr(sub, name, getattr(self, name)[rows])
         sub.iterations = np.zeros(len(rows), dtype=np.int64)
+        sub.start_frames = self.start_frames[rows]
+        sub.default_limits = False  # its limits are a restriction of the prepared ones
         for name in self._PER_FRAME_DICTS:
             setattr(sub, name, {k: v[rows] for k, v in getattr(self, name).items()})
         sub.limits = {k: LimbLimits(_take_limits(v.limits, rows),
@@ -337,7 +330,7 @@ class _Problem(SubBasePlacement):
         moved = np.zeros((F, J), dtype=bool)
         solves = {"trunk": trunk}
 
-        for rigid, par, limb_bones in _levels(model):
+        for rigid, par, limb_bones in self.prepared.levels:
             # Rigid children of their parents (overridden below for solved chain bones); where the parent did
             # not move, a bone stays as initialised (its parent's rotation is then the identity).
             if rigid.size:
@@ -388,6 +381,13 @@ class _Problem(SubBasePlacement):
         reason = np.full(F, "", dtype=object)
         joints = carried
         rows = np.nonzero(solved)[0]
+        untouched = self._untouched_start(name, rows, parent_moved)
+        if untouched.any():
+            # The chain solve's status of a start at its target within reach: reached in 0 iterations.
+            for f in rows[untouched].tolist():
+                status[f], reason[f] = _final_status(True, True, 0.0, 1.0, 0.0, False, 0, False, False)
+            solved[rows[untouched]] = False
+            rows = rows[~untouched]
         if rows.size:
             res = self._solve(name, rows, carried[rows], self.limb_target[name][rows], carry=r[rows])
             joints = carried.copy()
@@ -398,6 +398,29 @@ class _Problem(SubBasePlacement):
             kept = (res.iterations == 0) & ~parent_moved[rows] & np.all(res.positions == c0[rows], axis=(1, 2))
             solved[rows[kept]] = False
         return LimbSolve(joints, solved, status, reason)
+
+    def _untouched_start(self, name, rows, parent_moved):
+        """(b,) bool over frames `rows`: the chain solve would return limb `name`'s start chain untouched (0
+        iterations, status reached: parent not moved, the target within reach and met at the start, the start
+        within the limb's limits and, with obstacles, every joint and segment and the target outside every
+        box), known from the prepared start pose without building a chain solve."""
+        keep = ~parent_moved[rows]
+        if not keep.any():
+            return keep
+        c0, target = self.chain0[name][rows], self.limb_target[name][rows]
+        keep &= (norm(c0[:, -1] - target) <= self.settings.chain.tolerance) \
+            & ~(norm(target - c0[:, 0]) > self.reach[name][rows])
+        if keep.any() and self.obstacles is not None:
+            # Clear of every box, the chain solve finds nothing to respond to and nothing to note.
+            boxes = self.obstacles.select(rows)
+            keep &= ~points_inside(c0, boxes).any(axis=(1, 2)) & ~points_inside(target, boxes).any(axis=1) \
+                & ~segments_cross(c0[:, :-1], c0[:, 1:], boxes).any(axis=(1, 2))
+        ll = self.limits.get(name)
+        if keep.any() and ll is not None and ll.limits.any_active:
+            if not self.default_limits:  # the caller's limits: only a chain solve checks them
+                return np.zeros(rows.size, dtype=bool)
+            keep &= self.prepared.start_keeps_limits(name, self.settings.chain)[self.start_frames[rows]]
+        return keep
 
     def _result(self, heads, tails, rotations, solves) -> AdjustBatchResult:
         model, F = self.model, self.F
@@ -446,29 +469,6 @@ class _Problem(SubBasePlacement):
         return AdjustBatchResult(heads, tails, rotations, self.effectors, residuals, status.astype(str),
                                  reasons.astype(str), moved, GROUPS, self.iterations.copy(), sc_disp,
                                  root_disp)
-
-
-def _levels(model):
-    """The bones that move (not FIXED) by depth in the hierarchy, parents' levels first: per level the rigidly
-    carried bones (k,) and their parents (k,) (every bone with a parent: chain bones are carried first, then
-    placed), and the root, chain and end bones as (bone, parent, role, limb name, index in the limb)."""
-    parents, roles = model.parents.tolist(), model.roles.tolist()
-    depth = {}
-    levels = []
-    for j in model.order.tolist():
-        p = parents[j]
-        d = depth[j] = depth[p] + 1 if p >= 0 else 0
-        if roles[j] == FIXED:
-            continue
-        while len(levels) <= d:
-            levels.append(([], [], []))
-        rigid, par, limb_bones = levels[d]
-        if roles[j] != ROOT and p >= 0:
-            rigid.append(j)
-            par.append(p)
-        if roles[j] in (ROOT, CHAIN, END):
-            limb_bones.append((j, p, roles[j], model.role_limb[j], int(model.role_index[j])))
-    return [(np.array(r, dtype=np.int64), np.array(p, dtype=np.int64), b) for r, p, b in levels if r or b]
 
 
 def _take_limits(limits, rows):

@@ -100,6 +100,23 @@ def test_target_moved_back_brings_the_body_back(live):
         np.testing.assert_allclose(np.concatenate(back[bone][1:]), np.concatenate(shown[bone][1:]), atol=1e-6)
 
 
+def test_an_update_back_to_a_target_shows_the_pose_shown_there_before(live):
+    """Updates from one start pose share the work prepared from it: what an update shows depends on the
+    targets only, so a target moved away and back shows exactly the pose of its first visit."""
+    obj = live_rig()
+    obj.fullbody_adjust.live = True
+    target = slot(obj, "hand.L").target
+    there = move_hand_target(obj)
+    bpy.context.view_layer.update()
+    first = pose_channels(obj)
+    reach_left_hand(obj, Pose(obj), "trunk")
+    bpy.context.view_layer.update()
+    assert pose_channels(obj) != first
+    place(target, there)
+    bpy.context.view_layer.update()
+    assert pose_channels(obj) == first
+
+
 def test_frame_change_solves_the_animated_target(live):
     obj = live_rig()
     target = slot(obj, "hand.L").target

@@ -1,0 +1,165 @@
+"""Work of a solve that depends only on the start pose, done once per start pose and reused while it is the same.
+
+Live Adjust solves every update from one start pose while only the targets move; a frame range solves its
+start poses once. What does not depend on the targets is kept here, keyed on the start pose's bytes (heads,
+tails, bone X axes) and the settings it depends on, so an entry can never be stale: any change of the pose
+is a different key.
+
+  - the limbs' start chains and their reach;
+  - the default human limits of every limb (body.default_limits);
+  - the model's hierarchy levels (the order the top-down pass visits the bones in);
+  - per limb, whether its start chain keeps its default limits (the check a chain solve runs before it
+    returns a start pose that already meets its target untouched).
+
+The cache holds the last few start poses of up to _MAX_CACHED_FRAMES frames (a bounded, least recently used
+dict); a longer frame range is prepared for its one solve only.
+"""
+
+from collections import OrderedDict
+
+import numpy as np
+
+from .body import CHAIN, END, FIXED, ROOT, default_limits
+from .chain_model import ChainModel
+from .errors import SolverInputError
+from .geometry import apply_matrix, norm
+
+_CAPACITY = 4
+_MAX_CACHED_FRAMES = 16
+_cache = OrderedDict()
+
+
+class PreparedStart:
+    """The target-independent part of a solve of `model` from start poses heads, tails (F,J,3)."""
+
+    def __init__(self, model, heads, tails, settings, bone_x_axes):
+        self.model = model
+        self.levels = levels_of(model)
+        # Copies: the caller may change its arrays in place after the solve.
+        self._heads, self._tails = heads.copy(), tails.copy()
+        self._x_axes = None if bone_x_axes is None else bone_x_axes.copy()
+        self._settings = settings
+        self._limits = None
+        self._chains = None
+        self._start_ok = {}
+
+    def chains(self):
+        """({limb: start chain (F,n,3)}, {limb: reach (F,)}), read-only; the reach is the sum of the segment
+        lengths from the base out. SolverInputError for a zero-length segment."""
+        if self._chains is None:
+            chain0, reach = {}, {}
+            for name, limb in self.model.limbs.items():
+                joints = limb.joints(self._heads, self._tails)
+                lengths = norm(joints[:, 1:] - joints[:, :-1])
+                short = lengths <= 1e-12
+                if np.any(short):
+                    i = int(np.nonzero(short.any(axis=0))[0][0])
+                    what = self.model.names[limb.bones[i]]
+                    raise SolverInputError(f"{name}: chain segment {i} (from bone {what!r}) has zero length")
+                total = lengths[:, 0].copy()
+                for i in range(1, lengths.shape[1]):
+                    total = total + lengths[:, i]
+                chain0[name], reach[name] = _read_only(joints), _read_only(total)
+            self._chains = chain0, reach
+        return dict(self._chains[0]), dict(self._chains[1])  # the caller may add to its dicts
+
+    @property
+    def limits(self):
+        """{limb name: LimbLimits}: the default human limits (none when the settings turn limits off)."""
+        if self._limits is None:
+            s = self._settings
+            self._limits = default_limits(self.model, self._heads, self._tails, s.human_limits, self._x_axes) \
+                if s.use_limits else {}
+        return self._limits
+
+    def start_keeps_limits(self, name, chain_settings):
+        """(F,) bool: limb `name`'s start chain keeps its default limits on each frame, as the chain solve
+        checks it for a start already at its target whose parent did not move (no obstacles)."""
+        ok = self._start_ok.get(name)
+        if ok is None:
+            ll = self.limits.get(name)
+            if ll is None or not ll.limits.any_active:
+                ok = np.ones(self._heads.shape[0], dtype=bool)
+            else:
+                c0 = self.chains()[0][name]
+                reference = np.diff(c0, axis=1)
+                reference = np.concatenate([reference[:, :1], reference[:, :-1]], axis=1)
+                lim = ll.limits
+                axes = np.broadcast_to(lim.hinge_axis, (c0.shape[0],) + lim.hinge_axis.shape[-2:]).copy()
+                # Carried by an unmoved parent's rotation (the identity) as the solve carries them, so even the
+                # sign of a zero is the same.
+                still = np.broadcast_to(np.eye(3), (c0.shape[0], 3, 3))
+                axes[:, 0] = apply_matrix(still, axes[:, 0])
+                pdir = None if ll.parent_direction is None else apply_matrix(still, ll.parent_direction)
+                chain = ChainModel(c0.copy(), c0[:, -1].copy(), chain_settings,
+                                   lim.derived(hinge_axis=axes, hinge_reference=reference), None, pdir)
+                ok = ~chain.violations(c0, np.arange(c0.shape[0]))
+            self._start_ok[name] = ok
+        return ok
+
+
+def prepare(model, heads, tails, settings, bone_x_axes=None) -> PreparedStart:
+    """The PreparedStart of these start poses, from the cache when the same poses were prepared lately.
+    heads, tails (F,J,3) float64; bone_x_axes None, (J,3) or (F,J,3)."""
+    x = None if bone_x_axes is None else np.asarray(bone_x_axes, dtype=np.float64)
+    key = (id(model), heads.shape, heads.tobytes(), tails.tobytes(),
+           None if x is None else (x.shape, x.tobytes()), settings.use_limits, settings.human_limits)
+    entry = _cache.get(key)
+    if entry is not None and entry.model is model:
+        _cache.move_to_end(key)
+        return entry
+    entry = PreparedStart(model, heads, tails, settings, x)
+    if heads.shape[0] > _MAX_CACHED_FRAMES:
+        return entry  # a long frame range is solved once: remembering it would only hold its memory
+    _cache[key] = entry
+    while len(_cache) > _CAPACITY:
+        _cache.popitem(last=False)
+    return entry
+
+
+def clear():
+    """Forget every prepared start pose (timings of a first solve; tests)."""
+    _cache.clear()
+
+
+def _read_only(a):
+    a.flags.writeable = False
+    return a
+
+
+def levels_of(model):
+    """The model's levels (_levels), computed once per model."""
+    cached = _levels_cache.get(id(model))
+    if cached is not None and cached[0] is model:
+        return cached[1]
+    levels = _levels(model)
+    _levels_cache[id(model)] = (model, levels)
+    while len(_levels_cache) > _CAPACITY:
+        _levels_cache.pop(next(iter(_levels_cache)))
+    return levels
+
+
+_levels_cache = {}
+
+
+def _levels(model):
+    """The bones that move (not FIXED) by depth in the hierarchy, parents' levels first: per level the rigidly
+    carried bones (k,) and their parents (k,) (every bone with a parent: chain bones are carried first, then
+    placed), and the root, chain and end bones as (bone, parent, role, limb name, index in the limb)."""
+    parents, roles = model.parents.tolist(), model.roles.tolist()
+    depth = {}
+    levels = []
+    for j in model.order.tolist():
+        p = parents[j]
+        d = depth[j] = depth[p] + 1 if p >= 0 else 0
+        if roles[j] == FIXED:
+            continue
+        while len(levels) <= d:
+            levels.append(([], [], []))
+        rigid, par, limb_bones = levels[d]
+        if roles[j] != ROOT and p >= 0:
+            rigid.append(j)
+            par.append(p)
+        if roles[j] in (ROOT, CHAIN, END):
+            limb_bones.append((j, p, roles[j], model.role_limb[j], int(model.role_index[j])))
+    return [(np.array(r, dtype=np.int64), np.array(p, dtype=np.int64), b) for r, p, b in levels if r or b]

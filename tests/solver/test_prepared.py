@@ -1,0 +1,122 @@
+"""The prepared start pose (solver/prepared.py): the target-independent work kept per start pose changes no
+result, is never stale, and its limit check of the start chains agrees with the chain solver's own.
+
+Expectations come from solves that bypass the cache (an emptied cache, or the same limits given explicitly,
+which makes every limb run its chain solve)."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from fullbody_adjust.solver import prepared
+from fullbody_adjust.solver.adjust import AdjustSettings, adjust_frames, adjust_pose
+from fullbody_adjust.solver.body import HumanLimits, default_limits
+from fullbody_adjust.solver.chain import solve_chain_batch
+from tests.helpers import metarig
+
+FIELDS = ("heads", "tails", "rotations", "residuals", "status", "reasons", "iterations")
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return metarig.load()
+
+
+def _assert_same(a, b):
+    for field in FIELDS:
+        np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=field)
+
+
+def _solve(rig, targets, boxes=None, heads=None, **kwargs):
+    model, h, t, x = rig
+    return adjust_pose(model, h if heads is None else heads, t, targets, metarig.EFFECTORS, metarig.PRIORITIES,
+                       obstacles=boxes, bone_x_axes=x, **kwargs)
+
+
+# Tight cones on the trunk, shoulders and hips: the start pose itself breaks them, so a limb at its target must still
+# be solved (the start may not be returned unchecked).
+TIGHT = HumanLimits(spine=0.02, lumbar=0.02, clavicle=0.02, shoulder=0.05, hip=0.05)
+
+
+@settings(deadline=None, max_examples=10)
+@given(kind=st.sampled_from(metarig.CASES), hand_offsets=arrays(np.float64, (2, 3), elements=st.floats(-0.3, 0.3)),
+       keep_left=st.booleans(), tight=st.booleans())
+def test_default_limits_from_the_prepared_start_equal_the_same_limits_given(rig, kind, hand_offsets, keep_left,
+                                                                          tight):
+    """Given explicitly, limits bypass every shortcut of the prepared start (each limb runs its chain solve);
+    the result must be bit-identical. Planted feet (and a hand left where it is) are the limbs the shortcut
+    leaves untouched."""
+    model, h, t, x = rig
+    targets, boxes = metarig.case(model, h, t, kind)
+    start = metarig.wrists_and_ankles(model, h)
+    targets[:2] = start[:2] + hand_offsets
+    if keep_left:
+        targets[0] = start[0]
+    adjust = replace(AdjustSettings(), human_limits=TIGHT) if tight else AdjustSettings()
+    given_limits = default_limits(model, h[None], t[None], adjust.human_limits, x[None])
+    _assert_same(_solve(rig, targets, boxes, settings=adjust),
+                 _solve(rig, targets, boxes, settings=adjust, limits=given_limits))
+
+
+def test_the_start_chains_limit_check_is_the_chain_solvers(rig):
+    """start_keeps_limits is True exactly where the chain solver returns the start, aimed at its own end,
+    untouched (0 iterations)."""
+    model, h, t, x = rig
+    seen = set()
+    for human in (HumanLimits(), TIGHT):
+        adjust = replace(AdjustSettings(), human_limits=human)
+        prep = prepared.prepare(model, h[None], t[None], adjust, x[None])
+        limits = default_limits(model, h[None], t[None], human, x[None])
+        for name, limb in model.limbs.items():
+            c0 = limb.joints(h[None], t[None])
+            ll = limits[name]
+            reference = np.diff(c0, axis=1)
+            reference = np.concatenate([reference[:, :1], reference[:, :-1]], axis=1)
+            res = solve_chain_batch(c0, c0[:, -1], settings=adjust.chain, parent_directions=ll.parent_direction,
+                                    limits=ll.limits.derived(hinge_reference=reference))
+            keeps = bool(prep.start_keeps_limits(name, adjust.chain)[0])
+            assert keeps == (res.iterations[0] == 0), name
+            seen.add(keeps)
+    assert seen == {True, False}  # both answers occur
+
+
+def test_a_start_pose_changed_in_place_is_a_new_start(rig):
+    model, h, t, x = rig
+    targets, _ = metarig.case(model, h, t, "near")
+    heads = h.copy()
+    first = _solve(rig, targets, heads=heads)
+    heads[model.limbs["arm.L"].bones[-1]] += np.array([0.0, -0.02, 0.0])  # the left elbow moved in place
+    moved = _solve(rig, targets, heads=heads)
+    prepared.clear()
+    _assert_same(moved, _solve(rig, targets, heads=heads.copy()))
+    assert not np.array_equal(moved.heads, first.heads)
+    heads[:] = h  # back to the first start: the same answer as the first time
+    _assert_same(first, _solve(rig, targets, heads=heads))
+
+
+def test_frames_sharing_a_start_pose_equal_their_solves_alone(rig):
+    """A frame range whose start poses are prepared once; each frame equals a solve of that frame alone after
+    the cache was emptied."""
+    model, h, t, x = rig
+    base, boxes = metarig.case(model, h, t, "near")
+    rng = np.random.default_rng(5)
+    n = 4
+    targets = np.repeat(base[None], n, 0)
+    targets[1:, :2] += rng.normal(scale=0.1, size=(n - 1, 2, 3))  # frame 0: the hands' targets as they are
+    heads = np.repeat(h[None], n, 0)
+    heads[2] += 0.01  # one frame's whole pose shifted: a different start
+    tails = np.repeat(t[None], n, 0)
+    tails[2] += 0.01
+    batch = adjust_frames(model, heads, tails, targets, metarig.EFFECTORS, metarig.PRIORITIES,
+                          bone_x_axes=np.repeat(x[None], n, 0))
+    for f in range(n):
+        prepared.clear()
+        one = adjust_pose(model, heads[f], tails[f], targets[f], metarig.EFFECTORS, metarig.PRIORITIES,
+                          bone_x_axes=x)
+        np.testing.assert_allclose(one.heads, batch.heads[f], atol=1e-9, rtol=0)
+        np.testing.assert_allclose(one.rotations, batch.rotations[f], atol=1e-9, rtol=0)
+        assert list(one.status) == list(batch.status[f])
