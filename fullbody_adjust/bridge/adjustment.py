@@ -2,8 +2,8 @@
 → keyframes. Operators and the command line call only ``adjust_pose`` and ``adjust_frames`` here.
 
 The solve runs in the armature's own space (its object transform undone): bone lengths are rigid there
-even under non-uniform object scale, targets map into it exactly, and world obstacle boxes are enclosed
-in armature-space boxes (the same boxes when the armature is not rotated).
+even under non-uniform object scale, targets map into it exactly, and each obstacle is its mesh's bounding
+box with the mesh's rotation (an oriented box) carried into it.
 """
 
 from contextlib import contextmanager
@@ -397,14 +397,11 @@ def _apply(matrices, points):
 
 
 def _armature_boxes(world_corners, to_arm):
-    """Boxes in armature space enclosing the world axis-aligned boxes of ``world_corners`` (F,K,8,3)."""
+    """The obstacles' boxes in armature space from their world corners (F,K,8,3) in bound_box order: each the
+    mesh's own (oriented) box, as the user sees it."""
     if world_corners.shape[1] == 0:
         return None
-    lo, hi = world_corners.min(axis=2), world_corners.max(axis=2)  # (F,K,3): world AABBs
-    pick = np.array([[(i >> a) & 1 for a in range(3)] for i in range(8)], dtype=bool)  # the 8 corners
-    aabb_corners = np.where(pick[None, None], hi[:, :, None], lo[:, :, None])  # (F,K,8,3)
-    arm = _apply(to_arm, aabb_corners)
-    return Boxes(mins=arm.min(axis=2), maxs=arm.max(axis=2))
+    return Boxes.from_box_corners(_apply(to_arm, world_corners))
 
 
 def _bones_to_write(model, snapshot, result, keep_hands):
