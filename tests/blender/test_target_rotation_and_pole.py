@@ -136,3 +136,24 @@ def test_a_pole_that_left_the_scene_is_one_line_error():
     slot(obj, "hand.L").pole = pole
     with pytest.raises(RuntimeError, match="Pole 'GonePole' for hand.L is missing from the scene"):
         bpy.ops.fullbody_adjust.adjust_pose()
+
+
+@pytest.mark.parametrize("limbs", ["IK", "FK"])
+def test_a_generated_rigify_hand_takes_its_targets_orientation_through_the_controls(limbs):
+    from .test_rigify import generated_rig
+
+    rig = generated_rig("basic", limbs)
+    pose = Pose(rig)
+    goal = _reach_point(rig, pose, "arm.L", 0.85, 0.3 * body_axes(rig, pose)[2])
+    target = slot(rig, "hand.L").target
+    wanted = np.array(Matrix.Rotation(np.radians(30.0), 3, (0.2, 0.9, 0.4))) @ _hand_world_rotation(rig, "hand.L")
+    world = np.eye(4)
+    world[:3, :3], world[:3, 3] = wanted, pose.to_world(goal)
+    target.matrix_world = Matrix(world.tolist())
+    slot(rig, "hand.L").use_rotation = True
+    assert bpy.ops.fullbody_adjust.adjust_pose() == {'FINISHED'}
+    # The mesh follows the deform bone.
+    bpy.context.view_layer.update()
+    ev = rig.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    deform = _unit(np.array(ev.matrix_world) @ np.array(ev.pose.bones["DEF-hand.L"].matrix))
+    assert _angle(deform, wanted) < 0.5
