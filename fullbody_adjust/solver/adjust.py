@@ -22,8 +22,7 @@ Everything is vectorised over frames; a frame's result depends only on its own d
 converged problems and every other step is row-wise), so adjust_pose equals a row of adjust_frames.
 
 Modules: adjust_types.py (settings, results), reach_balls.py (sub-base geometry), sub_bases.py (step 1),
-two_bone_start.py (a hinged limb's warm start), trunk_start.py (the trunk's), limb_rotations.py (bone
-rotations).
+two_bone_start.py (a hinged limb's warm start), limb_rotations.py (bone rotations).
 """
 
 from __future__ import annotations
@@ -40,7 +39,6 @@ from .limits import FREE, HINGE, carry_axis
 from .obstacles import Boxes
 from .reach_balls import nearest_in_balls, project_onto_balls, sub_base_point
 from .sub_bases import SubBasePlacement
-from .trunk_start import trunk_start
 from .two_bone_start import two_bone_start
 
 __all__ = ["UNCONSTRAINED", "VARIANTS", "AdjustBatchResult", "AdjustResult", "AdjustSettings", "adjust_frames",
@@ -233,8 +231,7 @@ class _Problem(SubBasePlacement):
         target (two_bone_start), which keeps the elbow/knee near where it was (measured: without it the
         mean joint angle error of bench/fullbody.py rises from 0.118 to 0.144 rad); FABRIK and the chain's
         two-segment finish then settle the twist, the cones, obstacles and the clavicle. A pole (set_end_goals)
-        sets that plane instead, on every frame that has one. The trunk starts bent evenly onto its target
-        (trunk_start), so over frames its bend follows the SC smoothly rather than jumping between joints."""
+        sets that plane instead, on every frame that has one."""
         kwargs = {}
         pole = self.limb_pole[name][rows] if name in self.limb_pole else np.full((len(rows), 3), np.nan)
         pole_placed = False
@@ -269,11 +266,6 @@ class _Problem(SubBasePlacement):
             start = start.copy()
             start[pending] = two_bone_start(start[pending], targets[pending], np.zeros((pending.size, 3)),
                                             pole[pending])
-        if name == "trunk":
-            bend = np.nonzero(norm(start[:, -1] - targets) > self.settings.chain.tolerance)[0]
-            if bend.size:
-                start = start.copy()
-                start[bend] = trunk_start(start[bend], targets[bend])
         if self.obstacles is not None:
             kwargs["obstacles"] = self.obstacles.select(rows)
         res = solve_chain_batch(start, targets, settings=self.settings.chain, **kwargs)

@@ -1,10 +1,9 @@
-"""The pieces behind a target's rotation, a pole and a smooth trunk: end_rotation (a hand or foot turned toward a
-wanted orientation within its cone), two_bone_start with a pole, and trunk_start (an even bend onto the SC)."""
+"""The pieces behind a target's rotation and a pole: end_rotation (a hand or foot turned toward a wanted
+orientation within its cone) and two_bone_start with a pole."""
 
 import numpy as np
 
 from fullbody_adjust.solver.limb_rotations import END_SWING, end_rotation
-from fullbody_adjust.solver.trunk_start import trunk_start
 from fullbody_adjust.solver.two_bone_start import two_bone_start
 
 
@@ -43,20 +42,3 @@ def test_two_bone_start_bends_toward_the_pole_in_its_plane():
         side = middle - line * (middle @ line)
         wanted = pole - line * (pole @ line)
         assert _angle(side, wanted) < 1e-6
-
-
-def test_trunk_start_meets_the_target_keeps_lengths_and_moves_smoothly_with_it():
-    start = np.array([[0.0, 0.0, 0.0], [0.02, 0.0, 0.2], [0.03, 0.0, 0.4], [0.02, 0.0, 0.6]])
-    # The SC target moves forward and down in small steps: it leans, then must bend.
-    t = np.linspace(0.0, 1.0, 60)
-    targets = np.stack([0.45 * np.sin(1.2 * t), 0.05 * t, 0.6 - 0.35 * t], axis=1)
-    targets = targets / np.linalg.norm(targets, axis=1, keepdims=True) * np.linspace(0.6, 0.45, 60)[:, None]
-    chains = trunk_start(np.broadcast_to(start, (60, 4, 3)).copy(), targets)
-    np.testing.assert_allclose(chains[:, -1], targets, atol=1e-7)
-    np.testing.assert_allclose(chains[:, 0], np.broadcast_to(start[0], (60, 3)), atol=0)
-    np.testing.assert_allclose(np.linalg.norm(np.diff(chains, axis=1), axis=-1),
-                               np.broadcast_to(np.linalg.norm(np.diff(start, axis=0), axis=-1), (60, 3)), atol=1e-12)
-    # No joint jumps: each moves at most a few times as far as the target between two frames.
-    target_step = np.linalg.norm(np.diff(targets, axis=0), axis=-1)
-    joint_step = np.linalg.norm(np.diff(chains, axis=0), axis=-1).max(axis=1)
-    assert np.max(joint_step / target_step) < 3.0
