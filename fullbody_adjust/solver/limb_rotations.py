@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .geometry import apply_matrix, norm, swing_rotation
+from .geometry import any_perpendicular, apply_matrix, norm, swing_rotation
 from .limits import HINGE, hinge_twist_angle
 
 _EYE = np.eye(3)
@@ -82,12 +82,16 @@ def end_rotation(wanted, carried, direction, max_swing=END_SWING):
     if not np.any(over):
         return wanted
     out = wanted.copy()
-    # Slerp from the carried direction toward the wanted one by the allowed fraction.
-    t = max_swing / angle[over]
-    a, b = ride[over] / norm(ride[over])[:, None], want[over] / norm(want[over])[:, None]
-    sin = np.sin(angle[over])[:, None]
-    edge = (np.sin((1.0 - t) * angle[over])[:, None] * a + np.sin(t * angle[over])[:, None] * b) / sin
-    out[over] = np.einsum("bij,bjk->bik", swing_rotation(b, edge), wanted[over])
+    # Slerp from the carried direction toward the wanted one by the allowed fraction; a wanted direction right
+    # opposite the carried one gives no way to go, so one is picked (any, fixed: the result stays finite).
+    a, toward = ride[over] / norm(ride[over])[:, None], want[over] / norm(want[over])[:, None]
+    opposite = angle[over] > np.pi - 1e-6
+    b = np.where(opposite[:, None], -a + 1e-3 * any_perpendicular(a), toward)
+    b = b / norm(b)[:, None]
+    full = np.arccos(np.clip(np.einsum("bi,bi->b", a, b), -1.0, 1.0))
+    t = max_swing / full
+    edge = (np.sin((1.0 - t) * full)[:, None] * a + np.sin(t * full)[:, None] * b) / np.sin(full)[:, None]
+    out[over] = np.einsum("bij,bjk->bik", swing_rotation(toward, edge), wanted[over])
     return out
 
 

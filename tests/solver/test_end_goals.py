@@ -42,3 +42,12 @@ def test_two_bone_start_bends_toward_the_pole_in_its_plane():
         side = middle - line * (middle @ line)
         wanted = pole - line * (pole @ line)
         assert _angle(side, wanted) < 1e-6
+
+
+def test_end_rotation_stays_finite_for_a_wanted_direction_right_opposite():
+    direction = np.array([[0.0, 1.0, 0.0]])
+    carried = np.eye(3)[None]
+    wanted = _rotation([1.0, 0.0, 0.0], np.pi)[None]
+    got = end_rotation(wanted, carried, direction)
+    assert np.all(np.isfinite(got))
+    assert abs(_angle(got[0] @ direction[0], direction[0]) - END_SWING) < 1e-9
