@@ -24,6 +24,11 @@ class FULLBODY_ADJUST_UL_targets(bpy.types.UIList):
         row.prop(item, "effector", text="")
         row.prop(item, "target", text="")
         row.prop(item, "priority", text="")
+        limb = item.effector != "head"  # the head has no pole and no orientation drive
+        sub = row.row(align=True)
+        sub.active = limb
+        sub.prop(item, "use_rotation", text="", icon='ORIENTATION_GIMBAL')
+        sub.prop(item, "pole", text="")
 
 
 class FULLBODY_ADJUST_UL_bone_map(bpy.types.UIList):

@@ -72,6 +72,19 @@ class FULLBODY_ADJUST_PG_target(bpy.types.PropertyGroup):
         description="Use this target when adjusting",
         default=True,
     )
+    use_rotation: BoolProperty(
+        name="Rotation",
+        description="The hand or foot takes the target's world orientation (as far as the wrist's or ankle's "
+                    "limits allow); off: it keeps its own",
+        default=False,
+    )
+    pole: PointerProperty(
+        name="Pole",
+        description="Object the elbow or knee points toward: the limb bends in the plane of the shoulder or hip, "
+                    "the target and the pole. Empty: the limb keeps its own bend plane",
+        type=bpy.types.Object,
+        poll=_is_not_owner,
+    )
 
 
 class FULLBODY_ADJUST_PG_bone_map_item(bpy.types.PropertyGroup):

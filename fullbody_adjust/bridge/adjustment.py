@@ -2,8 +2,8 @@
 → keyframes. Operators and the command line call only ``adjust_pose`` and ``adjust_frames`` here.
 
 The solve runs in the armature's own space (its object transform undone): bone lengths are rigid there
-even under non-uniform object scale, targets map into it exactly, and world obstacle boxes are enclosed
-in armature-space boxes (the same boxes when the armature is not rotated).
+even under non-uniform object scale, targets map into it exactly, and each obstacle is its mesh's bounding
+box with the mesh's rotation (an oriented box) carried into it.
 """
 
 from contextlib import contextmanager
@@ -163,22 +163,23 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
     if apply_pose:
         # The current frame as the user sees it. Stepping to it with frame_set would evaluate the animation
         # again and throw away pose changes not keyed yet, even when the run then fails.
-        world_targets = _current_targets(obj, context, options.skip_missing_targets)
+        goals = _current_targets(obj, context, options.skip_missing_targets)
         corners = obstacles.obstacle_boxes(obj, context)[None]
         snapshot = pose.as_batch(pose.read_pose(obj, rig.static(obj)) if start is None else start)
     else:
         with _pose_kept(obj):  # stepping through the frames evaluates the animation into the pose bones
             target_at = targets.target_frame_reader(obj, context)
             boxes_at = obstacles.box_frame_reader(obj, context)
-            world_targets = np.full((len(frames), len(targets.EFFECTORS), 3), np.nan)  # NaN: no target
-            corner_rows = []
+            goal_rows, corner_rows = [], []
 
             def read_others(row, frame):  # one pass over the frames reads pose, targets and obstacles
-                world_targets[row] = target_at(frame)[0]
+                goal_rows.append(target_at(frame))
                 corner_rows.append(boxes_at(frame))
 
             snapshot = pose.read_pose_frames(obj, frames, each_frame=read_others)
+            goals = targets.FrameTargets(*(np.stack(field) for field in zip(*goal_rows)))
             corners = np.stack(corner_rows)
+    world_targets = goals.positions  # (F,E,3), NaN: no target
     _check_object_scale(obj, snapshot)
     bone_map, model = rig.bone_map, rig.model
     controlled = control_rig.is_generated_rigify(obj)
@@ -196,16 +197,18 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
     tails = _apply(to_arm, snapshot.tails)
     arm_targets = _apply(to_arm, world_targets)
     boxes = _armature_boxes(corners, to_arm)
+    end_turns, poles = _end_goals(model, snapshot, goals, to_arm)
     try:
         limits = ik_limits.joint_limits(obj, model, heads, tails, snapshot.pose_matrices, settings)
         result = solve_frames(model, heads, tails, arm_targets, targets.EFFECTORS, priorities, obstacles=boxes,
                               settings=_in_armature_units(settings, snapshot.matrix_world),
-                              bone_x_axes=snapshot.pose_matrices[..., :3, 0], limits=limits)
+                              bone_x_axes=snapshot.pose_matrices[..., :3, 0], limits=limits,
+                              end_turns=end_turns, poles=poles)
     except SolverInputError as ex:
         raise AdjustError(f"Cannot adjust '{obj.name}': {ex}") from None
     progress("writing", 0.8)
 
-    written = _bones_to_write(model, snapshot, result, keep_hands)
+    written = _bones_to_write(model, snapshot, result, keep_hands, goals.oriented.any(axis=0))
     names = tuple(snapshot.names[j] for j in written)
     new_pose = _new_pose_matrices(snapshot, result, written)
     new_world = snapshot.matrix_world[:, None] @ new_pose
@@ -348,11 +351,35 @@ def _check_target_distances(obj, world_targets, snapshot):
 
 
 def _current_targets(obj, context, skip_missing=False):
-    """World positions (1,E,3) of the enabled targets at the current frame as evaluated; NaN: no target."""
-    out = np.full((1, len(targets.EFFECTORS), 3), np.nan)
-    for spec in targets.read_targets(obj, context.evaluated_depsgraph_get(), skip_missing=skip_missing):
-        out[0, targets.EFFECTORS.index(spec.effector)] = spec.position
-    return out
+    """FrameTargets (one frame: (1,E,...) each) of the enabled targets at the current frame as evaluated."""
+    specs = targets.read_targets(obj, context.evaluated_depsgraph_get(), skip_missing=skip_missing)
+    return targets.FrameTargets(*(field[None] for field in targets.frame_targets(specs)))
+
+
+def _end_goals(model, snapshot, goals, to_arm):
+    """The solver's end_turns (F,E,3,3) and poles (F,E,3) in armature space from the FrameTargets (None where
+    no slot asks for them): a hand or foot with use_rotation turns from its pose orientation to its target's."""
+    end_turns = None
+    if goals.oriented.any():
+        end_turns = np.full(goals.rotations.shape, np.nan)
+        for limb in model.limbs.values():
+            if limb.effector not in targets.EFFECTORS:
+                continue
+            column = targets.EFFECTORS.index(limb.effector)
+            rows = goals.oriented[:, column] & np.isfinite(goals.positions[:, column, 0])
+            if rows.any():
+                wanted = _orthonormal(to_arm[rows, :3, :3] @ goals.rotations[rows, column])
+                now = _orthonormal(snapshot.pose_matrices[rows, limb.end_bone, :3, :3])
+                end_turns[rows, column] = wanted @ np.swapaxes(now, -1, -2)
+    poles = _apply(to_arm, goals.poles) if np.isfinite(goals.poles).any() else None
+    return end_turns, poles
+
+
+def _orthonormal(matrices):
+    """The rotations (...,3,3) nearest ``matrices`` (their polar factor): a rotation carried through a scaled
+    armature transform, or a bone's pose matrix without its scale."""
+    u, _s, vt = np.linalg.svd(matrices)
+    return u @ vt
 
 
 def _priorities(obj):
@@ -395,19 +422,20 @@ def _apply(matrices, points):
 
 
 def _armature_boxes(world_corners, to_arm):
-    """Boxes in armature space enclosing the world axis-aligned boxes of ``world_corners`` (F,K,8,3)."""
+    """The obstacles' boxes in armature space from their world corners (F,K,8,3) in bound_box order: each the
+    mesh's own (oriented) box, as the user sees it."""
     if world_corners.shape[1] == 0:
         return None
-    lo, hi = world_corners.min(axis=2), world_corners.max(axis=2)  # (F,K,3): world AABBs
-    pick = np.array([[(i >> a) & 1 for a in range(3)] for i in range(8)], dtype=bool)  # the 8 corners
-    aabb_corners = np.where(pick[None, None], hi[:, :, None], lo[:, :, None])  # (F,K,8,3)
-    arm = _apply(to_arm, aabb_corners)
-    return Boxes(mins=arm.min(axis=2), maxs=arm.max(axis=2))
+    return Boxes.from_box_corners(_apply(to_arm, world_corners))
 
 
-def _bones_to_write(model, snapshot, result, keep_hands):
-    """Indices of the bones the solver drives whose transform changed on some frame, parents first."""
+def _bones_to_write(model, snapshot, result, keep_hands, oriented):
+    """Indices of the bones the solver drives whose transform changed on some frame, parents first. ``oriented``
+    (E,) bool: effectors whose end bone takes its target's orientation, written even without ``keep_hands``."""
     driven = np.isin(model.roles, (ROOT, CHAIN, END) if keep_hands else (ROOT, CHAIN))
+    for limb in model.limbs.values():
+        if limb.effector in targets.EFFECTORS and oriented[targets.EFFECTORS.index(limb.effector)]:
+            driven[limb.end_bone] = True
     turn = np.abs(result.rotations - np.eye(3)).max(axis=(-1, -2))  # (F,J)
     old_heads = snapshot.pose_matrices[..., :3, 3]
     shift = np.linalg.norm(result.heads - old_heads, axis=-1) / _size(old_heads)

@@ -1,4 +1,5 @@
-"""Obstacles: world-space bounding boxes of meshes, as corners for solver.obstacles.Boxes.from_corners.
+"""Obstacles: world-space bounding boxes of meshes, as corners in bound_box order for
+solver.obstacles.Boxes.from_box_corners (each mesh's own box with its rotation).
 
 Which meshes: those of ``obj.fullbody_adjust.obstacles`` (child collections included),
 or, when that is None, every visible mesh that does not move with this armature.
@@ -52,8 +53,8 @@ def _constraint_targets(constraint, armature):
 def obstacle_boxes(obj, context):
     """World-space corners (K, 8, 3) of the evaluated bounding boxes of obstacle_meshes(obj, context).
 
-    Evaluated, so modifiers count. A rotated mesh gives its 8 transformed corners; Boxes.from_corners
-    encloses them in an axis-aligned box. (A mesh with no geometry gives a point box at its origin.)
+    Evaluated, so modifiers count. A rotated mesh gives its 8 transformed corners, in bound_box order, so
+    Boxes.from_box_corners keeps its rotation. (A mesh with no geometry gives a point box at its origin.)
     """
     return _corners(obstacle_meshes(obj, context), context.evaluated_depsgraph_get())
 

@@ -8,6 +8,7 @@ transforms (evaluated, so animated or parented targets count) as plain numpy arr
 
 from dataclasses import dataclass
 import math
+from typing import NamedTuple
 
 import bpy
 import numpy as np
@@ -33,6 +34,21 @@ class TargetSpec:
     position: np.ndarray  # (3,)
     rotation: np.ndarray  # (3, 3) world rotation without scale, for the optional orientation drive
     priority: int
+    use_rotation: bool = False  # the effector takes ``rotation``
+    pole: np.ndarray = None  # (3,) world position of the slot's pole (hands and feet), or None
+
+
+class FrameTargets(NamedTuple):
+    """The enabled targets on one frame, EFFECTORS order, NaN where an effector has none."""
+
+    positions: np.ndarray  # (E,3)
+    rotations: np.ndarray  # (E,3,3) world rotations without scale
+    poles: np.ndarray  # (E,3) pole positions (NaN: no pole)
+    oriented: np.ndarray  # (E,) bool: the slot's use_rotation
+
+
+# Effectors that bend a hinge (elbow, knee) below them and so can use a pole.
+POLED = frozenset(("hand.L", "hand.R", "foot.L", "foot.R"))
 
 
 def ensure_slots(obj):
@@ -182,12 +198,24 @@ def _enabled_targets(obj, scene, skip_missing=False):
     return enabled
 
 
-def _world_matrix(effector, target, depsgraph, frame=None):
+def _world_matrix(effector, target, depsgraph, frame=None, what="Target"):
     world = np.array(target.evaluated_get(depsgraph).matrix_world, dtype=np.float64)
     if not np.all(np.isfinite(world[:3, 3])):
         where = "" if frame is None else f" at frame {frame:g}"
-        raise AdjustError(f"Target '{target.name}' for {effector} has a non-finite location{where}")
+        raise AdjustError(f"{what} '{target.name}' for {effector} has a non-finite location{where}")
     return world
+
+
+def _pole_of(slot, scene):
+    """The slot's pole object when it has one that counts (hands and feet); AdjustError if it left the scene."""
+    pole = slot.pole if slot.effector in POLED else None
+    if pole is not None and not _in_scene(scene, pole):
+        raise AdjustError(f"Pole '{pole.name}' for {slot.effector} is missing from the scene (deleted?)")
+    return pole
+
+
+def _pole_position(effector, pole, depsgraph, frame=None):
+    return _world_matrix(effector, pole, depsgraph, frame, what="Pole")[:3, 3].copy()
 
 
 def _rotation_part(world):
@@ -208,9 +236,25 @@ def read_targets(obj, depsgraph=None, *, skip_missing=False):
     specs = []
     for effector, slot, target in _enabled_targets(obj, depsgraph.scene, skip_missing):
         world = _world_matrix(effector, target, depsgraph)
+        pole = _pole_of(slot, depsgraph.scene)
         specs.append(TargetSpec(effector=effector, name=target.name, position=world[:3, 3].copy(),
-                                rotation=_rotation_part(world), priority=int(slot.priority)))
+                                rotation=_rotation_part(world), priority=int(slot.priority),
+                                use_rotation=bool(slot.use_rotation) and effector != "head",
+                                pole=None if pole is None else _pole_position(effector, pole, depsgraph)))
     return specs
+
+
+def frame_targets(specs):
+    """FrameTargets of read_targets' specs."""
+    out = FrameTargets(np.full((len(EFFECTORS), 3), np.nan), np.full((len(EFFECTORS), 3, 3), np.nan),
+                       np.full((len(EFFECTORS), 3), np.nan), np.zeros(len(EFFECTORS), dtype=bool))
+    for spec in specs:
+        column = EFFECTORS.index(spec.effector)
+        out.positions[column], out.rotations[column] = spec.position, spec.rotation
+        out.oriented[column] = spec.use_rotation
+        if spec.pole is not None:
+            out.poles[column] = spec.pole
+    return out
 
 
 def read_target_frames(obj, frames, context=None, *, rotations=False):
@@ -226,24 +270,30 @@ def read_target_frames(obj, frames, context=None, *, rotations=False):
     positions = np.full((len(frames), len(EFFECTORS), 3), np.nan)
     rotation_frames = np.full((len(frames), len(EFFECTORS), 3, 3), np.nan)
     for row, frame in step_frames(context.scene, frames):
-        positions[row], rotation_frames[row] = read(frame)
+        positions[row], rotation_frames[row] = read(frame)[:2]
     return (positions, rotation_frames) if rotations else positions
 
 
 def target_frame_reader(obj, context):
-    """A function of the current scene frame giving the targets' world positions (E,3) and rotations
-    (E,3,3), NaN for effectors without an enabled target. The slots are checked once, here."""
-    enabled = _enabled_targets(obj, context.scene)
+    """A function of the current scene frame giving the FrameTargets (positions, rotations, poles, oriented),
+    NaN for effectors without an enabled target. The slots are checked once, here."""
+    enabled = [(effector, slot, target, _pole_of(slot, context.scene))
+               for effector, slot, target in _enabled_targets(obj, context.scene)]
+    oriented = np.array([any(e == effector and slot.use_rotation for e, slot, _t, _p in enabled)
+                         and effector != "head" for effector in EFFECTORS])
 
     def read(frame):
         depsgraph = context.evaluated_depsgraph_get()
         positions = np.full((len(EFFECTORS), 3), np.nan)
         rotations = np.full((len(EFFECTORS), 3, 3), np.nan)
-        for effector, _slot, target in enabled:
+        poles = np.full((len(EFFECTORS), 3), np.nan)
+        for effector, _slot, target, pole in enabled:
             world = _world_matrix(effector, target, depsgraph, frame)
             column = EFFECTORS.index(effector)
             positions[column] = world[:3, 3]
             rotations[column] = _rotation_part(world)
-        return positions, rotations
+            if pole is not None:
+                poles[column] = _pole_position(effector, pole, depsgraph, frame)
+        return FrameTargets(positions, rotations, poles, oriented.copy())
 
     return read

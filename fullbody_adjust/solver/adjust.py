@@ -36,7 +36,7 @@ from .chain import solve_chain_batch
 from .chain_types import _final_status
 from .errors import SolverInputError
 from .geometry import apply_matrix, norm
-from .limb_rotations import _EYE, LimbSolve, chest_rotation
+from .limb_rotations import _EYE, LimbSolve, chest_rotation, end_rotation
 from .limits import FREE, HINGE, carry_axis
 from .obstacles import Boxes, points_inside, segments_cross
 from .prepared import prepare
@@ -53,7 +53,8 @@ __all__ = ["UNCONSTRAINED", "VARIANTS", "AdjustBatchResult", "AdjustResult", "Ad
 
 
 def adjust_pose(model, heads, tails, targets, effectors, priorities=None, *, obstacles=None,
-                settings=AdjustSettings(), limits=None, bone_x_axes=None) -> AdjustResult:
+                settings=AdjustSettings(), limits=None, bone_x_axes=None, end_turns=None,
+                poles=None) -> AdjustResult:
     """Adjust one pose: heads/tails (J,3), targets (E,3) (a NaN row = no target). = adjust_frames with F = 1."""
     heads = np.asarray(heads, dtype=np.float64)
     tails = np.asarray(tails, dtype=np.float64)
@@ -63,25 +64,34 @@ def adjust_pose(model, heads, tails, targets, effectors, priorities=None, *, obs
                                "use adjust_frames for many frames")
     if bone_x_axes is not None:
         bone_x_axes = np.asarray(bone_x_axes, dtype=np.float64)[None]
+    per_frame = (lambda a: None if a is None else np.asarray(a, dtype=np.float64)[None])
     return adjust_frames(model, heads[None], tails[None], targets[None], effectors, priorities,
-                         obstacles=obstacles, settings=settings, limits=limits, bone_x_axes=bone_x_axes)[0]
+                         obstacles=obstacles, settings=settings, limits=limits, bone_x_axes=bone_x_axes,
+                         end_turns=per_frame(end_turns), poles=per_frame(poles))[0]
 
 
 def adjust_frames(model, heads, tails, targets, effectors, priorities=None, *, obstacles=None,
-                  settings=AdjustSettings(), limits=None, bone_x_axes=None) -> AdjustBatchResult:
+                  settings=AdjustSettings(), limits=None, bone_x_axes=None, end_turns=None,
+                  poles=None) -> AdjustBatchResult:
     """Adjust F frames at once.
 
     heads, tails (F,J,3): world bone heads/tails at the start poses; targets (F,E,3) for the effector names
     `effectors` (E,) (from hand.L hand.R foot.L foot.R head), a NaN row meaning no target on that frame;
     priorities (E,) >= 0, higher wins (default all 1); obstacles: Boxes shared (K,3) or per frame (F,K,3);
     limits: {limb name: body.LimbLimits} to replace the defaults (a limb missing from the dict is free);
-    bone_x_axes: optional per-bone world X axes (J,3)/(F,J,3) for the default hinge axes."""
+    bone_x_axes: optional per-bone world X axes (J,3)/(F,J,3) for the default hinge axes;
+    end_turns (F,E,3,3): world rotation deltas wanted for the hand and foot bones (e.g. to a target's
+    orientation), turned no further from where the forearm/shin carries them than END_SWING allows; a NaN
+    entry (or None) keeps the bone's world orientation;
+    poles (F,E,3): for hands and feet, a point the elbow/knee bends toward (the bend plane through the
+    shoulder/hip, the target and the pole); NaN (or None): the limb's own bend plane."""
     if not isinstance(model, BodyModel):
         raise SolverInputError("model must be a BodyModel")
     if not isinstance(settings, AdjustSettings):
         raise SolverInputError("settings must be an AdjustSettings")
     problem = _Problem(model, heads, tails, targets, effectors, priorities, obstacles, settings, limits,
                        bone_x_axes)
+    problem.set_end_goals(end_turns, poles)
     return problem.solve()
 
 
@@ -89,6 +99,8 @@ def adjust_frames(model, heads, tails, targets, effectors, priorities=None, *, o
 # The solve
 
 class _Problem(SubBasePlacement):
+    _PER_FRAME_DICTS = SubBasePlacement._PER_FRAME_DICTS + ("end_turns", "limb_pole")
+
     def __init__(self, model, heads, tails, targets, effectors, priorities, obstacles, settings, limits,
                  bone_x_axes):
         self.model = model
@@ -175,6 +187,26 @@ class _Problem(SubBasePlacement):
         self.limits = limits
         self.start_frames = np.arange(F)  # each frame's row in self.prepared
         self.iterations = np.zeros(F, dtype=np.int64)
+        self.end_turns, self.limb_pole = {}, {}
+
+    def set_end_goals(self, end_turns, poles):
+        """Per limb: the end bone's wanted world rotation deltas (F,3,3) and the pole points (F,3), NaN rows
+        where none (see adjust_frames); limbs without any are left out."""
+        F, E = self.F, len(self.effectors)
+        for label, given, shape, store in (("end_turns", end_turns, (F, E, 3, 3), self.end_turns),
+                                           ("poles", poles, (F, E, 3), self.limb_pole)):
+            if given is None:
+                continue
+            given = np.asarray(given, dtype=np.float64)
+            if given.shape != shape:
+                raise SolverInputError(f"{label} must have shape {shape}, got {given.shape}")
+            for k, e in enumerate(self.effectors):
+                rows = given[:, k].reshape(F, -1)
+                unset = np.isnan(rows).all(axis=1)
+                if np.any(~np.isfinite(rows) & ~unset[:, None]):
+                    raise SolverInputError(f"{label} for {e} have NaN/inf (all NaN for none)")
+                if e != "head" and not unset.all():
+                    store[LIMB_OF_EFFECTOR[e]] = given[:, k]
 
     # -- chain solves on a subset of frames --------------------------------------------------------------
 
@@ -189,8 +221,11 @@ class _Problem(SubBasePlacement):
         are first placed by the two-bone solution in the plane of the start hinge axis carried to the
         target (two_bone_start), which keeps the elbow/knee near where it was (measured: without it the
         mean joint angle error of bench/fullbody.py rises from 0.118 to 0.144 rad); FABRIK and the chain's
-        two-segment finish then settle the twist, the cones, obstacles and the clavicle."""
+        two-segment finish then settle the twist, the cones, obstacles and the clavicle. A pole (set_end_goals)
+        sets that plane instead, on every frame that has one."""
         kwargs = {}
+        pole = self.limb_pole[name][rows] if name in self.limb_pole else np.full((len(rows), 3), np.nan)
+        pole_placed = False
         ll = self.limits.get(name)
         if ll is not None and ll.limits.any_active:
             lim = ll.limits
@@ -207,14 +242,21 @@ class _Problem(SubBasePlacement):
                 axes[:, 0] = apply_matrix(carry, axes[:, 0])
                 pdir = None if pdir is None else apply_matrix(carry, pdir)
             if lim.kind[m - 1] == HINGE and m >= 2:
-                warm = np.nonzero(norm(start[:, -1] - targets) > self.settings.chain.tolerance)[0]
+                warm = np.nonzero((norm(start[:, -1] - targets) > self.settings.chain.tolerance)
+                                  | np.isfinite(pole[:, 0]))[0]
                 if warm.size:
                     at_start = carry_axis(axes[warm, m - 1], reference[warm, m - 1],
                                           start[warm, m - 1] - start[warm, m - 2])
                     start = start.copy()
-                    start[warm] = two_bone_start(start[warm], targets[warm], at_start)
+                    start[warm] = two_bone_start(start[warm], targets[warm], at_start, pole[warm])
+                pole_placed = True
             kwargs["limits"] = lim.derived(hinge_axis=axes, hinge_reference=reference)
             kwargs["parent_directions"] = pdir
+        pending = np.nonzero(np.isfinite(pole[:, 0]) & (not pole_placed))[0]
+        if pending.size and start.shape[1] >= 3:  # a pole without a hinge limit: the same warm start
+            start = start.copy()
+            start[pending] = two_bone_start(start[pending], targets[pending], np.zeros((pending.size, 3)),
+                                            pole[pending])
         if self.obstacles is not None:
             kwargs["obstacles"] = self.obstacles.select(rows)
         res = solve_chain_batch(start, targets, settings=self.settings.chain, **kwargs)
@@ -362,6 +404,10 @@ class _Problem(SubBasePlacement):
                         heads[s, j] = ls.joints[s, -1]
                         rot[s, j] = _EYE
                         moved[s, j] = True
+                    if name in self.end_turns:  # ... or turn toward a wanted orientation
+                        w = np.nonzero(np.isfinite(self.end_turns[name][:, 0, 0]))[0]
+                        rot[w, j] = end_rotation(self.end_turns[name][w], rot[w, p], T0[w, j] - H0[w, j])
+                        moved[w, j] = True
         tails = np.where(moved[..., None], heads + apply_matrix(rot, T0 - H0), T0) if np.any(moved) else T0.copy()
         return heads, tails, rot, solves
 

@@ -7,10 +7,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .geometry import apply_matrix, norm, swing_rotation
+from .geometry import any_perpendicular, apply_matrix, norm, swing_rotation
 from .limits import HINGE, hinge_twist_angle
 
 _EYE = np.eye(3)
+
+# How far a hand or foot may turn away from where its forearm or shin carries it (its start pose relative to
+# that bone) when it takes a wanted orientation: a wrist bends about 80 degrees, an ankle about 50, so the
+# larger of the two bounds both without leaving the range of a hand in most poses.
+END_SWING = np.radians(80.0)
 
 
 @dataclass
@@ -63,6 +68,31 @@ def _segment_rotations(start, joints, limits, frames):
             rot[:, i] = np.einsum("bij,bjk->bik", swing_rotation(apply_matrix(rot[:, i - 1], old[:, i]), new[:, i]),
                                   rot[:, i - 1])
     return rot
+
+
+def end_rotation(wanted, carried, direction, max_swing=END_SWING):
+    """World rotation deltas (b,3,3) of hand or foot bones: `wanted` (b,3,3), unless that points the bone
+    (start direction `direction` (b,3)) more than `max_swing` away from where its parent's delta `carried`
+    (b,3,3) takes it; then the wanted one swung back to that cone's edge (its twist about the bone kept)."""
+    want = apply_matrix(wanted, direction)
+    ride = apply_matrix(carried, direction)
+    cos = np.einsum("bi,bi->b", want, ride) / (norm(want) * norm(ride))
+    angle = np.arccos(np.clip(cos, -1.0, 1.0))
+    over = angle > max_swing
+    if not np.any(over):
+        return wanted
+    out = wanted.copy()
+    # Slerp from the carried direction toward the wanted one by the allowed fraction; a wanted direction right
+    # opposite the carried one gives no way to go, so one is picked (any, fixed: the result stays finite).
+    a, toward = ride[over] / norm(ride[over])[:, None], want[over] / norm(want[over])[:, None]
+    opposite = angle[over] > np.pi - 1e-6
+    b = np.where(opposite[:, None], -a + 1e-3 * any_perpendicular(a), toward)
+    b = b / norm(b)[:, None]
+    full = np.arccos(np.clip(np.einsum("bi,bi->b", a, b), -1.0, 1.0))
+    t = max_swing / full
+    edge = (np.sin((1.0 - t) * full)[:, None] * a + np.sin(t * full)[:, None] * b) / np.sin(full)[:, None]
+    out[over] = np.einsum("bij,bjk->bik", swing_rotation(toward, edge), wanted[over])
+    return out
 
 
 def _rotation_about(axis, angle):

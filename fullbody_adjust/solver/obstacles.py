@@ -1,4 +1,8 @@
-"""Axis-aligned obstacle boxes and the collision tests the solver and the quality measures use (paper §4.1.1)."""
+"""Obstacle boxes and the collision tests the solver and the quality measures use (paper §4.1.1).
+
+A box is axis-aligned, or oriented: then ``axes`` holds its unit axes as columns and ``mins``/``maxs`` are its
+extents along them (coordinates ``axes.T @ p``), so every test is the axis-aligned one in the box's own frame.
+A rotated mesh's bounding box is then the box the user sees, not the larger axis-aligned box around it."""
 
 from dataclasses import dataclass
 
@@ -9,11 +13,13 @@ from .errors import SolverInputError
 
 @dataclass(frozen=True)
 class Boxes:
-    """K closed axis-aligned boxes: mins, maxs (K,3) shared by every problem of a batch, or (B,K,3) per
-    problem (moving obstacles: one box set per frame)."""
+    """K closed boxes: mins, maxs (K,3) shared by every problem of a batch, or (B,K,3) per problem (moving
+    obstacles: one box set per frame). ``axes`` None: axis-aligned; else (K,3,3) or (B,K,3,3) orthonormal
+    columns, the box's axes, and mins/maxs are extents along them."""
 
     mins: np.ndarray
     maxs: np.ndarray
+    axes: np.ndarray = None
 
     def __post_init__(self):
         mins = np.array(self.mins, dtype=np.float64)
@@ -30,6 +36,15 @@ class Boxes:
         maxs.setflags(write=False)
         object.__setattr__(self, "mins", mins)
         object.__setattr__(self, "maxs", maxs)
+        if self.axes is not None:
+            axes = np.array(self.axes, dtype=np.float64)
+            if axes.shape != mins.shape + (3,):
+                raise SolverInputError(f"box axes must have shape {mins.shape + (3,)}, got {axes.shape}")
+            gram = np.einsum("...ji,...jk->...ik", axes, axes)
+            if not (np.all(np.isfinite(axes)) and np.allclose(gram, np.eye(3), atol=1e-9)):
+                raise SolverInputError("box axes must be orthonormal")
+            axes.setflags(write=False)
+            object.__setattr__(self, "axes", axes)
 
     @classmethod
     def from_corners(cls, corners):
@@ -42,6 +57,31 @@ class Boxes:
         return cls(corners.min(axis=-2), corners.max(axis=-2))
 
     @classmethod
+    def from_box_corners(cls, corners):
+        """The boxes whose 8 corners (K,8,3) or (B,K,8,3) are given in Blender's ``bound_box`` order (corner i
+        has +x where i & 4, +y where i in 2,3,6,7, +z where i in 1,2,5,6), e.g. a mesh's bounding box through
+        its object transform: oriented boxes with the edges' directions as axes (a sheared box is enclosed
+        in the oriented box of its nearest orthonormal axes). Boxes whose axes are the coordinate axes
+        (up to order and sign) everywhere give axis-aligned Boxes, the faster tests."""
+        corners = np.asarray(corners, dtype=np.float64)
+        if corners.ndim not in (3, 4) or corners.shape[-2:] != (8, 3):
+            raise SolverInputError(f"box corners must have shape (K,8,3) or (B,K,8,3), got {corners.shape}")
+        if not np.all(np.isfinite(corners)):
+            raise SolverInputError("obstacle box corners have NaN/inf")
+        if corners.shape[-3] == 0:
+            return cls(np.zeros(corners.shape[:-2] + (3,)), np.zeros(corners.shape[:-2] + (3,)))
+        edges = np.stack([corners[..., 4, :] - corners[..., 0, :], corners[..., 3, :] - corners[..., 0, :],
+                          corners[..., 1, :] - corners[..., 0, :]], axis=-1)  # (...,3,3): the x, y, z edges
+        # The orthonormal matrix nearest the edges (polar factor): the box's own axes when they are orthogonal,
+        # a valid frame when an edge has zero length (a flat mesh).
+        u, _s, vt = np.linalg.svd(edges)
+        axes = u @ vt
+        if np.allclose(np.sort(np.abs(axes), axis=-1)[..., :2], 0.0, atol=1e-12):
+            return cls.from_corners(corners)
+        local = np.einsum("...ji,...cj->...ci", axes, corners)
+        return cls(local.min(axis=-2), local.max(axis=-2), axes)
+
+    @classmethod
     def empty(cls):
         return cls(np.zeros((0, 3)), np.zeros((0, 3)))
 
@@ -52,16 +92,23 @@ class Boxes:
     def batched(self):
         return self.mins.ndim == 3
 
+    @property
+    def oriented(self):
+        return self.axes is not None
+
     def corners(self):
-        """The 8 corners of every box: (K,8,3) or (B,K,8,3)."""
+        """The 8 corners of every box in world space: (K,8,3) or (B,K,8,3)."""
         bits = np.array([[(c >> 0) & 1, (c >> 1) & 1, (c >> 2) & 1] for c in range(8)], dtype=bool)
-        return np.where(bits, self.maxs[..., None, :], self.mins[..., None, :])
+        local = np.where(bits, self.maxs[..., None, :], self.mins[..., None, :])
+        if self.axes is None:
+            return local
+        return np.einsum("...ij,...cj->...ci", self.axes, local)
 
     def select(self, rows):
         """Per-problem boxes of the problems `rows` (index array); shared boxes are returned unchanged."""
         if not self.batched:
             return self
-        return Boxes(self.mins[rows], self.maxs[rows])
+        return Boxes(self.mins[rows], self.maxs[rows], None if self.axes is None else self.axes[rows])
 
 
 def as_boxes(obstacles):
@@ -77,22 +124,30 @@ def as_boxes(obstacles):
 
 
 def _box_arrays(boxes, lead_ndim):
-    """mins, maxs shaped to broadcast against points with `lead_ndim` leading axes, giving (..., K, 3).
-    Per-problem boxes pair their B axis with the points' first axis."""
-    mins, maxs = boxes.mins, boxes.maxs
+    """mins, maxs (and axes, or None) shaped to broadcast against points with `lead_ndim` leading axes, giving
+    (..., K, 3) (axes (..., K, 3, 3)). Per-problem boxes pair their B axis with the points' first axis."""
+    mins, maxs, axes = boxes.mins, boxes.maxs, boxes.axes
     if boxes.batched:
         if lead_ndim < 1:
             raise SolverInputError("per-problem boxes need points with a leading batch axis")
         shape = (mins.shape[0],) + (1,) * (lead_ndim - 1) + mins.shape[1:]
-        return mins.reshape(shape), maxs.reshape(shape)
-    return mins, maxs
+        mins, maxs = mins.reshape(shape), maxs.reshape(shape)
+        axes = None if axes is None else axes.reshape(shape + (3,))
+    return mins, maxs, axes
+
+
+def _in_box_frames(points, axes):
+    """(...,3) points -> (..., K, 3): their coordinates in every box's frame (axes None: the world's)."""
+    if axes is None:
+        return points[..., None, :]
+    return np.sum(points[..., None, :, None] * axes, axis=-2)
 
 
 def points_inside(points, boxes):
     """(...,3) points, K boxes -> (..., K) bool: point lies in the closed box."""
     p = np.asarray(points, dtype=np.float64)
-    mins, maxs = _box_arrays(boxes, p.ndim - 1)
-    q = p[..., None, :]
+    mins, maxs, axes = _box_arrays(boxes, p.ndim - 1)
+    q = _in_box_frames(p, axes)
     return np.all((q >= mins) & (q <= maxs), axis=-1)
 
 
@@ -102,9 +157,9 @@ def segments_cross(a, b, boxes):
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     a, b = np.broadcast_arrays(a, b)
-    mins, maxs = _box_arrays(boxes, a.ndim - 1)
-    p = a[..., None, :]
-    d = (b - a)[..., None, :]
+    mins, maxs, axes = _box_arrays(boxes, a.ndim - 1)
+    p = _in_box_frames(a, axes)
+    d = _in_box_frames(b, axes) - p
     flat = d == 0.0
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         t1 = (mins - p) / d

@@ -8,9 +8,11 @@ from .geometry import any_perpendicular, apply_matrix, cross, dot, norm, rotate_
 _EYE = np.eye(3)
 
 
-def two_bone_start(start, targets, axis):
+def two_bone_start(start, targets, axis, pole=None):
     """Place the last two segments of chains (b,n,3) so the end meets `targets` (b,3) with the last joint's
-    hinge (axis (b,3) at the start pose) bending to its positive side. Rigid turns only, smallest first:
+    hinge (axis (b,3) at the start pose) bending to its positive side; where `pole` (b,3) is given (finite),
+    the middle joint bends toward it instead, in the plane of the two segments' root, the target and the pole
+    (as Blender's IK pole). Rigid turns only, smallest first:
       0. (chains with segments before the two, e.g. a clavicle) if the target is beyond the two segments'
          reach, turn the whole chain about joint 0 by the least angle that brings it within reach;
       1. swing the two segments about their root (shoulder/hip) so the end points at the target;
@@ -49,6 +51,11 @@ def two_bone_start(start, targets, axis):
     to_target = targets - pivot
     d = np.clip(norm(to_target), np.abs(a - c), a + c)
     dt = to_target / np.maximum(norm(to_target), 1e-300)[:, None]
+    if pole is not None:
+        # The elbow lands at cos(alpha) dt + sin(alpha) (dt x n): toward the pole's side when n = w x dt.
+        toward = cross(np.nan_to_num(pole - pivot), dt)
+        use = np.isfinite(pole[:, 0]) & (norm(toward) > 1e-9 * np.maximum(norm(to_target), 1e-300))
+        axis = np.where(use[:, None], toward, axis)
     n = axis - dot(axis, dt)[:, None] * dt
     ok = norm(n) > 1e-9
     n = n / np.where(ok, norm(n), 1.0)[:, None]

@@ -337,7 +337,7 @@ def test_panel_draws_the_armatures_targets_obstacles_and_variant():
     getattr(bpy.types, list_type).draw_item(
         None, None, row, settings, settings.targets[0], 0, settings, active_prop, 0)
     row_props = row.all_props()
-    assert {name for _, name in row_props} == {"enabled", "effector", "target", "priority"}
+    assert {name for _, name in row_props} == {"enabled", "effector", "target", "priority", "use_rotation", "pole"}
     for panel_name in ("FULLBODY_ADJUST_PT_main", "FULLBODY_ADJUST_PT_solver"):
         for data, name in draw_panel(panel_name, rig).all_props() + row_props:
             assert name in data.bl_rna.properties, f"{panel_name} draws unknown property {name!r}"
