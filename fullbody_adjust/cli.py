@@ -3,7 +3,8 @@
 ``bpy.utils.register_cli_command``) and, with the bpy wheel, ``python -m fullbody_adjust SUBCOMMAND FILE.blend
 ...`` (``__main__.py``). Both end in ``main(argv)``, which returns the exit code.
 
-Thin: the work is ``bridge.adjustment.adjust_frames`` and ``bridge.retarget.retarget``, the
+Thin: the arguments are ``cli_parser``'s, a batch of clip files (``retarget --source-file``) is
+``cli_clips``'s; the work is ``bridge.adjustment.adjust_frames`` and ``bridge.retarget.retarget``, the
 Blender-side chores (open, save, pick the armature and the frames, read the preview's skeletons) are in
 ``bridge.batch``, the report, progress line and picture in ``reporting``. Every expected problem — bad
 arguments, a missing file, an unknown armature, a frame range outside the action, a rig that cannot be mapped,
@@ -11,7 +12,6 @@ an unwritable output — ends the run with one line on stderr, a non-zero exit c
 input .blend is only ever written with --overwrite.
 """
 
-import argparse
 from dataclasses import dataclass
 import os
 import sys
@@ -26,52 +26,14 @@ from .bridge.retarget import retarget as retarget_motion
 from .bridge.errors import AdjustError
 from .reporting import preview, summary
 from .reporting.progress import ConsoleProgress, NoProgress
+from .cli_parser import (COMMAND, EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_OK, EXIT_TARGETS_MISSED, _VARIANTS,
+                         _ParserExit, _UsageError, build_parser)
 
-COMMAND = "fullbody_adjust"
-
-EXIT_OK = 0
-EXIT_TARGETS_MISSED = 1
-EXIT_BAD_INPUT = 2
-EXIT_INTERNAL = 3
-
-EXIT_CODES_HELP = """\
-exit codes:
-  0  done: every target within reach was met and no bone ends inside an obstacle (targets beyond the
-     body's reach are stretched toward and listed in the report, but do not fail the run)
-  1  done and written, but on some frame a target within reach was missed (an obstacle blocked it,
-     joint limits held it, or the iterations ran out) or a bone ends inside an obstacle: see --report
-  2  bad arguments or input (missing or unreadable file, unknown armature or object, frame range outside
-     the action, a rig that cannot be mapped, an output that cannot be written...): one line on stderr,
-     nothing written, the input file untouched
-  3  internal error (a bug; --debug prints the traceback)"""
-
-_VARIANTS = {"priority": 'PRIORITY', "weighted": 'WEIGHTED', "fabrik": 'FABRIK'}
+__all__ = ("COMMAND", "CommandError", "build_parser", "main", "register", "unregister")
 
 
 class CommandError(Exception):
     """A problem with the arguments or the input: exit 2 with this one line."""
-
-
-class _UsageError(Exception):
-    pass
-
-
-class _ParserExit(Exception):
-    def __init__(self, status):
-        super().__init__(status)
-        self.status = status
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse that raises instead of exiting, so a bad argument is one line and Blender keeps control."""
-
-    def error(self, message):
-        raise _UsageError(f"{self.prog}: error: {message} (see --help)")
-
-    def exit(self, status=0, message=None):
-        if message:
-            sys.stderr.write(message)
-        raise _ParserExit(status)
 
 
 def main(argv, prog=f"blender -b FILE.blend -c {COMMAND}"):
@@ -89,6 +51,9 @@ def main(argv, prog=f"blender -b FILE.blend -c {COMMAND}"):
         return EXIT_BAD_INPUT
     where = f"{COMMAND} {args.subcommand}"
     try:
+        if getattr(args, "source_file", None):
+            from . import cli_clips  # the batch of clip files: worker processes, one row per clip
+            return cli_clips.run(args)
         return _execute(args)
     except (CommandError, AdjustError) as ex:
         print(f"{where}: error: {_one_line(ex)}", file=sys.stderr)
@@ -99,161 +64,6 @@ def main(argv, prog=f"blender -b FILE.blend -c {COMMAND}"):
         print(f"{where}: internal error: {type(ex).__name__}: {_one_line(ex)} (a bug; --debug shows where)",
               file=sys.stderr)
         return EXIT_INTERNAL
-
-
-def build_parser(prog=f"blender -b FILE.blend -c {COMMAND}"):
-    parser = _Parser(
-        prog=prog,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-        description=(
-            "Full Body Adjust on the command line, without the user interface.\n\n"
-            "  adjust    a frame range of one armature: hands and feet reach their target objects\n"
-            "            (the armature's target slots), avoiding obstacles, solved in one batch\n"
-            "  retarget  the motion of one armature carried onto another, adjusted so contacts hold\n\n"
-            f"Run as `python -m {COMMAND} SUBCOMMAND FILE.blend [options]` with the bpy module, or as\n"
-            f"`blender -b FILE.blend -c {COMMAND} SUBCOMMAND [options]` in Blender. "
-            "`SUBCOMMAND --help` lists its options."),
-        epilog=EXIT_CODES_HELP,
-    )
-    subparsers = parser.add_subparsers(dest="subcommand", metavar="SUBCOMMAND")
-
-    adjust = subparsers.add_parser(
-        "adjust", help="adjust a frame range of one armature so hands and feet reach their targets",
-        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EXIT_CODES_HELP,
-        description=(
-            "Adjust every frame of a range of one armature so its hands and feet reach the target objects set in\n"
-            "its target slots (animated targets and moving obstacles are followed frame by frame), in one\n"
-            "vectorised solve, and key the bones that moved: into the armature's action, or into a new action\n"
-            "with --new-action so the original motion stays intact. The solver settings stored on the armature\n"
-            "(its Full Body panel) are used unless overridden below."))
-    _add_file_argument(adjust)
-    adjust.add_argument("--armature", metavar="NAME",
-                        help="the armature to adjust (default: the only armature with targets set; else the "
-                             "active object, or the only armature)")
-    _add_frame_arguments(adjust, "the armature's action (its manual frame range when set), or the scene's when "
-                                 "it has no action")
-    solver = adjust.add_argument_group("solver settings (default: those stored on the armature)")
-    solver.add_argument("--variant", type=str.lower, choices=tuple(_VARIANTS),
-                        help="how conflicting targets are settled: priority (the highest-priority reachable "
-                             "target is always met), weighted (priority-weighted compromise) or fabrik (plain "
-                             "FABRIK centroid, the baseline)")
-    solver.add_argument("--margin", type=_non_negative, metavar="DISTANCE",
-                        help="clearance kept from obstacle boxes, in scene units")
-    solver.add_argument("--tolerance", type=_positive, metavar="DISTANCE",
-                        help="a target counts as reached within this distance, in scene units")
-    solver.add_argument("--max-iterations", type=_positive_int, metavar="N", help="iteration limit per solve")
-    solver.add_argument("--no-limits", action="store_true",
-                        help="ignore joint limits (elbows and knees may bend backwards)")
-    _add_output_arguments(adjust, "write the keys into a new action of this name (a copy of the current one), so "
-                                  "the original action stays intact (it gets a fake user)")
-    adjust.set_defaults(work=_adjust)
-
-    retarget = subparsers.add_parser(
-        "retarget", help="carry the motion of one armature onto another and adjust it so contacts hold",
-        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EXIT_CODES_HELP,
-        description=(
-            "Carry the motion of a source armature onto a target armature of other proportions, then adjust the\n"
-            "target so its contacts hold: feet on the ground, or a hand on an object it reaches (paper §6.2.3).\n"
-            "Both armatures must be mappable onto the body model (their stored bone map or automatic mapping).\n"
-            "In the preview the source is drawn in grey, the target in blue."))
-    _add_file_argument(retarget)
-    retarget.add_argument("--source", metavar="NAME", required=True, help="the armature whose motion is carried")
-    retarget.add_argument("--target", metavar="NAME", required=True, help="the armature that receives it")
-    _add_frame_arguments(retarget, "the source's action")
-    retarget.add_argument("--contacts", nargs="+", action=_ContactsAction, metavar=("ground|object", "NAME"),
-                          help="what must hold: 'ground' (planted feet stay where the source's feet are "
-                               "planted; default) or 'object NAME' (hands and feet touching object NAME in the "
-                               "source motion keep touching it)")
-    retarget.add_argument("--exact", action="store_true",
-                          help="hold contacts exactly: soles exactly on the ground (ground), or hands and feet at "
-                               "the source's own world positions (object), instead of positions scaled to the "
-                               "target's proportions")
-    _add_output_arguments(retarget, "name of the new action the target's motion is written into (default: "
-                                    "'<source action>_<target>'); the target's previous action is kept")
-    retarget.set_defaults(work=_retarget)
-    return parser
-
-
-def _add_file_argument(parser):
-    parser.add_argument("file", nargs="?", metavar="FILE.blend",
-                        help="the .blend file to open (under `blender -b FILE.blend -c ...` it may be left out: "
-                             "the file Blender opened is used)")
-
-
-def _add_frame_arguments(parser, default):
-    parser.add_argument("--frame-start", type=int, metavar="N", help=f"first frame (default: the start of {default})")
-    parser.add_argument("--frame-end", type=int, metavar="N", help=f"last frame (default: the end of {default})")
-
-
-def _add_output_arguments(parser, new_action_help):
-    parser.add_argument("--new-action", metavar="NAME", help=new_action_help)
-    out = parser.add_argument_group("output (nothing is saved unless --output or --overwrite is given)")
-    out.add_argument("--output", metavar="OUT.blend",
-                     help="save the result as this new .blend file (the input file is left untouched)")
-    out.add_argument("--overwrite", action="store_true",
-                     help="save the result over the input .blend file (without --output), or allow --output to "
-                          "name the input file")
-    out.add_argument("--report", metavar="REPORT.json",
-                     help="write a JSON report: frames, seconds, frames/s, reach error per effector (median, "
-                          "p99, max; targets within and beyond reach apart), penetrations, and the frames "
-                          "where a target was not met, with the reason")
-    out.add_argument("--preview", metavar="PREVIEW.png",
-                     help="draw a before/after picture: skeleton snapshots (front and side) at a few frames, "
-                          "before in grey and after in blue with the targets, and the reach error over time")
-    out.add_argument("--preview-frames", type=_positive_int, default=4, metavar="N",
-                     help="number of snapshot frames in the preview (default: 4)")
-    out.add_argument("--quiet", action="store_true", help="no progress line on stderr")
-    out.add_argument("--debug", action="store_true", help="print the Python traceback of an internal error")
-
-
-class _ContactsAction(argparse.Action):
-    def __call__(self, parser, namespace, values, option_string=None):
-        kind, names = values[0].lower(), values[1:]
-        if kind == "ground" and not names:
-            contact = ("ground", None)
-        elif kind == "object" and len(names) == 1:
-            contact = ("object", names[0])
-        elif kind == "object":
-            raise argparse.ArgumentError(self, "'object' takes exactly one object NAME")
-        elif kind == "ground":
-            raise argparse.ArgumentError(self, "'ground' takes no name")
-        else:
-            raise argparse.ArgumentError(self, f"expected 'ground' or 'object NAME', got '{values[0]}'")
-        setattr(namespace, self.dest, contact)
-
-
-def _positive(text):
-    value = _float(text)
-    if not value > 0.0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return value
-
-
-def _non_negative(text):
-    value = _float(text)
-    if not value >= 0.0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return value
-
-
-def _float(text):
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text}") from None
-    if not np.isfinite(value):
-        raise argparse.ArgumentTypeError(f"must be finite, got {text}")
-    return value
-
-
-def _positive_int(text):
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {text}")
-    return value
 
 
 # --- a run -----------------------------------------------------------------------------------------------------
@@ -274,7 +84,7 @@ def _execute(args):
     saved = _checked_outputs(args, input_path)
     if not _same_file(input_path, batch.current_file()):
         batch.open_blend(input_path)
-    result = args.work(args, bpy.context)
+    result = _WORK[args.work](args, bpy.context)
 
     report = summary.summarize_outcome(
         result.outcome, result.seconds, command=args.subcommand, file=os.path.abspath(input_path),
@@ -470,6 +280,9 @@ def _retarget(args, context):
                "contact_object": contact_name, "exact": args.exact,
                "action": action.name if action is not None else batch.action_name(target)}
     return WorkResult(outcome=outcome, seconds=seconds, figure=figure, details=details)
+
+
+_WORK = {"adjust": _adjust, "retarget": _retarget}
 
 
 def _one_line(ex):
