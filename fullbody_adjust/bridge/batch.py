@@ -40,6 +40,27 @@ def save_blend(path):
         raise AdjustError(f"Cannot save {path}: {_blender_message(ex)}") from None
 
 
+def write_datablocks(path, datablocks):
+    """Write only ``datablocks`` (and what they use) into a new .blend at ``path``, with fake users."""
+    try:
+        bpy.data.libraries.write(os.path.abspath(path), set(datablocks), fake_user=True)
+    except (OSError, RuntimeError) as ex:
+        raise AdjustError(f"Cannot write {path}: {_blender_message(ex)}") from None
+
+
+def append_datablocks(context, path):
+    """Append the actions and objects of the .blend at ``path`` (written by write_datablocks) into the current
+    file: the actions keep a fake user, the objects join the scene. Returns the appended actions."""
+    with bpy.data.libraries.load(os.path.abspath(path), link=False) as (data_from, data_to):
+        data_to.actions = list(data_from.actions)
+        data_to.objects = list(data_from.objects)
+    for action in data_to.actions:
+        action.use_fake_user = True
+    for obj in data_to.objects:
+        context.scene.collection.objects.link(obj)
+    return list(data_to.actions)
+
+
 def armature_named(context, name, option="--armature"):
     """The armature object ``name`` of the current scene; AdjustError naming the scene's armatures otherwise."""
     scene = context.scene

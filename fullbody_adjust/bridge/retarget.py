@@ -64,18 +64,19 @@ class RetargetOutcome:
 
 
 def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, *, contacts="ground",
-             contact_object=None, exact=False, new_action=None, progress=None):
+             contact_object=None, exact=False, new_action=None, floor=None, progress=None):
     """Retarget ``source_obj``'s motion over [frame_start, frame_end] (default: its action's frame range)
     onto ``target_obj``, into a new action named ``new_action`` (default '<source action>_<target>').
 
     contacts: 'ground' (planted feet are held still; exact: soles exactly on the ground) or 'object' (hands
     and feet touching ``contact_object``, an Object or its name, are held; exact: at the source's own world
-    positions). Returns a RetargetOutcome; AdjustError (one line) on bad input, before anything changes
+    positions). ``floor``: world height the source's ground is moved to (None: where it is). Returns a
+    RetargetOutcome; AdjustError (one line) on bad input, before anything changes
     (but the bone map stored on the target, see mapping.ensure_map)."""
     progress = progress or (lambda stage, fraction: None)
     progress("reading", 0.0)
     prepared = prepare(context, source_obj, target_obj, frame_start, frame_end, contacts=contacts,
-                       contact_object=contact_object, exact=exact)
+                       contact_object=contact_object, exact=exact, floor=floor)
     target, plan = prepared.target, prepared.plan
 
     progress("solving", 0.2)
@@ -117,7 +118,7 @@ class Prepared:
 
 
 def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *, contacts="ground",
-            contact_object=None, exact=False):
+            contact_object=None, exact=False, floor=None):
     """Check the input, read the source's motion and plan the retarget (see ``retarget``); changes nothing
     but the target's stored bone map."""
     _check_source(source_obj)
@@ -148,6 +149,11 @@ def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *
         if len(target.names) != len(target_basis):  # a control rig's skeleton: its bones' own bases
             target_basis = target_basis[[target_obj.pose.bones.find(name) for name in target.names]]
         plan = rt.plan_retarget(source, source_pose, target, target_basis, settings, boxes)
+        if floor is not None and plan.ground != float(floor):  # the plan is the source's, raised onto the floor
+            raised = source.matrix_world.copy()
+            raised[2, 3] += float(floor) - plan.ground
+            source = _with_world(source, raised)
+            plan = rt.plan_retarget(source, source_pose, target, target_basis, settings, boxes)
     except SolverInputError as ex:
         raise AdjustError(f"Cannot retarget '{source_obj.name}' onto '{target_obj.name}': {ex}") from None
     return Prepared(source, target, plan, frames, read_from)

@@ -1,0 +1,193 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""``retarget --source-file CLIP ...``: many clip files onto one target character, in parallel worker
+processes (``batch_pool``; each runs ``clip_worker``). Everything the batch can check is checked before a worker
+starts (one line, exit 2, nothing written); afterwards a clip that fails is a row of the report with its reason,
+the others go on, and the exit code is 1.
+
+Outputs: with --output-dir, one .blend per clip (the target file with that clip's action, saved by its worker);
+else every clip's action is merged into the target file and saved as --output (or over the input with
+--overwrite): each worker writes its action into a small part file, appended here at the end.
+"""
+
+import glob
+import os
+import sys
+import tempfile
+import time
+
+import bpy
+
+from . import cli
+from .batch_pool import WorkerPool
+from .bridge import batch, clip_import
+from .cli import CommandError
+from .reporting import batch_report
+from .reporting.progress import ConsoleProgress, NoProgress
+
+WORKER_FLAG = "--clip-worker"
+
+
+def run(args):
+    input_path = cli._input_path(args)
+    clips = clip_paths(args.source_file)
+    _check_options(args, clips)
+    saved = None if args.output_dir else cli._checked_outputs(args, input_path)
+    if args.output_dir:
+        _check_output_dir(args.output_dir)
+    csv_path = _csv_path(args.report) if args.report else None
+    if csv_path:
+        cli._check_writable(csv_path, "--report")
+    if not cli._same_file(input_path, batch.current_file()):
+        batch.open_blend(input_path)
+    context = bpy.context
+    target = batch.armature_named(context, args.target, "--target")
+    batch.check_mappable(target, "--target")
+    if args.contacts and args.contacts[1]:
+        batch.object_named(context, args.contacts[1], "--contacts object")
+
+    rows, tasks = [], []
+    for clip in clips:
+        name = args.new_action or os.path.splitext(os.path.basename(clip))[0]
+        out = os.path.join(os.path.abspath(args.output_dir), f"{name}.blend") if args.output_dir else None
+        done_before = os.path.exists(out) if out else name in bpy.data.actions
+        if args.skip_existing and done_before:
+            rows.append({"clip": clip, "name": name, "status": batch_report.SKIPPED, "output": out,
+                         "action": name})
+        else:
+            tasks.append({"clip": clip, "name": name, "out": out})
+
+    jobs = args.jobs or os.cpu_count() or 1
+    progress = NoProgress() if args.quiet else ConsoleProgress(
+        len(tasks), f"retarget {len(tasks)} clips -> '{target.name}'", unit="clips", per_minute=True)
+    started = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="fba-parts-") as parts:
+        for index, task in enumerate(tasks):
+            if task["out"] is None:
+                task["part"] = os.path.join(parts, f"{index}.blend")
+        pool = WorkerPool(worker_command(), _job(args, input_path, target.name), jobs, env=worker_env(),
+                          on_progress=lambda done, failed, fraction: progress(
+                              f"{done}/{len(tasks)}" + (f" ({failed} failed)" if failed else ""), fraction))
+        done = pool.run(tasks) if tasks else []
+        progress.finish()
+        for task, row in zip(tasks, done):
+            row.setdefault("name", task["name"])
+            if row.get("status") == batch_report.DONE:
+                if task["out"]:
+                    row["output"] = task["out"]
+                else:  # the clip's action joins the target file under the clip's name
+                    row["action"] = batch.append_datablocks(context, task["part"])[0].name
+                    row["output"] = os.path.abspath(saved) if saved else None
+        rows.extend(done)
+    if saved is not None:
+        batch.save_blend(saved)
+    seconds = time.perf_counter() - started
+
+    order = {clip: i for i, clip in enumerate(clips)}
+    rows.sort(key=lambda row: order[row["clip"]])
+    report = batch_report.batch_report(rows, seconds, command="retarget", file=os.path.abspath(input_path),
+                                       target=target.name, jobs=min(jobs, max(len(tasks), 1)),
+                                       blender=bpy.app.version_string)
+    if args.report:
+        cli._write_text(args.report, batch_report.to_json(report))
+        cli._write_text(csv_path, batch_report.to_csv(report))
+    line = f"retarget onto '{target.name}': {batch_report.one_line(report)}"
+    if args.output_dir:
+        line += f"; saved in {args.output_dir}"
+    else:
+        line += f"; saved {saved}" if saved else "; not saved (no --output)"
+    print(line)
+    failed = [row for row in rows if row["status"] == batch_report.FAILED]
+    for row in failed:
+        print(f"{cli.COMMAND} retarget: {os.path.basename(row['clip'])} failed: {row['reason']}", file=sys.stderr)
+    return cli.EXIT_TARGETS_MISSED if failed or report["missed_within_reach"] else cli.EXIT_OK
+
+
+def clip_paths(patterns):
+    """Absolute paths of the clips that ``patterns`` name: files, folders (their .bvh and .fbx files) and globs,
+    each clip once, in the order given (a folder's or glob's clips sorted). CommandError when a pattern names no
+    clip or two clips have the same name."""
+    paths = []
+    for pattern in patterns:
+        if os.path.isdir(pattern):
+            found = sorted(os.path.join(pattern, name) for name in os.listdir(pattern)
+                           if os.path.splitext(name)[1].lower() in clip_import.FORMATS)
+        elif os.path.isfile(pattern):
+            if os.path.splitext(pattern)[1].lower() not in clip_import.FORMATS:
+                raise CommandError(f"--source-file {pattern}: not a clip file (use .bvh or .fbx)")
+            found = [pattern]
+        else:
+            found = sorted(p for p in glob.glob(pattern) if os.path.splitext(p)[1].lower() in clip_import.FORMATS)
+        if not found:
+            raise CommandError(f"--source-file {pattern}: no such file, or no .bvh or .fbx file there")
+        paths.extend(os.path.abspath(p) for p in found)
+    unique = list(dict.fromkeys(paths))
+    names = {}
+    for path in unique:
+        name = os.path.splitext(os.path.basename(path))[0]
+        if name in names:
+            raise CommandError(f"two clips are named '{name}' ({names[name]} and {path}): their actions and files "
+                               f"would collide")
+        names[name] = path
+    return unique
+
+
+def _check_options(args, clips):
+    if args.preview:
+        raise CommandError("--preview draws one retarget: leave it out with --source-file")
+    if args.new_action and len(clips) > 1:
+        raise CommandError("--new-action names one action: with several clips each is named after its clip")
+    if args.output_dir and (args.output or args.overwrite):
+        raise CommandError("--output-dir writes one .blend per clip: leave out --output and --overwrite")
+    if args.clip_fps == "clip" and not args.output_dir:
+        raise CommandError("--clip-fps clip changes the scene's frame rate per clip: use it with --output-dir")
+
+
+def _check_output_dir(folder):
+    if os.path.exists(folder) and not os.path.isdir(folder):
+        raise CommandError(f"--output-dir {folder} is a file, not a folder")
+    try:
+        os.makedirs(folder, exist_ok=True)
+    except OSError as ex:
+        raise CommandError(f"--output-dir {folder}: cannot create it: {ex.strerror}") from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise CommandError(f"--output-dir {folder}: folder is not writable")
+
+
+def _csv_path(report_path):
+    return os.path.splitext(report_path)[0] + ".csv"
+
+
+def _job(args, input_path, target):
+    contacts, contact_object = args.contacts or ("ground", None)
+    return {"file": os.path.abspath(input_path), "target": target,
+            "import": {"scale": args.clip_scale, "forward": args.clip_forward, "up": args.clip_up,
+                       "fps": args.clip_fps, "start_frame": args.clip_start_frame},
+            "contacts": contacts, "contact_object": contact_object, "exact": args.exact,
+            "floor": 0.0 if args.floor is None else args.floor, "frame_start": args.frame_start,
+            "frame_end": args.frame_end, "keep_sources": args.keep_sources}
+
+
+# --- the worker processes ---------------------------------------------------------------------------------------
+
+def _package():
+    """(folder holding the package, the package's name): what a fresh process imports it as."""
+    real = os.path.realpath(os.path.dirname(os.path.abspath(__file__)))
+    return os.path.dirname(real), os.path.basename(real)
+
+
+def worker_command():
+    """How to start a worker: under Blender, the same Blender in the background without the user's settings;
+    with the bpy module, the same Python."""
+    parent, name = _package()
+    binary = bpy.app.binary_path
+    if binary and os.path.basename(binary).lower().startswith("blender"):
+        code = f"import sys; sys.path.insert(0, {parent!r}); from {name}.__main__ import worker; worker()"
+        return [binary, "-b", "--factory-startup", "--python-expr", code]
+    return [sys.executable, "-m", name, WORKER_FLAG]
+
+
+def worker_env():
+    parent, _name = _package()
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (parent, env.get("PYTHONPATH")) if p)
+    return env
