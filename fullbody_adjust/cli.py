@@ -206,6 +206,7 @@ def _adjust(args, context):
     adjustment.check_armature(obj)
     batch.check_mappable(obj, "--armature")
     start, end = batch.frame_range(obj, context.scene, args.frame_start, args.frame_end)
+    batch.check_frame_budget(context, obj, start, end)
     options = adjustment.Options(
         variant=_VARIANTS[args.variant] if args.variant else None, margin=args.margin, tolerance=args.tolerance,
         max_iterations=args.max_iterations, use_joint_limits=False if args.no_limits else None,
@@ -254,7 +255,8 @@ def _retarget(args, context):
     batch.check_mappable(target, "--target")
     contacts, contact_name = args.contacts or ("ground", None)
     contact_object = batch.object_named(context, contact_name, "--contacts object") if contact_name else None
-    start, end = batch.frame_range(source, context.scene, args.frame_start, args.frame_end)
+    start, end = batch.frame_range(source, context.scene, args.frame_start, args.frame_end, within_scene=True)
+    batch.check_frame_budget(context, target, start, end)
 
     frames = np.arange(start, end + 1, dtype=np.float64)
     shown = frames[preview.pick_snapshots(len(frames), args.preview_frames)]

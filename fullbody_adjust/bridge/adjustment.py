@@ -157,6 +157,7 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None):
             corner_rows = []
 
             def read_others(row, frame):  # one pass over the frames reads pose, targets and obstacles
+                progress("reading", 0.3 * row / len(frames))
                 world_targets[row] = target_at(frame)[0]
                 corner_rows.append(boxes_at(frame))
 

@@ -1,0 +1,162 @@
+"""`retarget --source-file`: clip files (short cuts of the repository's CMU clips, and broken ones) retargeted
+onto a character in 2 worker processes, through cli.main as `blender -c` would call it; the outputs reopened.
+Also the frame-range refusal of `adjust` before any work."""
+
+import csv
+import importlib
+import json
+import os
+from pathlib import Path
+
+import bpy
+import pytest
+
+from tests.helpers.bvh import MOCAP_DIR
+
+from .test_cli import Untouched, keyed_values, reopen, run
+
+CUTS = {"walk_a": ("cmu_07_01_walk.bvh", 1, 100), "walk_b": ("cmu_07_01_walk.bvh", 150, 260),
+        "jump": ("cmu_02_04_jump.bvh", 1, 90)}  # name: (clip, first, last frame line, 0-based, end excluded)
+
+
+@pytest.fixture(scope="module")
+def cli(extension_module_name):
+    return importlib.import_module(f"{extension_module_name}.cli")
+
+
+def cut_bvh(source, path, first, last):
+    """A BVH of ``source``'s header and its frame lines [first, last)."""
+    header, motion = Path(source).read_text().split("MOTION", 1)
+    lines = motion.strip().splitlines()
+    frame_time = next(line for line in lines[:3] if line.lower().startswith("frame time"))
+    frames = [line for line in lines if line and (line[0].isdigit() or line[0] in "-.")][first:last]
+    path.write_text(f"{header}MOTION\nFrames: {len(frames)}\n{frame_time}\n" + "\n".join(frames) + "\n")
+    return len(frames)
+
+
+@pytest.fixture
+def clips(tmp_path):
+    """A folder of three good clip cuts and a corrupt one (its header cut off mid-hierarchy)."""
+    folder = tmp_path / "clips"
+    folder.mkdir()
+    for name, (clip, first, last) in CUTS.items():
+        cut_bvh(MOCAP_DIR / clip, folder / f"{name}.bvh", first, last)
+    (folder / "broken.bvh").write_text((MOCAP_DIR / "cmu_07_01_walk.bvh").read_text()[:400])
+    return folder
+
+
+@pytest.fixture
+def character(tmp_path, rig):
+    """A .blend with the Rigify basic metarig named 'Hero' and nothing else."""
+    rig.name = "Hero"
+    path = tmp_path / "hero.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    bpy.ops.wm.read_homefile(use_empty=True)
+    return path
+
+
+def scene_frames(path):
+    """The frames a clip cut covers at the scene's 24 fps, imported as the batch does (1/5 of 120 fps)."""
+    count = int(Path(path).read_text().split("Frames:", 1)[1].split()[0])
+    return 1, 1 + round((count - 1) * 24 / 120)
+
+
+def test_clips_become_actions_of_the_target_and_a_broken_clip_is_reported(cli, capsys, tmp_path, clips, character):
+    before = Untouched(character)
+    out, report_path = tmp_path / "out.blend", tmp_path / "batch.json"
+    code, stdout, err = run(cli, capsys, "retarget", character, "--target", "Hero", "--source-file", clips,
+                            "--jobs", 2, "--output", out, "--report", report_path)
+    before.check()
+    assert code == 1, err  # the broken clip fails the batch, at the end
+    report = json.loads(report_path.read_text())
+    rows = {row["name"]: row for row in report["rows"]}
+    assert sorted(rows) == sorted([*CUTS, "broken"])
+    assert rows["broken"]["status"] == "failed" and "Cannot import broken.bvh" in rows["broken"]["reason"]
+    assert f"broken.bvh failed: {rows['broken']['reason']}" in err
+    assert "clips/min" in err  # the batch's progress line
+    assert report["clips"] == {"total": 4, "done": 3, "failed": 1, "skipped": 0} and report["jobs"] == 2
+    assert "3 of 4 clips retargeted" in stdout
+
+    reopen(out)
+    assert [ob.name for ob in bpy.data.objects if ob.type == 'ARMATURE'] == ["Hero"]  # no imported source left
+    for name in CUTS:
+        row = rows[name]
+        assert row["status"] == "done" and row["reason"] is None and row["action"] == name
+        action = bpy.data.actions[name]
+        assert action.use_fake_user
+        keyed = {float(f) for frames, _ in keyed_values(action).values() for f in frames}
+        first, last = scene_frames(clips / f"{name}.bvh")
+        assert (row["frame_start"], row["frame_end"], row["frames"]) == (first, last, last - first + 1)
+        assert keyed == set(map(float, range(first, last + 1)))
+        assert row["contact_frames"] >= 0 and row["solve_seconds"] <= row["seconds"]
+    assert bpy.data.objects["Hero"].animation_data is None  # the target's own motion is as it was (none)
+
+    # The CSV beside the JSON holds the same rows.
+    with open(report_path.with_suffix(".csv"), newline="") as table:
+        listed = list(csv.DictReader(table))
+    assert [r["name"] for r in listed] == [r["name"] for r in report["rows"]]
+    for text_row, row in zip(listed, report["rows"]):
+        for column, value in row.items():
+            if value is None:
+                assert text_row[column] == "", column
+            elif isinstance(value, (int, float)):
+                assert float(text_row[column]) == pytest.approx(value, rel=1e-12), column
+            else:
+                assert text_row[column] == str(value), column
+
+
+def test_output_dir_writes_one_blend_per_clip_and_skip_existing_resumes(cli, capsys, tmp_path, clips, character):
+    os.remove(clips / "broken.bvh")
+    os.remove(clips / "jump.bvh")
+    folder = tmp_path / "out"
+    code, _, err = run(cli, capsys, "retarget", character, "--target", "Hero", "--source-file", clips / "walk_*.bvh",
+                       "--jobs", 2, "--output-dir", folder, "--quiet")
+    report_code = code
+    assert sorted(p.name for p in folder.iterdir()) == ["walk_a.blend", "walk_b.blend"]
+    for name in ("walk_a", "walk_b"):
+        reopen(folder / f"{name}.blend")
+        assert [ob.name for ob in bpy.data.objects if ob.type == 'ARMATURE'] == ["Hero"]
+        assert bpy.data.objects["Hero"].animation_data.action.name == name
+        assert [a.name for a in bpy.data.actions] == [name]
+    assert report_code in (0, 1) and "failed" not in err
+
+    # Resume with one clip more: the two done are left alone, only the new one runs.
+    cut_bvh(MOCAP_DIR / "cmu_02_04_jump.bvh", clips / "walk_c.bvh", 1, 60)
+    done_before = {p.name: p.stat().st_mtime_ns for p in folder.iterdir()}
+    code, stdout, _ = run(cli, capsys, "retarget", character, "--target", "Hero", "--source-file", clips,
+                          "--jobs", 2, "--output-dir", folder, "--skip-existing", "--quiet", "--report",
+                          tmp_path / "again.json")
+    rows = {row["name"]: row["status"] for row in json.loads((tmp_path / "again.json").read_text())["rows"]}
+    assert rows == {"walk_a": "skipped", "walk_b": "skipped", "walk_c": "done"}
+    assert {p.name: p.stat().st_mtime_ns for p in folder.iterdir() if p.name in done_before} == done_before
+    assert (folder / "walk_c.blend").exists() and "2 skipped" in stdout
+
+
+@pytest.mark.parametrize("extra, words", [
+    (["--source-file", "{tmp}/none.bvh"], "no such file"),
+    (["--source-file", "{clips}/walk_a.bvh", "--source", "Hero"], "not allowed with argument"),
+    (["--source-file", "{clips}", "--new-action", "One"], "--new-action names one action"),
+    (["--source-file", "{clips}", "--target", "Nobody"], "no object named 'Nobody'"),
+    (["--source-file", "{clips}", "--output-dir", "{tmp}/d", "--output", "{tmp}/o.blend"], "--output-dir"),
+])
+def test_bad_batch_input_exits_2_before_any_work(cli, capsys, tmp_path, clips, character, extra, words):
+    before = Untouched(character)
+    argv = [a.format(tmp=tmp_path, clips=clips) for a in extra]
+    if "--target" not in argv:
+        argv += ["--target", "Hero"]
+    code, _, err = run(cli, capsys, "retarget", character, *argv, "--quiet")
+    assert code == 2 and len(err.strip().splitlines()) == 1 and words in err, err
+    before.check()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clips", "hero.blend"]
+
+
+def test_a_frame_range_far_beyond_the_animation_is_refused_in_one_line(cli, capsys, tmp_path, character):
+    before = Untouched(character)
+    out = tmp_path / "out.blend"
+    code, _, err = run(cli, capsys, "adjust", character, "--armature", "Hero", "--frame-start", 1, "--frame-end",
+                       1_000_000, "--output", out, "--report", tmp_path / "r.json")
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert "far beyond the animation" in err and "frames 1..250" in err
+    assert "reading" not in err  # refused before the reading started
+    before.check()
+    assert not out.exists() and not (tmp_path / "r.json").exists()
