@@ -108,19 +108,25 @@ def copy_target(target, name):
     return copy
 
 
-def select_pose_bones(rig):
+def select_pose_bones(rig, bones=None):
+    """Pose Mode on ``rig`` with ``bones`` selected (None: all)."""
     for ob in bpy.context.scene.objects:
         ob.select_set(False)
     rig.select_set(True)
     bpy.context.view_layer.objects.active = rig
     bpy.ops.object.mode_set(mode='POSE')
-    bpy.ops.pose.select_all(action='SELECT')
+    bpy.ops.pose.select_all(action='SELECT' if bones is None else 'DESELECT')
+    for name in bones or ():
+        holder = rig.pose.bones[name] if "select" in bpy.types.PoseBone.bl_rna.properties else rig.data.bones[name]
+        holder.select = True  # 5.0 moved the selection to pose bones
 
 
-def bake(rig, frames):
-    select_pose_bones(rig)
+def bake(rig, frames, bones=None, channel_types=None):
+    """nla.bake of the pose over ``frames``: every bone and channel, or only ``bones`` and ``channel_types``."""
+    select_pose_bones(rig, bones)
+    lean = {"channel_types": channel_types} if channel_types else {}
     bpy.ops.nla.bake(frame_start=int(frames[0]), frame_end=int(frames[-1]), only_selected=True,
-                     visual_keying=True, clear_constraints=True, bake_types={'POSE'})
+                     visual_keying=True, clear_constraints=True, bake_types={'POSE'}, **lean)
     bpy.ops.object.mode_set(mode='OBJECT')
 
 
@@ -156,8 +162,9 @@ def run_ours(source, target, frames):
     return time.perf_counter() - start, outcome
 
 
-def run_constraints(rig, source, prepared, frames, world_targets, effectors):
-    """Blender's way end to end on ``rig``: returns the seconds it took."""
+def run_constraints(rig, source, prepared, frames, world_targets, effectors, lean=False):
+    """Blender's way end to end on ``rig``: returns the seconds it took. ``lean``: only the mapped bones'
+    location and rotation are baked."""
     source_rig, target_rig, plan = prepared.source, prepared.target, prepared.plan
     start = time.perf_counter()
     # Helper bones, one per paired target bone, unparented, resting in the orientation W_s_rest^-1 A W_t_rest:
@@ -192,7 +199,11 @@ def run_constraints(rig, source, prepared, frames, world_targets, effectors):
     place.target = animated_empty(f"{rig.name}_root_path", frames,
                                   target_rig.to_world(plan.start_pose[:, target_rig.groups["root"][0], :3, 3]))
     add_ik(rig, frames, world_targets, effectors)
-    bake(rig, frames)
+    if lean:
+        mapped = sorted({target_rig.names[b] for bones in target_rig.groups.values() for b in bones})
+        bake(rig, frames, mapped, {'LOCATION', 'ROTATION'})
+    else:
+        bake(rig, frames)
     return time.perf_counter() - start
 
 

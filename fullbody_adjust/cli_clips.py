@@ -75,7 +75,7 @@ def run(args):
                 if task["out"]:
                     row["output"] = task["out"]
                 else:  # the clip's action joins the target file under the clip's name
-                    row["action"] = batch.append_datablocks(context, task["part"])[0].name
+                    row["action"] = batch.append_datablocks(context, task["part"])[row["action"]].name
                     row["output"] = os.path.abspath(saved) if saved else None
         rows.extend(done)
     if saved is not None:

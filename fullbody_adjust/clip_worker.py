@@ -65,7 +65,9 @@ def _retarget_clip(context, job, task, progress):
     batch.open_blend(job["file"])
     target = batch.armature_named(context, job["target"], "--target")
     progress(0.05)
+    import_started = time.perf_counter()
     source, added = clip_import.import_clip(context, task["clip"], clip_import.ImportOptions(**job["import"]))
+    import_seconds = time.perf_counter() - import_started
     progress(0.3)
     solve_started = time.perf_counter()
     outcome = retarget(context, source, target, job.get("frame_start"), job.get("frame_end"),
@@ -82,11 +84,12 @@ def _retarget_clip(context, job, task, progress):
         kept = [ob for ob in added if isinstance(ob, bpy.types.Object)] if job.get("keep_sources") else []
         batch.write_datablocks(task["part"], [outcome.action, *kept])
     progress(1.0)
-    return clip_row(outcome, solve_seconds)
+    return dict(clip_row(outcome, solve_seconds), import_seconds=import_seconds)
 
 
 def clip_row(outcome, solve_seconds):
-    """A clip's figures: frames, solve time, reach error within reach, contacts held and their error."""
+    """A clip's figures: frames, retarget time (read, plan, solve, write), reach error within reach, contacts
+    held and their error."""
     report = summary.summarize_outcome(outcome, solve_seconds)
     reach = report["reach_error"]["all"]["reachable"]
     held = np.asarray(outcome.contacts, dtype=bool)

@@ -50,15 +50,17 @@ def write_datablocks(path, datablocks):
 
 def append_datablocks(context, path):
     """Append the actions and objects of the .blend at ``path`` (written by write_datablocks) into the current
-    file: the actions keep a fake user, the objects join the scene. Returns the appended actions."""
+    file: the actions keep a fake user, the objects join the scene. Returns {name in that file: appended
+    action} (an appended action is renamed when the current file has one of its name)."""
     with bpy.data.libraries.load(os.path.abspath(path), link=False) as (data_from, data_to):
-        data_to.actions = list(data_from.actions)
+        names = list(data_from.actions)
+        data_to.actions = list(names)
         data_to.objects = list(data_from.objects)
     for action in data_to.actions:
         action.use_fake_user = True
     for obj in data_to.objects:
         context.scene.collection.objects.link(obj)
-    return list(data_to.actions)
+    return dict(zip(names, data_to.actions))
 
 
 def armature_named(context, name, option="--armature"):

@@ -11,7 +11,7 @@ from pathlib import Path
 import bpy
 import pytest
 
-from tests.helpers.bvh import MOCAP_DIR
+from tests.helpers.bvh import MOCAP_DIR, cut_bvh
 
 from .test_cli import Untouched, keyed_values, reopen, run
 
@@ -22,16 +22,6 @@ CUTS = {"walk_a": ("cmu_07_01_walk.bvh", 1, 100), "walk_b": ("cmu_07_01_walk.bvh
 @pytest.fixture(scope="module")
 def cli(extension_module_name):
     return importlib.import_module(f"{extension_module_name}.cli")
-
-
-def cut_bvh(source, path, first, last):
-    """A BVH of ``source``'s header and its frame lines [first, last)."""
-    header, motion = Path(source).read_text().split("MOTION", 1)
-    lines = motion.strip().splitlines()
-    frame_time = next(line for line in lines[:3] if line.lower().startswith("frame time"))
-    frames = [line for line in lines if line and (line[0].isdigit() or line[0] in "-.")][first:last]
-    path.write_text(f"{header}MOTION\nFrames: {len(frames)}\n{frame_time}\n" + "\n".join(frames) + "\n")
-    return len(frames)
 
 
 @pytest.fixture
@@ -130,6 +120,33 @@ def test_output_dir_writes_one_blend_per_clip_and_skip_existing_resumes(cli, cap
     assert rows == {"walk_a": "skipped", "walk_b": "skipped", "walk_c": "done"}
     assert {p.name: p.stat().st_mtime_ns for p in folder.iterdir() if p.name in done_before} == done_before
     assert (folder / "walk_c.blend").exists() and "2 skipped" in stdout
+
+
+def test_an_fbx_clip_through_blenders_fbx_importer_and_kept_sources(cli, capsys, tmp_path, clips, character,
+                                                                     extension_module_name):
+    # An FBX of a clip, written by Blender's FBX exporter from the imported BVH.
+    import addon_utils
+
+    clip_import = importlib.import_module(f"{extension_module_name}.bridge.clip_import")
+    source, _ = clip_import.import_clip(bpy.context, str(clips / "jump.bvh"))
+    addon_utils.enable("io_scene_fbx", default_set=False)
+    bpy.ops.object.select_all(action='DESELECT')
+    source.select_set(True)
+    bpy.context.scene.frame_end = 20
+    fbx = tmp_path / "jump_fbx.fbx"
+    bpy.ops.export_scene.fbx(filepath=str(fbx), use_selection=True, object_types={'ARMATURE'}, add_leaf_bones=False,
+                             bake_anim=True, bake_anim_use_nla_strips=False, bake_anim_use_all_actions=False)
+    out = tmp_path / "out.blend"
+    code, _, err = run(cli, capsys, "retarget", character, "--target", "Hero", "--source-file", fbx, "--jobs", 1,
+                       "--keep-sources", "--output", out, "--report", tmp_path / "r.json", "--quiet")
+    row = json.loads((tmp_path / "r.json").read_text())["rows"][0]
+    assert row["status"] == "done", row["reason"]
+    assert code == (1 if row["missed_within_reach"] else 0)
+    reopen(out)
+    assert sorted(ob.name for ob in bpy.data.objects if ob.type == 'ARMATURE') == ["Hero", "jump"]  # the exported object's name
+    action = bpy.data.actions["jump_fbx"]
+    keyed = {float(f) for frames, _ in keyed_values(action).values() for f in frames}
+    assert len(keyed) == row["frames"] == 20 and min(keyed) == row["frame_start"]
 
 
 @pytest.mark.parametrize("extra, words", [
