@@ -177,3 +177,33 @@ def test_a_frame_range_far_beyond_the_animation_is_refused_in_one_line(cli, caps
     assert "reading" not in err  # refused before the reading started
     before.check()
     assert not out.exists() and not (tmp_path / "r.json").exists()
+
+
+def test_a_frame_range_too_large_for_memory_is_refused_in_one_line(cli, capsys, tmp_path, character, monkeypatch,
+                                                                   extension_module_name):
+    batch = importlib.import_module(f"{extension_module_name}.bridge.batch")
+    bones = 29  # the basic metarig
+    need = 10 * bones * batch.BYTES_PER_BONE_FRAME  # frames 1..10
+    monkeypatch.setattr(batch, "available_memory", lambda: 2 * need - 1)
+    code, _, err = run(cli, capsys, "adjust", character, "--armature", "Hero", "--frame-start", 1, "--frame-end", 10,
+                       "--quiet")
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "would need about" in err, err
+    monkeypatch.setattr(batch, "available_memory", lambda: 2 * need)  # exactly half: allowed
+    code, _, err = run(cli, capsys, "adjust", character, "--armature", "Hero", "--frame-start", 1, "--frame-end", 10,
+                       "--quiet")
+    assert "would need" not in err
+
+
+def test_retarget_frames_default_to_the_source_action_within_the_scene_range(cli, capsys, tmp_path):
+    samples = Path(__file__).resolve().parents[2] / "sample_scenes"
+    reopen(samples / "retarget_cmu.blend")
+    action = bpy.data.objects["Source"].animation_data.action
+    first, last = (int(round(f)) for f in action.frame_range)
+    scene = bpy.context.scene
+    scene.frame_start, scene.frame_end = first + 4, first + 9  # shorter than the action, inside it
+    path = tmp_path / "short.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    run(cli, capsys, "retarget", path, "--source", "Source", "--target", "Small", "--quiet", "--report",
+        tmp_path / "r.json")
+    assert json.loads((tmp_path / "r.json").read_text())["frames"] == {"start": first + 4, "end": first + 9,
+                                                                      "count": 6}
