@@ -57,7 +57,12 @@ class WorkerPool:
             while (item := self._next()) is not None:
                 index, task = item
                 if worker is None:
-                    worker = _Worker(self.command, self.env, log_path, self.job)
+                    try:
+                        worker = _Worker(self.command, self.env, log_path, self.job)
+                    except OSError as ex:  # e.g. the program is gone: every task says so
+                        self._finish(index, {"clip": task["clip"], "status": FAILED,
+                                             "reason": f"cannot start a worker process: {ex}"})
+                        continue
                 row = worker.do(task, lambda fraction, i=index: self._progress(i, fraction))
                 if row is None:  # the worker died: this task failed, a new worker takes the next one
                     row = {"clip": task["clip"], "status": FAILED, "reason": worker.death()}

@@ -175,15 +175,19 @@ def _package():
     return os.path.dirname(real), os.path.basename(real)
 
 
-def worker_command():
-    """How to start a worker: under Blender, the same Blender in the background without the user's settings;
-    with the bpy module, the same Python."""
-    parent, name = _package()
-    binary = bpy.app.binary_path
+def worker_command(binary=None):
+    """How to start a worker: under Blender (``binary``, default: this one), the same Blender in the background
+    without the user's settings, running worker_code(); with the bpy module, the same Python."""
+    binary = bpy.app.binary_path if binary is None else binary
     if binary and os.path.basename(binary).lower().startswith("blender"):
-        code = f"import sys; sys.path.insert(0, {parent!r}); from {name}.__main__ import worker; worker()"
-        return [binary, "-b", "--factory-startup", "--python-expr", code]
-    return [sys.executable, "-m", name, WORKER_FLAG]
+        return [binary, "-b", "--factory-startup", "--python-expr", worker_code()]
+    return [sys.executable, "-m", _package()[1], WORKER_FLAG]
+
+
+def worker_code():
+    """The Python a Blender worker runs: this package imported from its folder, then its worker loop."""
+    parent, name = _package()
+    return f"import sys; sys.path.insert(0, {parent!r}); from {name}.__main__ import worker; worker()"
 
 
 def worker_env():

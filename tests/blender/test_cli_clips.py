@@ -7,6 +7,7 @@ import importlib
 import json
 import os
 from pathlib import Path
+import sys
 
 import bpy
 import pytest
@@ -147,6 +148,21 @@ def test_an_fbx_clip_through_blenders_fbx_importer_and_kept_sources(cli, capsys,
     action = bpy.data.actions["jump_fbx"]
     keyed = {float(f) for frames, _ in keyed_values(action).values() for f in frames}
     assert len(keyed) == row["frames"] == 20 and min(keyed) == row["frame_start"]
+
+
+def test_the_blender_worker_command_runs_the_worker_loop(tmp_path, clips, character, extension_module_name):
+    # Under Blender a worker is `blender -b --factory-startup --python-expr CODE`; no Blender binary here, so CODE
+    # runs in this Python (with the bpy module) and serves one clip through the pool.
+    cli_clips = importlib.import_module(f"{extension_module_name}.cli_clips")
+    pool_module = importlib.import_module(f"{extension_module_name}.batch_pool")
+    command = cli_clips.worker_command("/opt/blender/blender")
+    assert command[:4] == ["/opt/blender/blender", "-b", "--factory-startup", "--python-expr"]
+    job = {"file": str(character), "target": "Hero", "import": {}, "floor": 0.0}
+    task = {"clip": str(clips / "jump.bvh"), "name": "jump", "out": str(tmp_path / "jump.blend")}
+    [row] = pool_module.WorkerPool([sys.executable, "-c", command[4]], job, 1, env=cli_clips.worker_env()).run([task])
+    assert row["status"] == "done", row.get("reason")
+    reopen(tmp_path / "jump.blend")
+    assert bpy.data.objects["Hero"].animation_data.action.name == "jump"
 
 
 @pytest.mark.parametrize("extra, words", [
