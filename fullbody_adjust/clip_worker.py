@@ -69,8 +69,10 @@ def _retarget_clip(context, job, task, progress):
     source, added = clip_import.import_clip(context, task["clip"], clip_import.ImportOptions(**job["import"]))
     import_seconds = time.perf_counter() - import_started
     progress(0.3)
+    start, end = batch.frame_range(source, context.scene, job.get("frame_start"), job.get("frame_end"))
+    batch.check_frame_budget(context, target, start, end)
     solve_started = time.perf_counter()
-    outcome = retarget(context, source, target, job.get("frame_start"), job.get("frame_end"),
+    outcome = retarget(context, source, target, start, end,
                        contacts=job.get("contacts", "ground"), contact_object=job.get("contact_object"),
                        exact=job.get("exact", False),
                        floor=job.get("floor"), new_action=task["name"],

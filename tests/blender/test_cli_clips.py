@@ -10,6 +10,7 @@ from pathlib import Path
 import sys
 
 import bpy
+import numpy as np
 import pytest
 
 from tests.helpers.bvh import MOCAP_DIR, cut_bvh
@@ -47,9 +48,10 @@ def character(tmp_path, rig):
 
 
 def scene_frames(path):
-    """The frames a clip cut covers at the scene's 24 fps, imported as the batch does (1/5 of 120 fps)."""
+    """The whole scene frames a clip cut covers at the scene's 24 fps, imported as the batch does (its keys 1/5
+    of a frame apart at 120 fps, from frame 1)."""
     count = int(Path(path).read_text().split("Frames:", 1)[1].split()[0])
-    return 1, 1 + round((count - 1) * 24 / 120)
+    return 1, 1 + (count - 1) * 24 // 120
 
 
 def test_clips_become_actions_of_the_target_and_a_broken_clip_is_reported(cli, capsys, tmp_path, clips, character):
@@ -81,6 +83,14 @@ def test_clips_become_actions_of_the_target_and_a_broken_clip_is_reported(cli, c
         assert keyed == set(map(float, range(first, last + 1)))
         assert row["contact_frames"] >= 0 and row["solve_seconds"] <= row["seconds"]
     assert bpy.data.objects["Hero"].animation_data is None  # the target's own motion is as it was (none)
+
+    # Resumed on its own output: the clips it holds are left out, the broken one is tried (and fails) again.
+    code, stdout, _ = run(cli, capsys, "retarget", out, "--target", "Hero", "--source-file", clips, "--jobs", 2,
+                          "--overwrite", "--skip-existing", "--quiet", "--report", tmp_path / "again.json")
+    again = {row["name"]: row["status"] for row in json.loads((tmp_path / "again.json").read_text())["rows"]}
+    assert code == 1 and again == {**{name: "skipped" for name in CUTS}, "broken": "failed"}
+    reopen(out)
+    assert sorted(a.name for a in bpy.data.actions) == sorted(CUTS)  # nothing added twice
 
     # The CSV beside the JSON holds the same rows.
     with open(report_path.with_suffix(".csv"), newline="") as table:
@@ -223,3 +233,17 @@ def test_retarget_frames_default_to_the_source_action_within_the_scene_range(cli
         tmp_path / "r.json")
     assert json.loads((tmp_path / "r.json").read_text())["frames"] == {"start": first + 4, "end": first + 9,
                                                                       "count": 6}
+
+
+def test_floor_puts_the_ground_contacts_at_its_height(tmp_path, clips, character, extension_module_name):
+    clip_import = importlib.import_module(f"{extension_module_name}.bridge.clip_import")
+    retarget = importlib.import_module(f"{extension_module_name}.bridge.retarget")
+    reopen(character)
+    source, _ = clip_import.import_clip(bpy.context, str(clips / "walk_a.bvh"))
+    hero = bpy.data.objects["Hero"]
+    own = retarget.prepare(bpy.context, source, hero).plan
+    raised = retarget.prepare(bpy.context, source, hero, floor=own.ground + 0.25).plan
+    assert raised.ground == pytest.approx(own.ground + 0.25, abs=1e-9)
+    assert own.contacts.any() and np.array_equal(raised.contacts, own.contacts)
+    shift = raised.world_targets - own.world_targets  # the whole motion, contacts and all, 0.25 higher
+    assert np.allclose(shift[..., :2], 0.0, atol=1e-9) and np.allclose(shift[..., 2], 0.25, atol=1e-9)
