@@ -29,7 +29,8 @@ from .reporting.progress import ConsoleProgress, NoProgress
 from .cli_parser import (COMMAND, EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_OK, EXIT_TARGETS_MISSED, _VARIANTS,
                          _ParserExit, _UsageError, build_parser)
 
-__all__ = ("COMMAND", "CommandError", "build_parser", "main", "register", "unregister")
+__all__ = ("COMMAND", "CommandError", "build_parser", "check_writable", "checked_outputs", "input_path", "main",
+           "register", "same_file", "unregister", "write_text")
 
 
 class CommandError(Exception):
@@ -80,19 +81,19 @@ class WorkResult:
 
 
 def _execute(args):
-    input_path = _input_path(args)
-    saved = _checked_outputs(args, input_path)
-    if not _same_file(input_path, batch.current_file()):
-        batch.open_blend(input_path)
+    blend_in = input_path(args)
+    saved = checked_outputs(args, blend_in)
+    if not same_file(blend_in, batch.current_file()):
+        batch.open_blend(blend_in)
     result = _WORK[args.work](args, bpy.context)
 
     report = summary.summarize_outcome(
-        result.outcome, result.seconds, command=args.subcommand, file=os.path.abspath(input_path),
+        result.outcome, result.seconds, command=args.subcommand, file=os.path.abspath(blend_in),
         output=os.path.abspath(saved) if saved else None, blender=bpy.app.version_string, **result.details)
     if saved is not None:
         batch.save_blend(saved)
     if args.report:
-        _write_text(args.report, summary.to_json(report))
+        write_text(args.report, summary.to_json(report))
     if args.preview:
         _write_png(args.preview, preview.render(result.figure))
 
@@ -121,7 +122,7 @@ def _exit_code(args, report):
     return EXIT_OK
 
 
-def _input_path(args):
+def input_path(args):
     if args.file is not None:
         if not os.path.exists(args.file):
             raise CommandError(f"no such file: {args.file}")
@@ -131,11 +132,11 @@ def _input_path(args):
     raise CommandError("no .blend file: give FILE.blend")
 
 
-def _checked_outputs(args, input_path):
+def checked_outputs(args, input_path):
     """Check every output path before anything runs; returns the .blend path to save to (None: none)."""
     if args.output is not None:
         blend = args.output
-        if _same_file(blend, input_path) and not args.overwrite:
+        if same_file(blend, input_path) and not args.overwrite:
             raise CommandError(f"--output {blend} is the input file: add --overwrite to replace it")
     elif args.overwrite:
         blend = input_path
@@ -149,9 +150,9 @@ def _checked_outputs(args, input_path):
             continue
         if suffix and not path.lower().endswith(suffix):
             raise CommandError(f"{option} {path}: the file name must end in {suffix}")
-        if option != "--overwrite" and option != "--output" and _same_file(path, input_path):
+        if option != "--overwrite" and option != "--output" and same_file(path, input_path):
             raise CommandError(f"{option} {path} would overwrite the input file")
-        _check_writable(path, option)
+        check_writable(path, option)
         key = os.path.realpath(path)
         if key in seen:
             raise CommandError(f"{option} and {seen[key]} name the same file: {path}")
@@ -159,7 +160,7 @@ def _checked_outputs(args, input_path):
     return blend
 
 
-def _check_writable(path, option):
+def check_writable(path, option):
     folder = os.path.dirname(os.path.abspath(path))
     if os.path.isdir(path):
         raise CommandError(f"{option} {path} is a folder")
@@ -171,7 +172,7 @@ def _check_writable(path, option):
         raise CommandError(f"{option} {path}: folder {folder} is not writable")
 
 
-def _same_file(a, b):
+def same_file(a, b):
     if not a or not b:
         return False
     if os.path.exists(a) and os.path.exists(b):
@@ -179,7 +180,7 @@ def _same_file(a, b):
     return os.path.realpath(a) == os.path.realpath(b)
 
 
-def _write_text(path, text):
+def write_text(path, text):
     try:
         with open(path, "w", encoding="utf-8") as out:
             out.write(text)

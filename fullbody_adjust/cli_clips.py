@@ -28,68 +28,30 @@ WORKER_FLAG = "--clip-worker"
 
 
 def run(args):
-    input_path = cli._input_path(args)
+    blend_in = cli.input_path(args)
     clips = clip_paths(args.source_file)
-    _check_options(args, clips)
-    saved = None if args.output_dir else cli._checked_outputs(args, input_path)
+    saved, csv_path = _checked_outputs(args, blend_in, clips)
+    if not cli.same_file(blend_in, batch.current_file()):
+        batch.open_blend(blend_in)
+    target = _checked_target(args, bpy.context)
+    rows, tasks = _tasks(args, clips)
     if args.output_dir:
-        _check_output_dir(args.output_dir)
-    csv_path = _csv_path(args.report) if args.report else None
-    if csv_path:
-        cli._check_writable(csv_path, "--report")
-    if not cli._same_file(input_path, batch.current_file()):
-        batch.open_blend(input_path)
-    context = bpy.context
-    target = batch.armature_named(context, args.target, "--target")
-    batch.check_mappable(target, "--target")
-    if args.contacts and args.contacts[1]:
-        batch.object_named(context, args.contacts[1], "--contacts object")
+        os.makedirs(args.output_dir, exist_ok=True)
+    jobs = min(args.jobs or os.cpu_count() or 1, max(len(tasks), 1))
 
-    rows, tasks = [], []
-    for clip in clips:
-        name = args.new_action or os.path.splitext(os.path.basename(clip))[0]
-        out = os.path.join(os.path.abspath(args.output_dir), f"{name}.blend") if args.output_dir else None
-        done_before = os.path.exists(out) if out else name in bpy.data.actions
-        if args.skip_existing and done_before:
-            rows.append({"clip": clip, "name": name, "status": batch_report.SKIPPED, "output": out,
-                         "action": name})
-        else:
-            tasks.append({"clip": clip, "name": name, "out": out})
-
-    jobs = args.jobs or os.cpu_count() or 1
-    progress = NoProgress() if args.quiet else ConsoleProgress(
-        len(tasks), f"retarget {len(tasks)} clips -> '{target.name}'", unit="clips", per_minute=True)
     started = time.perf_counter()
-    with tempfile.TemporaryDirectory(prefix="fba-parts-") as parts:
-        for index, task in enumerate(tasks):
-            if task["out"] is None:
-                task["part"] = os.path.join(parts, f"{index}.blend")
-        pool = WorkerPool(worker_command(), _job(args, input_path, target.name), jobs, env=worker_env(),
-                          on_progress=lambda done, failed, fraction: progress(
-                              f"{done}/{len(tasks)}" + (f" ({failed} failed)" if failed else ""), fraction))
-        done = pool.run(tasks) if tasks else []
-        progress.finish()
-        for task, row in zip(tasks, done):
-            row.setdefault("name", task["name"])
-            if row.get("status") == batch_report.DONE:
-                if task["out"]:
-                    row["output"] = task["out"]
-                else:  # the clip's action joins the target file under the clip's name
-                    row["action"] = batch.append_datablocks(context, task["part"])[row["action"]].name
-                    row["output"] = os.path.abspath(saved) if saved else None
-        rows.extend(done)
+    rows += _run_tasks(args, tasks, jobs, blend_in, target.name, saved)
     if saved is not None:
         batch.save_blend(saved)
-    seconds = time.perf_counter() - started
-
     order = {clip: i for i, clip in enumerate(clips)}
     rows.sort(key=lambda row: order[row["clip"]])
-    report = batch_report.batch_report(rows, seconds, command="retarget", file=os.path.abspath(input_path),
-                                       target=target.name, jobs=min(jobs, max(len(tasks), 1)),
+    report = batch_report.batch_report(rows, time.perf_counter() - started, command="retarget",
+                                       file=os.path.abspath(blend_in), target=target.name, jobs=jobs,
                                        blender=bpy.app.version_string)
     if args.report:
-        cli._write_text(args.report, batch_report.to_json(report))
-        cli._write_text(csv_path, batch_report.to_csv(report))
+        cli.write_text(args.report, batch_report.to_json(report))
+        cli.write_text(csv_path, batch_report.to_csv(report))
+
     line = f"retarget onto '{target.name}': {batch_report.one_line(report)}"
     if args.output_dir:
         line += f"; saved in {args.output_dir}"
@@ -100,6 +62,80 @@ def run(args):
     for row in failed:
         print(f"{cli.COMMAND} retarget: {os.path.basename(row['clip'])} failed: {row['reason']}", file=sys.stderr)
     return cli.EXIT_TARGETS_MISSED if failed or report["missed_within_reach"] else cli.EXIT_OK
+
+
+def _checked_outputs(args, input_path, clips):
+    """Check the options and every output before anything runs: (the .blend to save the merged actions to, or
+    None; the CSV report's path, or None)."""
+    if args.preview:
+        raise CommandError("--preview draws one retarget: leave it out with --source-file")
+    if args.new_action and len(clips) > 1:
+        raise CommandError("--new-action names one action: with several clips each is named after its clip")
+    if args.output_dir and (args.output or args.overwrite):
+        raise CommandError("--output-dir writes one .blend per clip: leave out --output and --overwrite")
+    if args.clip_fps == "clip" and not args.output_dir:
+        raise CommandError("--clip-fps clip changes the scene's frame rate per clip: use it with --output-dir")
+    saved = None if args.output_dir else cli.checked_outputs(args, input_path)
+    if args.output_dir:
+        _check_output_dir(args.output_dir)
+    csv_path = os.path.splitext(args.report)[0] + ".csv" if args.report else None
+    if csv_path:
+        cli.check_writable(csv_path, "--report")
+    return saved, csv_path
+
+
+def _checked_target(args, context):
+    target = batch.armature_named(context, args.target, "--target")
+    batch.check_mappable(target, "--target")
+    if args.contacts and args.contacts[1]:
+        batch.object_named(context, args.contacts[1], "--contacts object")
+    return target
+
+
+def _tasks(args, clips):
+    """(rows of the clips left out by --skip-existing, tasks of the others)."""
+    rows, tasks = [], []
+    for clip in clips:
+        name = args.new_action or os.path.splitext(os.path.basename(clip))[0]
+        out = os.path.join(os.path.abspath(args.output_dir), f"{name}.blend") if args.output_dir else None
+        done_before = os.path.exists(out) if out else name in bpy.data.actions
+        if args.skip_existing and done_before:
+            rows.append({"clip": clip, "name": name, "status": batch_report.SKIPPED, "output": out,
+                         "action": name})
+        else:
+            tasks.append({"clip": clip, "name": name, "out": out})
+    return rows, tasks
+
+
+def _run_tasks(args, tasks, jobs, input_path, target_name, saved):
+    """The rows of ``tasks``, run by ``jobs`` workers; without --output-dir each done clip's action is appended
+    to the open file."""
+    if not tasks:
+        return []
+    progress = NoProgress() if args.quiet else ConsoleProgress(
+        len(tasks), f"retarget {len(tasks)} clips -> '{target_name}'", unit="clips", per_minute=True)
+
+    def show(done, failed, fraction):
+        progress(f"{done}/{len(tasks)}" + (f" ({failed} failed)" if failed else ""), fraction)
+
+    with tempfile.TemporaryDirectory(prefix="fba-parts-") as parts:
+        for index, task in enumerate(tasks):
+            if task["out"] is None:
+                task["part"] = os.path.join(parts, f"{index}.blend")
+        pool = WorkerPool(worker_command(), _job(args, input_path, target_name), jobs, env=worker_env(),
+                          on_progress=show)
+        rows = pool.run(tasks)
+        progress.finish()
+        for task, row in zip(tasks, rows):
+            row.setdefault("name", task["name"])
+            if row["status"] != batch_report.DONE:
+                continue
+            if task["out"]:
+                row["output"] = task["out"]
+            else:  # the clip's action joins the open file (renamed if the file has one of its name)
+                row["action"] = batch.append_datablocks(bpy.context, task["part"])[row["action"]].name
+                row["output"] = os.path.abspath(saved) if saved else None
+    return rows
 
 
 def clip_paths(patterns):
@@ -131,30 +167,15 @@ def clip_paths(patterns):
     return unique
 
 
-def _check_options(args, clips):
-    if args.preview:
-        raise CommandError("--preview draws one retarget: leave it out with --source-file")
-    if args.new_action and len(clips) > 1:
-        raise CommandError("--new-action names one action: with several clips each is named after its clip")
-    if args.output_dir and (args.output or args.overwrite):
-        raise CommandError("--output-dir writes one .blend per clip: leave out --output and --overwrite")
-    if args.clip_fps == "clip" and not args.output_dir:
-        raise CommandError("--clip-fps clip changes the scene's frame rate per clip: use it with --output-dir")
-
-
 def _check_output_dir(folder):
+    """The folder exists and is writable, or can be made (made only once the batch starts)."""
     if os.path.exists(folder) and not os.path.isdir(folder):
         raise CommandError(f"--output-dir {folder} is a file, not a folder")
-    try:
-        os.makedirs(folder, exist_ok=True)
-    except OSError as ex:
-        raise CommandError(f"--output-dir {folder}: cannot create it: {ex.strerror}") from None
-    if not os.access(folder, os.W_OK | os.X_OK):
-        raise CommandError(f"--output-dir {folder}: folder is not writable")
-
-
-def _csv_path(report_path):
-    return os.path.splitext(report_path)[0] + ".csv"
+    existing = folder if os.path.isdir(folder) else os.path.dirname(os.path.abspath(folder))
+    if not os.path.isdir(existing):
+        raise CommandError(f"--output-dir {folder}: folder {existing} does not exist")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise CommandError(f"--output-dir {folder}: folder {existing} is not writable")
 
 
 def _job(args, input_path, target):

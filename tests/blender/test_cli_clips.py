@@ -179,7 +179,8 @@ def test_the_blender_worker_command_runs_the_worker_loop(tmp_path, clips, charac
     (["--source-file", "{tmp}/none.bvh"], "no such file"),
     (["--source-file", "{clips}/walk_a.bvh", "--source", "Hero"], "not allowed with argument"),
     (["--source-file", "{clips}", "--new-action", "One"], "--new-action names one action"),
-    (["--source-file", "{clips}", "--target", "Nobody"], "no object named 'Nobody'"),
+    (["--source-file", "{clips}", "--target", "Nobody", "--output-dir", "{tmp}/d"], "no object named 'Nobody'"),
+    (["--source-file", "{clips}", "--output-dir", "{tmp}/no/d"], "does not exist"),
     (["--source-file", "{clips}", "--output-dir", "{tmp}/d", "--output", "{tmp}/o.blend"], "--output-dir"),
 ])
 def test_bad_batch_input_exits_2_before_any_work(cli, capsys, tmp_path, clips, character, extra, words):
