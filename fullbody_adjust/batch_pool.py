@@ -11,6 +11,7 @@ task it had, with the last line it wrote as the reason, and a fresh worker takes
 from collections import deque
 import json
 import os
+import queue
 import subprocess
 import tempfile
 import threading
@@ -20,7 +21,8 @@ from .reporting.batch_report import FAILED
 
 class WorkerPool:
     """``jobs`` workers started with ``command`` (argv list) and ``env``; ``job`` is sent to each first.
-    ``on_progress(done, failed, fraction)`` is called (from worker threads, one at a time) as tasks go on."""
+    ``on_progress(done, failed, fraction)`` is called (from worker threads, one at a time) as tasks go on; it
+    must not touch Blender data (on_row of ``run`` may)."""
 
     def __init__(self, command, job, jobs, *, env=None, on_progress=None):
         self.command = list(command)
@@ -30,22 +32,35 @@ class WorkerPool:
         self.on_progress = on_progress or (lambda done, failed, fraction: None)
         self._lock = threading.Lock()
 
-    def run(self, tasks):
-        """The row of every task (dicts, in the order given). A task is a dict with at least 'clip'."""
+    def run(self, tasks, on_row=None):
+        """The row of every task (dicts, in the order given; a task is a dict with at least 'clip').
+        ``on_row(index, row)`` is called in the calling thread as each task ends. On KeyboardInterrupt no task
+        is started any more and the interrupt goes on to the caller (workers end after their task)."""
         tasks = list(tasks)
         self._queue = deque(enumerate(tasks))
-        self._rows = [None] * len(tasks)
+        self._ended = queue.SimpleQueue()
         self._share = {}  # task index -> fraction done of a running task
         self._done = self._failed = 0
         self._total = len(tasks)
+        rows = [None] * len(tasks)
         with tempfile.TemporaryDirectory(prefix="fba-workers-") as logs:
             threads = [threading.Thread(target=self._serve, args=(os.path.join(logs, f"worker{i}.log"),),
                                         daemon=True) for i in range(min(self.jobs, len(tasks)))]
             for thread in threads:
                 thread.start()
+            try:
+                for _ in tasks:
+                    index, row = self._ended.get()
+                    rows[index] = row
+                    if on_row is not None:
+                        on_row(index, row)
+            except BaseException:
+                with self._lock:
+                    self._queue.clear()
+                raise
             for thread in threads:
                 thread.join()
-        return self._rows
+        return rows
 
     def _next(self):
         with self._lock:
@@ -78,8 +93,8 @@ class WorkerPool:
             self._report()
 
     def _finish(self, index, row):
+        self._ended.put((index, row))
         with self._lock:
-            self._rows[index] = row
             self._share.pop(index, None)
             self._done += 1
             self._failed += row.get("status") == FAILED

@@ -25,6 +25,7 @@ from .reporting import batch_report
 from .reporting.progress import ConsoleProgress, NoProgress
 
 WORKER_FLAG = "--clip-worker"
+SAVE_EVERY = 10.0  # seconds: while a batch runs, the merged file is saved at least this often
 
 
 def run(args):
@@ -107,9 +108,10 @@ def _tasks(args, clips):
     return rows, tasks
 
 
-def _run_tasks(args, tasks, jobs, input_path, target_name, saved):
-    """The rows of ``tasks``, run by ``jobs`` workers; without --output-dir each done clip's action is appended
-    to the open file."""
+def _run_tasks(args, tasks, jobs, blend_in, target_name, saved):
+    """The rows of ``tasks``, run by ``jobs`` workers. Without --output-dir each done clip's action is appended
+    to the open file as it ends, and the file saved as ``saved`` at least every SAVE_EVERY seconds. An interrupt
+    (Ctrl+C) keeps what was done: the clips not ended by then are failed rows ('interrupted')."""
     if not tasks:
         return []
     progress = NoProgress() if args.quiet else ConsoleProgress(
@@ -118,24 +120,38 @@ def _run_tasks(args, tasks, jobs, input_path, target_name, saved):
     def show(done, failed, fraction):
         progress(f"{done}/{len(tasks)}" + (f" ({failed} failed)" if failed else ""), fraction)
 
+    ended = {}
+    last_save = [time.perf_counter()]
+
+    def merge(index, row):  # in this thread, as each clip ends
+        task = tasks[index]
+        ended[index] = row
+        row.setdefault("name", task["name"])
+        if row["status"] != batch_report.DONE:
+            return
+        if task["out"]:
+            row["output"] = task["out"]
+            return
+        row["action"] = batch.append_datablocks(bpy.context, task["part"])[row["action"]].name
+        row["output"] = os.path.abspath(saved) if saved else None
+        if saved and time.perf_counter() - last_save[0] >= SAVE_EVERY:
+            batch.save_blend(saved)
+            last_save[0] = time.perf_counter()
+
     with tempfile.TemporaryDirectory(prefix="fba-parts-") as parts:
         for index, task in enumerate(tasks):
             if task["out"] is None:
                 task["part"] = os.path.join(parts, f"{index}.blend")
-        pool = WorkerPool(worker_command(), _job(args, input_path, target_name), jobs, env=worker_env(),
+        pool = WorkerPool(worker_command(), _job(args, blend_in, target_name), jobs, env=worker_env(),
                           on_progress=show)
-        rows = pool.run(tasks)
+        try:
+            pool.run(tasks, on_row=merge)
+        except KeyboardInterrupt:
+            print(f"{cli.COMMAND} retarget: interrupted; what was done is kept: run again with --skip-existing "
+                  f"to finish", file=sys.stderr)
         progress.finish()
-        for task, row in zip(tasks, rows):
-            row.setdefault("name", task["name"])
-            if row["status"] != batch_report.DONE:
-                continue
-            if task["out"]:
-                row["output"] = task["out"]
-            else:  # the clip's action joins the open file (renamed if the file has one of its name)
-                row["action"] = batch.append_datablocks(bpy.context, task["part"])[row["action"]].name
-                row["output"] = os.path.abspath(saved) if saved else None
-    return rows
+    return [ended.get(index) or {"clip": task["clip"], "name": task["name"], "status": batch_report.FAILED,
+                                 "reason": "interrupted before it ended"} for index, task in enumerate(tasks)]
 
 
 def clip_paths(patterns):

@@ -5,6 +5,7 @@ import csv
 import io
 import json
 import sys
+import threading
 
 import pytest
 
@@ -45,6 +46,20 @@ def test_a_dying_worker_fails_only_its_task_and_a_new_one_takes_the_rest():
     assert seen[-1] == (6, 2, 1.0)
     assert [s[0] for s in seen] == sorted(s[0] for s in seen)  # done only grows
     assert all(0.0 <= s[2] <= 1.0 for s in seen)
+
+
+def test_rows_reach_the_caller_in_its_thread_and_an_interrupt_starts_no_more_tasks():
+    calls = []
+
+    def on_row(index, row):
+        calls.append((index, row["clip"], threading.current_thread() is threading.main_thread()))
+        raise KeyboardInterrupt
+
+    pool = WorkerPool([sys.executable, "-c", FAKE_WORKER], {"tag": "t"}, 1)
+    with pytest.raises(KeyboardInterrupt):
+        pool.run([{"clip": c} for c in "abcd"], on_row=on_row)
+    assert calls == [(0, "a", True)]
+    assert not pool._queue  # nothing left to start
 
 
 def test_a_worker_that_cannot_start_fails_every_task_with_the_reason(tmp_path):

@@ -175,6 +175,36 @@ def test_the_blender_worker_command_runs_the_worker_loop(tmp_path, clips, charac
     assert bpy.data.objects["Hero"].animation_data.action.name == "jump"
 
 
+def test_an_interrupted_batch_keeps_the_clips_done_and_resumes(cli, capsys, tmp_path, clips, character,
+                                                               monkeypatch, extension_module_name):
+    os.remove(clips / "broken.bvh")
+    batch = importlib.import_module(f"{extension_module_name}.bridge.batch")
+    append = batch.append_datablocks
+
+    def append_then_interrupt(context, path):  # Ctrl+C right after the first clip joined the file
+        appended = append(context, path)
+        monkeypatch.setattr(batch, "append_datablocks", append)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(batch, "append_datablocks", append_then_interrupt)
+    out, report_path = tmp_path / "out.blend", tmp_path / "r.json"
+    code, _, err = run(cli, capsys, "retarget", character, "--target", "Hero", "--source-file", clips, "--jobs", 1,
+                       "--output", out, "--report", report_path, "--quiet")
+    rows = json.loads(report_path.read_text())["rows"]
+    assert code == 1 and "interrupted" in err and "--skip-existing" in err
+    assert [row["status"] for row in rows] == ["done", "failed", "failed"]  # jump, walk_a, walk_b in name order
+    assert [row["reason"] for row in rows[1:]] == ["interrupted before it ended"] * 2
+    reopen(out)
+    assert sorted(a.name for a in bpy.data.actions) == ["jump"]
+
+    code, _, _ = run(cli, capsys, "retarget", out, "--target", "Hero", "--source-file", clips, "--jobs", 2,
+                     "--overwrite", "--skip-existing", "--report", report_path, "--quiet")
+    rows = json.loads(report_path.read_text())["rows"]
+    assert [row["status"] for row in rows] == ["skipped", "done", "done"]
+    reopen(out)
+    assert sorted(a.name for a in bpy.data.actions) == ["jump", "walk_a", "walk_b"]
+
+
 @pytest.mark.parametrize("extra, words", [
     (["--source-file", "{tmp}/none.bvh"], "no such file"),
     (["--source-file", "{clips}/walk_a.bvh", "--source", "Hero"], "not allowed with argument"),
