@@ -11,6 +11,7 @@ import importlib
 # properties first because the others use them, the panel last because it draws them.
 _MODULE_NAMES = (
     "properties",
+    "bridge.live",
     "operators",
     "retarget_operator",
     "panel",

@@ -8,6 +8,8 @@ import sys
 
 import numpy as np
 
+from .solver.vocabulary import VARIANTS
+
 COMMAND = "fullbody_adjust"
 
 EXIT_OK = 0
@@ -28,7 +30,7 @@ exit codes:
 
 AXES = ("X", "Y", "Z", "-X", "-Y", "-Z")
 
-_VARIANTS = {"priority": 'PRIORITY', "weighted": 'WEIGHTED', "fabrik": 'FABRIK'}
+_VARIANTS = {variant: variant.upper() for variant in VARIANTS}
 
 
 class _UsageError(Exception):

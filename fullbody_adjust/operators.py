@@ -3,11 +3,11 @@
 one line, so a bad input never shows a traceback and changes nothing."""
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, IntProperty, StringProperty
 
-from .bridge import adjustment, mapping
+from .bridge import adjustment, live, mapping
 from .bridge.errors import AdjustError
-from .properties import VARIANT_ITEMS
+from .properties import FULLBODY_ADJUST_PG_settings
 
 
 def armature_poll_message(context):
@@ -20,6 +20,16 @@ def armature_poll_message(context):
     if context.mode not in {'POSE', 'OBJECT'}:
         return "Switch to Object or Pose Mode"
     return None
+
+
+def report_outcome(operator, outcome):
+    """The run's summary: a WARNING naming what was missed when a target within reach was missed or a bone ends
+    inside an obstacle (as the command line's exit code 1), else INFO."""
+    warning = outcome.warning()
+    if warning:
+        operator.report({'WARNING'}, f"{warning}; {outcome.summary()}")
+    else:
+        operator.report({'INFO'}, outcome.summary())
 
 
 class ArmatureOperator:
@@ -44,23 +54,20 @@ class ArmatureOperator:
 SOLVER_OPTIONS = ("variant", "margin", "use_joint_limits", "keep_hand_orientation")
 
 
-class _SolverOptions:
-    """Solver settings shown in the redo panel; invoke() fills them from the armature's stored settings, and
-    settings not passed to execute() come from there too. SKIP_SAVE: Blender would otherwise start each run
-    with the last run's values, marked as set, and the stored settings would never count again."""
+def _redo_option(name):
+    """The operator's copy of the stored setting ``name``: the same property (name, text, default, range), but
+    SKIP_SAVE, since Blender would otherwise start each run with the last run's value, marked as set, and the
+    stored setting would never count again."""
+    stored = FULLBODY_ADJUST_PG_settings.__annotations__[name]
+    keywords = {key: value for key, value in stored.keywords.items() if key != "update"}
+    return stored.function(**keywords, options={'SKIP_SAVE'})
 
-    variant: EnumProperty(
-        name="Variant",
-        items=VARIANT_ITEMS,
-        default='PRIORITY',
-        options={'SKIP_SAVE'},
-    )
-    margin: FloatProperty(name="Margin", description="Clearance kept from obstacle boxes", default=0.01, min=0.0,
-                          soft_max=0.5, subtype='DISTANCE', unit='LENGTH', options={'SKIP_SAVE'})
-    use_joint_limits: BoolProperty(name="Joint Limits", default=True, options={'SKIP_SAVE'},
-                                   description="Keep elbows and knees from bending backwards")
-    keep_hand_orientation: BoolProperty(name="Keep Hand Orientation", default=True, options={'SKIP_SAVE'},
-                                        description="Hands and feet keep their world orientation")
+
+class _SolverOptions:
+    """Solver settings shown in the redo panel, declared from the stored settings; invoke() fills them from the
+    armature's stored settings, and settings not passed to execute() come from there too."""
+
+    __annotations__ = {name: _redo_option(name) for name in SOLVER_OPTIONS}
 
     def invoke(self, context, event):
         stored = context.active_object.fullbody_adjust
@@ -128,7 +135,7 @@ class FULLBODY_ADJUST_OT_adjust_pose(_SolverOptions, ArmatureOperator, bpy.types
                                                                     self.solver_options()))
         if outcome is None:
             return {'CANCELLED'}
-        self.report({'INFO'}, outcome.summary())
+        report_outcome(self, outcome)
         return {'FINISHED'}
 
 
@@ -165,7 +172,7 @@ class FULLBODY_ADJUST_OT_adjust_frames(_SolverOptions, ArmatureOperator, bpy.typ
             wm.progress_end()
         if outcome is None:
             return {'CANCELLED'}
-        self.report({'INFO'}, outcome.summary())
+        report_outcome(self, outcome)
         return {'FINISHED'}
 
     def draw(self, context):
@@ -177,11 +184,35 @@ class FULLBODY_ADJUST_OT_adjust_frames(_SolverOptions, ArmatureOperator, bpy.typ
         super().draw(context)
 
 
+class FULLBODY_ADJUST_OT_key_pose(ArmatureOperator, bpy.types.Operator):
+    """Key the pose Live Adjust shows on the current frame (the bones it moved)"""
+    bl_idname = "fullbody_adjust.key_pose"
+    bl_label = "Key Pose"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    @classmethod
+    def poll(cls, context):
+        if not super().poll(context):
+            return False
+        if not context.active_object.fullbody_adjust.live:
+            cls.poll_message_set("Turn Live Adjust on first")
+            return False
+        return True
+
+    def execute(self, context):
+        keyed = self.run(context, lambda: live.key_pose(context, context.active_object))
+        if keyed is None:
+            return {'CANCELLED'}
+        self.report({'INFO'}, f"{len(keyed)} bones keyed" if keyed else "Nothing to key: the pose is the keyed one")
+        return {'FINISHED'}
+
+
 classes = (
     FULLBODY_ADJUST_OT_map_bones,
     FULLBODY_ADJUST_OT_create_targets,
     FULLBODY_ADJUST_OT_adjust_pose,
     FULLBODY_ADJUST_OT_adjust_frames,
+    FULLBODY_ADJUST_OT_key_pose,
 )
 
 register, unregister = bpy.utils.register_classes_factory(classes)

@@ -4,6 +4,7 @@ obstacles and settings, and the buttons that run the operators."""
 
 import bpy
 
+from .bridge import adjustment, live
 from .bridge.mapping import GROUP_LABELS
 
 
@@ -58,6 +59,10 @@ class FULLBODY_ADJUST_PT_main(bpy.types.Panel):
         else:
             row.label(text="Not mapped yet", icon='ERROR')
         row.operator("fullbody_adjust.map_bones", text="Map Bones" if not mapped else "Map Again")
+        summary = adjustment.rig_summary(obj)
+        if summary is not None:
+            line, ok = summary
+            layout.label(text=line, icon='ARMATURE_DATA' if ok else 'ERROR')
 
         layout.label(text="Targets")
         layout.template_list(
@@ -70,6 +75,13 @@ class FULLBODY_ADJUST_PT_main(bpy.types.Panel):
         column.scale_y = 1.4
         column.operator("fullbody_adjust.adjust_pose", icon='ARMATURE_DATA')
         column.operator("fullbody_adjust.adjust_frames", icon='ACTION')
+        row = layout.row(align=True)
+        row.prop(settings, "live", toggle=True, icon='PLAY' if not settings.live else 'PAUSE')
+        if settings.live:
+            row.operator("fullbody_adjust.key_pose", icon='KEY_HLT')
+            problem = live.status(obj)
+            if problem:
+                layout.label(text=problem, icon='ERROR')
         layout.operator("fullbody_adjust.retarget", text="Retarget from Selected", icon='ARMATURE_DATA')
 
 

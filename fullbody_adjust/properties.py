@@ -15,8 +15,8 @@ from bpy.props import (
     StringProperty,
 )
 
-# The effector vocabulary and default priorities belong to the bridge, which reads these slots.
-from .bridge.targets import DEFAULT_PRIORITY, EFFECTORS
+from .bridge import live
+from .solver.vocabulary import DEFAULT_PRIORITY, DEFAULT_VARIANT, EFFECTORS, VARIANTS
 
 _EFFECTOR_LABELS = {
     'hand.L': ("Left Hand", "Left wrist (head of the left hand bone)"),
@@ -28,12 +28,18 @@ _EFFECTOR_LABELS = {
 EFFECTOR_ITEMS = tuple((effector, *_EFFECTOR_LABELS[effector]) for effector in EFFECTORS)
 
 # How the groups meeting at the chest and pelvis settle conflicting targets; the adjust operators offer the same.
-VARIANT_ITEMS = (
-    ('FABRIK', "Plain FABRIK", "Unweighted centroid of the groups' proposals (the baseline)"),
-    ('WEIGHTED', "Weighted", "Priority-weighted mean of the groups' proposals (paper variant 1)"),
-    ('PRIORITY', "Priority", "Groups solved from lowest to highest priority, so the highest priority "
-                             "target is met whenever it is reachable (paper variant 2)"),
-)
+_VARIANT_LABELS = {
+    "fabrik": ("Plain FABRIK", "Unweighted centroid of the groups' proposals (the baseline)"),
+    "weighted": ("Weighted", "Priority-weighted mean of the groups' proposals (paper variant 1)"),
+    "priority": ("Priority", "Groups solved from lowest to highest priority, so the highest priority target is "
+                             "met whenever it is reachable (paper variant 2)"),
+}
+VARIANT_ITEMS = tuple((variant.upper(), *_VARIANT_LABELS[variant]) for variant in ("fabrik", "weighted", "priority"))
+assert set(_VARIANT_LABELS) == set(VARIANTS)
+
+
+def _live_toggled(settings, context):
+    live.live_toggled(settings.id_data, context)
 
 
 def _is_not_owner(slot, obj):
@@ -108,7 +114,7 @@ class FULLBODY_ADJUST_PG_settings(bpy.types.PropertyGroup):
         name="Variant",
         description="How the groups meeting at the chest and at the pelvis settle conflicting targets",
         items=VARIANT_ITEMS,
-        default='PRIORITY',
+        default=DEFAULT_VARIANT.upper(),
     )
     margin: FloatProperty(
         name="Margin",
@@ -146,6 +152,13 @@ class FULLBODY_ADJUST_PG_settings(bpy.types.PropertyGroup):
         name="Keep Hand Orientation",
         description="Hands keep their world orientation while the arms move",
         default=True,
+    )
+    live: BoolProperty(
+        name="Live Adjust",
+        description="Re-solve and show the pose (without keys) whenever a target moves or the frame changes; "
+                    "Key Pose keys what is shown, turning it off returns to the keyed pose",
+        default=False,
+        update=_live_toggled,
     )
 
 

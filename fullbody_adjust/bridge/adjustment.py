@@ -13,14 +13,12 @@ import numpy as np
 
 from ..solver import Boxes, ChainSettings, SolverInputError
 from ..solver.adjust import AdjustSettings, adjust_frames as solve_frames
-from ..solver.body import CHAIN, END, ROOT, BodyModel
+from ..solver.body import CHAIN, END, ROOT
 from ..solver.obstacles import penetrations
-from . import control_rig, frames as frames_module, ik_limits, keyframes, mapping, obstacles, pose, targets
+from . import control_rig, frames as frames_module, ik_limits, keyframes, mapping, obstacles, pose, rig_cache, targets
 from .control_match import control_channels
 from .errors import AdjustError
 
-# UI names of the sub-base variants -> the solver's.
-VARIANTS = {'FABRIK': "fabrik", 'WEIGHTED': "weighted", 'PRIORITY': "priority"}
 
 # A bone counts as moved when its rotation changed by more than this (radians, about) or its head moved by
 # more than this fraction of the rig's size: below it, a key would only record float noise.
@@ -43,6 +41,7 @@ class Options:
     max_iterations: int = None
     use_joint_limits: bool = None
     keep_hand_orientation: bool = None
+    skip_missing_targets: bool = False  # leave out an enabled slot whose target is gone instead of failing
     new_action: str = None  # write keys into a new action of this name (the original stays intact)
     insert_keys: bool = True
 
@@ -68,6 +67,23 @@ class Outcome:
     @property
     def met(self):
         return self.status == "reached"
+
+    def warning(self):
+        """One line naming what went wrong although the run finished (the command line exits 1 for the same):
+        a target within reach that was missed (the first effector, with its largest residual and why), or bones
+        that end inside an obstacle; None when neither happened."""
+        missed = self.constrained & ~self.met & (self.status != "unreachable")
+        if missed.any():
+            effector = int(np.nonzero(missed.any(axis=0))[0][0])
+            rows = np.nonzero(missed[:, effector])[0]
+            worst = rows[int(np.argmax(self.residuals[rows, effector]))]
+            frames = f" on {len(rows)} frames" if len(self.frames) > 1 else ""
+            return (f"{self.effectors[effector]} missed its target within reach{frames} by "
+                    f"{self.residuals[worst, effector]:.4g} ({self.reasons[worst, effector]})")
+        inside, crossing = int(np.sum(self.joints_inside)), int(np.sum(self.segments_crossing))
+        if inside or crossing:
+            return f"bones end inside obstacles: {inside} joints inside, {crossing} bones crossing"
+        return None
 
     def summary(self):
         """One line for the operator's report."""
@@ -116,13 +132,14 @@ def settings_of(obj, options=Options()):
 
     chain = ChainSettings(tolerance=float(pick("tolerance")), max_iterations=int(pick("max_iterations")),
                           margin=float(pick("margin")))
-    return AdjustSettings(chain=chain, variant=VARIANTS[pick("variant")], use_limits=bool(pick("use_joint_limits")))
+    return AdjustSettings(chain=chain, variant=str(pick("variant")).lower(), use_limits=bool(pick("use_joint_limits")))
 
 
-def adjust_pose(context, obj, options=Options()):
-    """Adjust the armature's pose at the current frame, apply it, and key the bones that moved."""
+def adjust_pose(context, obj, options=Options(), start=None):
+    """Adjust the armature's pose at the current frame, apply it, and key the bones that moved. ``start``:
+    the pose to solve from, a PoseSnapshot of this frame (default: the pose as it is now)."""
     frame = context.scene.frame_current
-    return _run(context, obj, [frame], options, apply_pose=True)
+    return _run(context, obj, [frame], options, apply_pose=True, start=start)
 
 
 def adjust_frames(context, obj, frame_start, frame_end, options=Options(), progress=None):
@@ -133,10 +150,10 @@ def adjust_frames(context, obj, frame_start, frame_end, options=Options(), progr
     return _run(context, obj, frames, options, apply_pose=False, progress=progress)
 
 
-def _run(context, obj, frames, options, *, apply_pose, progress=None):
+def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None):
     progress = progress or (lambda stage, fraction: None)
     check_armature(obj)
-    bone_map = mapping.ensure_map(obj)
+    rig = rig_cache.rig_of(obj)
     settings = settings_of(obj, options)
     keep_hands = options.keep_hand_orientation
     keep_hands = obj.fullbody_adjust.keep_hand_orientation if keep_hands is None else keep_hands
@@ -146,9 +163,9 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None):
     if apply_pose:
         # The current frame as the user sees it. Stepping to it with frame_set would evaluate the animation
         # again and throw away pose changes not keyed yet, even when the run then fails.
-        world_targets = _current_targets(obj, context)
+        world_targets = _current_targets(obj, context, options.skip_missing_targets)
         corners = obstacles.obstacle_boxes(obj, context)[None]
-        snapshot = pose.as_batch(pose.read_pose(obj))
+        snapshot = pose.as_batch(pose.read_pose(obj, rig.static(obj)) if start is None else start)
     else:
         with _pose_kept(obj):  # stepping through the frames evaluates the animation into the pose bones
             target_at = targets.target_frame_reader(obj, context)
@@ -164,27 +181,27 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None):
             snapshot = pose.read_pose_frames(obj, frames, each_frame=read_others)
             corners = np.stack(corner_rows)
     _check_object_scale(obj, snapshot)
+    bone_map, model = rig.bone_map, rig.model
     controlled = control_rig.is_generated_rigify(obj)
-    if controlled:  # solved on the metarig's hierarchy of the ORG- bones
-        snapshot = replace(snapshot, parents=control_rig.skeleton_parents(snapshot.names, snapshot.parents))
+    if controlled:  # solved on the metarig's hierarchy of the ORG- bones, as the model is
+        snapshot = replace(snapshot, parents=model.parents)
     else:
         _check_not_driven(obj, bone_map)
-    model = _model(snapshot, bone_map)
     _check_driven_bones(model, snapshot)
     _check_target_distances(obj, world_targets, snapshot)
     priorities = _priorities(obj)
     progress("solving", 0.3)
 
-    to_arm = np.linalg.inv(snapshot.matrix_world)  # (F,4,4)
+    to_arm = pose.affine_inverse(snapshot.matrix_world)  # (F,4,4)
     heads = _apply(to_arm, snapshot.heads)
     tails = _apply(to_arm, snapshot.tails)
     arm_targets = _apply(to_arm, world_targets)
     boxes = _armature_boxes(corners, to_arm)
     try:
+        limits = ik_limits.joint_limits(obj, model, heads, tails, snapshot.pose_matrices, settings)
         result = solve_frames(model, heads, tails, arm_targets, targets.EFFECTORS, priorities, obstacles=boxes,
                               settings=_in_armature_units(settings, snapshot.matrix_world),
-                              bone_x_axes=snapshot.pose_matrices[..., :3, 0],
-                              limits=ik_limits.joint_limits(obj, model, heads, tails, snapshot.pose_matrices, settings))
+                              bone_x_axes=snapshot.pose_matrices[..., :3, 0], limits=limits)
     except SolverInputError as ex:
         raise AdjustError(f"Cannot adjust '{obj.name}': {ex}") from None
     progress("writing", 0.8)
@@ -215,7 +232,7 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None):
     if apply_pose:
         # What the user sees is the pose Blender evaluates from the written channels (float32, constraints):
         # report the residuals of that pose rather than the solver's.
-        applied = pose.read_pose(obj)
+        applied = pose.read_pose(obj, rig.static(obj))
         world_effectors = _effector_positions(model, applied.heads[None], np.eye(4)[None])
     else:
         world_effectors = _effector_positions(model, result.heads, snapshot.matrix_world)
@@ -289,14 +306,33 @@ def _channel_values(bones, prop, size):
 
 
 def _check_not_driven(obj, bone_map):
+    problem = driven_problem(obj, bone_map)
+    if problem:
+        raise AdjustError(problem)
+
+
+def driven_problem(obj, bone_map):
     """On a rig this extension does not know as a control rig, a mapped bone that follows a constraint would
-    override the keys written to it: say so instead of writing them. Limit constraints only bound the pose."""
+    override the keys written to it: the one line saying so, or None. Limit constraints only bound the pose."""
     for _group, name in bone_map.items():
         pose_bone = obj.pose.bones.get(name)
         for con in pose_bone.constraints if pose_bone is not None else ():
             if con.enabled and con.influence > 0.0 and not con.type.startswith("LIMIT_"):
-                raise AdjustError(f"Bone '{name}' of '{obj.name}' follows its constraint '{con.name}', which would "
-                                  f"override keys written to it: pose the controls that drive it, or map other bones")
+                return (f"Bone '{name}' of '{obj.name}' follows its constraint '{con.name}', which would override "
+                        f"keys written to it: pose the controls that drive it, or map other bones")
+    return None
+
+
+def rig_summary(obj):
+    """(line, ok) for the panel: what kind of rig ``obj`` is and what Adjust Pose keys on it, or why keys on
+    its mapped bones would not hold. None before the rig is mapped."""
+    if control_rig.is_generated_rigify(obj):
+        return control_rig.describe(obj), True
+    bone_map = mapping.load_map(obj)
+    if bone_map is None or obj.pose is None:  # not mapped yet, or an armature never evaluated
+        return None
+    problem = driven_problem(obj, bone_map)
+    return (problem, False) if problem else ("Keys the mapped bones", True)
 
 
 def _check_target_distances(obj, world_targets, snapshot):
@@ -312,10 +348,10 @@ def _check_target_distances(obj, world_targets, snapshot):
                           f"too far to reach for (a location set to inf?)")
 
 
-def _current_targets(obj, context):
+def _current_targets(obj, context, skip_missing=False):
     """World positions (1,E,3) of the enabled targets at the current frame as evaluated; NaN: no target."""
     out = np.full((1, len(targets.EFFECTORS), 3), np.nan)
-    for spec in targets.read_targets(obj, context.evaluated_depsgraph_get()):
+    for spec in targets.read_targets(obj, context.evaluated_depsgraph_get(), skip_missing=skip_missing):
         out[0, targets.EFFECTORS.index(spec.effector)] = spec.position
     return out
 
@@ -323,14 +359,6 @@ def _current_targets(obj, context):
 def _priorities(obj):
     by_effector = {slot.effector: int(slot.priority) for slot in obj.fullbody_adjust.targets}
     return np.array([by_effector.get(e, targets.DEFAULT_PRIORITY[e]) for e in targets.EFFECTORS], dtype=np.float64)
-
-
-def _model(snapshot, bone_map):
-    try:
-        return BodyModel.from_description(snapshot.names, snapshot.parents,
-                                          {group: list(bones) for group, bones in bone_map.groups.items()})
-    except SolverInputError as ex:
-        raise AdjustError(f"Bone mapping does not fit the rig: {ex}") from None
 
 
 def _check_object_scale(obj, snapshot):

@@ -134,6 +134,8 @@ def merge_keys(fcurve, frames, values):
     count = len(points)
     frames = np.asarray(frames, dtype=np.float64)
     values = np.asarray(values, dtype=np.float64)
+    if len(frames) == 1 and count and _replace_one_key(fcurve, points, count, float(frames[0]), float(values[0])):
+        return
     if count == 0 and len(frames) and _added_keys_are_new_keys():
         # A fresh F-Curve whose new keys are what keyframe_points.add makes anyway: only their points to set.
         points.add(len(frames))
@@ -186,6 +188,29 @@ def merge_keys(fcurve, frames, values):
             points.foreach_set("handle_left", left.reshape(-1))
             points.foreach_set("handle_right", right.reshape(-1))
         fcurve.update()
+
+
+def _replace_one_key(fcurve, points, count, frame, value):
+    """merge_keys for one frame that already has a key, on an F-Curve in frame order (as fcurve.update()
+    leaves it): that key alone is rewritten, the same way (its handles move with it). Clicks key one frame,
+    and rewriting every key of every curve costs more than the solve's keys are worth. False (nothing
+    written) when the general path is needed."""
+    co = _get(points, "co", count, 2, np.float32)
+    existing = co[:, 0].astype(np.float64)
+    if count > 1 and not np.all(existing[1:] > existing[:-1]):
+        return False
+    distance = np.abs(existing - frame)
+    at = int(np.argmin(distance))
+    if not distance[at] < SAME_FRAME:
+        return False
+    key = points[at]
+    delta = value - float(co[at, 1])
+    left, right = key.handle_left[1], key.handle_right[1]
+    key.co[1] = value
+    key.handle_left[1] = left + delta
+    key.handle_right[1] = right + delta
+    fcurve.update()
+    return True
 
 
 # --- helpers --------------------------------------------------------------------------------------------

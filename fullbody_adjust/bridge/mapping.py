@@ -37,13 +37,10 @@ import re
 
 import numpy as np
 
+from ..solver.vocabulary import CHAIN_GROUPS, GROUPS, REQUIRED_GROUPS, SINGLE_BONE_GROUPS
 from .errors import AdjustError
 from .mapping_presets import PRESETS, SIDED_GROUPS
 
-GROUPS = ("root", "trunk", "arm.L", "arm.R", "hand.L", "hand.R", "leg.L", "leg.R", "foot.L", "foot.R", "head")
-REQUIRED_GROUPS = GROUPS[:-1]
-CHAIN_GROUPS = ("trunk", "arm.L", "arm.R", "leg.L", "leg.R", "head")
-SINGLE_BONE_GROUPS = ("root", "hand.L", "hand.R", "foot.L", "foot.R")
 GROUP_LABELS = {
     "root": "Root", "trunk": "Trunk", "arm.L": "Left Arm", "arm.R": "Right Arm", "hand.L": "Left Hand",
     "hand.R": "Right Hand", "leg.L": "Left Leg", "leg.R": "Right Leg", "foot.L": "Left Foot",

@@ -33,14 +33,10 @@ import numpy as np
 from mathutils import Euler, Matrix, Vector
 
 from ..solver.geometry import swing_rotation
+from ..solver.vocabulary import EULER_ORDERS, ROTATION_PROPERTY
 from .errors import AdjustError
 from .frames import step_frames
 
-EULER_ORDERS = ("XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX")
-
-# Pose bone property holding the rotation of each rotation mode.
-ROTATION_PROPERTY = {"QUATERNION": "rotation_quaternion", "AXIS_ANGLE": "rotation_axis_angle",
-                     **{order: "rotation_euler" for order in EULER_ORDERS}}
 
 # Channel properties read per bone, with their sizes.
 CHANNEL_SIZES = {"location": 3, "rotation_quaternion": 4, "rotation_euler": 3, "rotation_axis_angle": 4,
@@ -104,9 +100,13 @@ class PoseSnapshot:
         return cached
 
 
-def read_pose(obj):
-    """The evaluated pose of armature ``obj`` at the current frame (the caller sets it) as a PoseSnapshot."""
-    static = _read_static(obj)
+def read_pose(obj, static=None):
+    """The evaluated pose of armature ``obj`` at the current frame (the caller sets it) as a PoseSnapshot.
+    ``static``: the rig's rest data as ``read_static`` gives it, from a caller that keeps it between reads."""
+    if static is None:
+        static = read_static(obj)
+    else:
+        _check_readable(obj)
     return PoseSnapshot(**static, **_read_frame(obj))
 
 
@@ -117,7 +117,7 @@ def read_pose_frames(obj, frames, each_frame=None):
     frames = np.asarray(frames, dtype=np.float64).reshape(-1)
     if len(frames) == 0 or not np.all(np.isfinite(frames)):
         raise ValueError("read_pose_frames needs at least one finite frame")
-    static = _read_static(obj)
+    static = read_static(obj)
     rows = []
     for row, frame in step_frames(bpy.context.scene, frames):
         rows.append(_read_frame(obj))
@@ -222,11 +222,10 @@ def continuous_rotation(prop, mode, value, reference):
 # --- reading --------------------------------------------------------------------------------------------
 
 
-def _read_static(obj):
-    if obj is None or obj.type != 'ARMATURE':
-        raise AdjustError(f"'{getattr(obj, 'name', obj)}' is not an armature")
-    if obj.mode == 'EDIT':
-        raise AdjustError(f"Armature '{obj.name}' is in Edit Mode: leave it to read or write the pose")
+def read_static(obj):
+    """What a PoseSnapshot holds of the rig besides the pose: bone names, parents, connect flags, rotation
+    modes and rest matrices."""
+    _check_readable(obj)
     bones = obj.data.bones
     count = len(bones)
     if count == 0:
@@ -247,6 +246,13 @@ def _read_static(obj):
         "rotation_modes": tuple(pb.rotation_mode for pb in obj.pose.bones),
         "rest_matrices": _get_matrices(bones, "matrix_local", count),
     }
+
+
+def _check_readable(obj):
+    if obj is None or obj.type != 'ARMATURE':
+        raise AdjustError(f"'{getattr(obj, 'name', obj)}' is not an armature")
+    if obj.mode == 'EDIT':
+        raise AdjustError(f"Armature '{obj.name}' is in Edit Mode: leave it to read or write the pose")
 
 
 def _read_frame(obj):
@@ -429,6 +435,20 @@ def as_batch(snapshot):
                    pose_matrices=snapshot.pose_matrices[None], matrices=snapshot.matrices[None],
                    heads=snapshot.heads[None], tails=snapshot.tails[None], lengths=snapshot.lengths[None],
                    channels={key: value[None] for key, value in snapshot.channels.items()})
+
+
+def affine_inverse(matrices):
+    """Inverses of affine (...,4,4) matrices in closed form. np.linalg.inv goes through LAPACK, whose thread
+    pool wakes up for a single 4x4 and, right after Blender's own threads evaluated the scene, can take
+    milliseconds to get a core."""
+    a0, a1, a2 = (matrices[..., :3, k] for k in range(3))  # the linear part's columns
+    rows = np.stack([np.cross(a1, a2), np.cross(a2, a0), np.cross(a0, a1)], axis=-2)
+    linear = rows / np.sum(a0 * rows[..., 0, :], axis=-1)[..., None, None]
+    out = np.zeros(matrices.shape)
+    out[..., :3, :3] = linear
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", linear, matrices[..., :3, 3])
+    out[..., 3, 3] = 1.0
+    return out
 
 
 def _array(value, shape, name):

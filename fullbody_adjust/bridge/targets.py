@@ -12,13 +12,10 @@ import math
 import bpy
 import numpy as np
 
+from ..solver.vocabulary import DEFAULT_PRIORITY, EFFECTORS
 from .errors import AdjustError
 from .frames import step_frames
 
-EFFECTORS = ("hand.L", "hand.R", "foot.L", "foot.R", "head")
-
-# Ankles highest, then wrists, then the head (paper §5.2.2: ankle tasks win by default).
-DEFAULT_PRIORITY = {"foot.L": 3, "foot.R": 3, "hand.L": 2, "hand.R": 2, "head": 1}
 
 # The head target is optional: without it the head rides on the chest (DESIGN.md §1), so linking a
 # head empty does not switch its slot on by itself.
@@ -150,20 +147,35 @@ def _place(empty, position, size):
 
 
 def _in_scene(scene, ob):
-    return scene in ob.users_scene
+    # ob.users_scene looks through every scene's collections; a name lookup in the scene's objects is the
+    # quick answer unless another object (from a library) has the same name.
+    found = scene.objects.get(ob.name)
+    return found == ob or (found is not None and scene in ob.users_scene)
 
 
-def _enabled_targets(obj, scene):
-    """[(effector, slot, target object)] of the enabled slots; AdjustError if any is unusable."""
+def missing_target(slot, scene):
+    """Why an enabled slot's target cannot be read (one line), or None when it can."""
+    target = slot.target
+    if target is None:
+        return f"Target for {slot.effector} is missing (deleted?)"
+    if not _in_scene(scene, target):
+        return f"Target '{target.name}' for {slot.effector} is missing from the scene (deleted?)"
+    return None
+
+
+def _enabled_targets(obj, scene, skip_missing=False):
+    """[(effector, slot, target object)] of the enabled slots; AdjustError if any is unusable (with
+    ``skip_missing``, a slot whose target is gone is left out instead)."""
     enabled = []
     for slot in obj.fullbody_adjust.targets:
         if not slot.enabled:
             continue
         target = slot.target
-        if target is None:
-            raise AdjustError(f"Target for {slot.effector} is missing (deleted?)")
-        if not _in_scene(scene, target):
-            raise AdjustError(f"Target '{target.name}' for {slot.effector} is missing from the scene (deleted?)")
+        missing = missing_target(slot, scene)
+        if missing is not None:
+            if skip_missing:
+                continue
+            raise AdjustError(missing)
         enabled.append((slot.effector, slot, target))
     if not enabled:
         raise AdjustError(NO_ENABLED_TARGET)
@@ -185,16 +197,16 @@ def _rotation_part(world):
     return linear / np.where(norms > 0.0, norms, 1.0)
 
 
-def read_targets(obj, depsgraph=None):
+def read_targets(obj, depsgraph=None, *, skip_missing=False):
     """The enabled targets of ``obj`` (slot order) as TargetSpecs, from the evaluated scene.
 
     Raises AdjustError (one line, nothing changed) when no slot is enabled, an enabled slot's target
-    is gone, or a target's world location is not finite.
+    is gone (with ``skip_missing``: that slot is left out), or a target's world location is not finite.
     """
     if depsgraph is None:
         depsgraph = bpy.context.evaluated_depsgraph_get()
     specs = []
-    for effector, slot, target in _enabled_targets(obj, depsgraph.scene):
+    for effector, slot, target in _enabled_targets(obj, depsgraph.scene, skip_missing):
         world = _world_matrix(effector, target, depsgraph)
         specs.append(TargetSpec(effector=effector, name=target.name, position=world[:3, 3].copy(),
                                 rotation=_rotation_part(world), priority=int(slot.priority)))

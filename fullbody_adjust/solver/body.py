@@ -27,14 +27,11 @@ import numpy as np
 from .errors import SolverInputError
 from .geometry import any_perpendicular, cross, dot, norm, normalize
 from .limits import CONE, HINGE, JointLimits
+from .vocabulary import EFFECTORS, GROUPS, REQUIRED_GROUPS, SINGLE_BONE_GROUPS
 
-GROUP_NAMES = ("root", "trunk", "arm.L", "arm.R", "hand.L", "hand.R", "leg.L", "leg.R", "foot.L", "foot.R", "head")
-REQUIRED_GROUPS = GROUP_NAMES[:-1]
-EFFECTORS = ("hand.L", "hand.R", "foot.L", "foot.R", "head")
 # Chain groups ("limbs"), in the order Algorithm 1 solves them: trunk, then arms (and head), then legs.
 LIMB_NAMES = ("trunk", "arm.L", "arm.R", "head", "leg.L", "leg.R")
 LIMB_OF_EFFECTOR = {"hand.L": "arm.L", "hand.R": "arm.R", "foot.L": "leg.L", "foot.R": "leg.R", "head": "head"}
-_SINGLE_BONE_GROUPS = ("root", "hand.L", "hand.R", "foot.L", "foot.R")
 _MIN_BONES = {"trunk": 1, "arm.L": 2, "arm.R": 2, "leg.L": 2, "leg.R": 2, "head": 1}
 
 # Roles of bones in the propagation pass (adjust.py): how a bone's new head and rotation are found.
@@ -156,15 +153,15 @@ class BodyModel:
         index = {n: i for i, n in enumerate(names)}
         if not isinstance(groups_by_name, dict):
             raise SolverInputError("groups must be a dict of group name -> list of bone names")
-        unknown = [g for g in groups_by_name if g not in GROUP_NAMES]
+        unknown = [g for g in groups_by_name if g not in GROUPS]
         if unknown:
-            raise SolverInputError(f"unknown group {unknown[0]!r} (known: {', '.join(GROUP_NAMES)})")
+            raise SolverInputError(f"unknown group {unknown[0]!r} (known: {', '.join(GROUPS)})")
         missing = [g for g in REQUIRED_GROUPS if g not in groups_by_name]
         if missing:
             raise SolverInputError(f"group {missing[0]!r} is missing")
         groups: dict[str, tuple[int, ...]] = {}
         owner: dict[int, str] = {}
-        for g in GROUP_NAMES:
+        for g in GROUPS:
             if g not in groups_by_name:
                 continue
             bones = groups_by_name[g]
@@ -173,7 +170,7 @@ class BodyModel:
             bones = list(bones)
             if not bones:
                 raise SolverInputError(f"group {g!r} is empty")
-            if g in _SINGLE_BONE_GROUPS and len(bones) != 1:
+            if g in SINGLE_BONE_GROUPS and len(bones) != 1:
                 raise SolverInputError(f"group {g!r} must have exactly one bone, got {len(bones)}")
             if len(bones) < _MIN_BONES.get(g, 1):
                 raise SolverInputError(f"group {g!r} needs at least {_MIN_BONES[g]} bones, got {len(bones)}")

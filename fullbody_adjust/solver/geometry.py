@@ -7,6 +7,10 @@ from .errors import SolverInputError
 # Norms at or below this count as zero-length. Absolute: callers pass directions of scene-unit vectors and
 # only need to tell "no direction at all" from "a direction".
 TINY = 1e-300
+_EYE = np.eye(3)
+# Up to this many rotations swing_rotation builds them from outer products (fewer numpy calls); beyond, entry
+# by entry (less memory traffic on large batches).
+_FEW_ROTATIONS = 256
 
 
 def dot(a, b):
@@ -21,8 +25,8 @@ def norm(v):
 
 def cross(a, b):
     """Row-wise cross product; np.cross is several times slower for small arrays."""
-    a, b = np.broadcast_arrays(np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64))
-    out = np.empty(a.shape)
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
     out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
     out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
     out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
@@ -51,10 +55,7 @@ def any_perpendicular(v):
     """A unit vector perpendicular to each (non-zero) v (...,3): crossed with the coordinate axis least
     aligned with v, so the result is well conditioned and deterministic."""
     v = np.asarray(v, dtype=np.float64)
-    a = np.abs(v)
-    axis_idx = np.argmin(a, axis=-1)
-    e = np.zeros(v.shape)
-    np.put_along_axis(e, axis_idx[..., None], 1.0, axis=-1)
+    e = _EYE[np.argmin(np.abs(v), axis=-1)]
     p = cross(v, e)
     return p / norm(p)[..., None]
 
@@ -83,6 +84,12 @@ def swing_rotation(old_dirs, new_dirs):
     cos_less_1, sin_t = np.cos(t) - 1.0, np.sin(t)
     # Entry by entry from component arrays (far less memory traffic than four outer products), rounding
     # exactly as I + (cos t - 1)(e1 e1' + e2 e2') + sin t (e2 e1' - e1 e2') evaluated left to right.
+    if a[..., 0].size <= _FEW_ROTATIONS:
+        # Few rotations: whole outer products, fewer numpy calls; the same operations in the same order.
+        e1, f2 = a[..., :, None], e2[..., :, None]
+        e1t, f2t = a[..., None, :], e2[..., None, :]
+        turn = cos_less_1[..., None, None] * (e1 * e1t + f2 * f2t) + _EYE
+        return turn + sin_t[..., None, None] * (f2 * e1t - e1 * f2t)
     e1 = [np.ascontiguousarray(a[..., i]) for i in range(3)]
     f2 = [np.ascontiguousarray(e2[..., i]) for i in range(3)]
     out = np.empty(a.shape + (3,))

@@ -26,12 +26,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .chain import ChainModel, ChainSettings, solve_chain
+from .chain import ChainSettings, solve_chain
+from .chain_model import ChainModel
 from .errors import SolverInputError
 from .obstacles import as_boxes, points_inside, segments_cross
 
 STRATEGIES = ("centroid", "weighted", "sequential")
-_STALL = 1e-3  # as in chain.py: an iteration moving every effector less than tolerance * _STALL has stalled
+_STALL = 1e-3  # as in chain_types.py: an iteration moving every effector less than tolerance * _STALL has stalled
 
 
 @dataclass(frozen=True)

@@ -1,9 +1,10 @@
 """Tests that run inside Blender through the bpy wheel.
 
-Without bpy this whole directory is left out, so the solver tests still run in a plain Python.
-With bpy, the real extension is registered once per session the way Blender loads extensions (a package folder
-in an extensions repository, enabled as `bl_ext.<repo>.fullbody_adjust`), and every test starts from a fresh
-empty file.
+Without bpy every test module here is reported as skipped (with the reason), so the solver tests still run in a
+plain Python and the run says what it left out. With bpy, the real extension is registered once per session the
+way Blender loads extensions: the repository's root folder (the one holding blender_manifest.toml) in an
+extensions repository, enabled as `bl_ext.<repo>.fullbody_adjust`, whose __init__.py registers the package
+`bl_ext.<repo>.fullbody_adjust.fullbody_adjust`; every test starts from a fresh empty file.
 """
 
 import importlib.util
@@ -12,16 +13,31 @@ from pathlib import Path
 import pytest
 
 HAS_BPY = importlib.util.find_spec("bpy") is not None
-if not HAS_BPY:
-    collect_ignore_glob = ["*"]
+WITHOUT_BPY = "bpy is not importable in this Python: the Blender tests need the bpy wheel (.ci/with-bpy)"
 
-PACKAGE_DIR = Path(__file__).resolve().parents[2] / "fullbody_adjust"
+# The extension as Blender sees it: the folder with the manifest and the root __init__.py.
+EXTENSION_DIR = Path(__file__).resolve().parents[2]
+EXTENSION_ID = "fullbody_adjust"
+PACKAGE_DIR = EXTENSION_DIR / "fullbody_adjust"
 TEST_REPO = "fba_test"
+
+
+class ModuleNeedingBpy(pytest.File):
+    """Stands in for a test module of this folder in a Python without bpy: collecting it skips it."""
+
+    def collect(self):
+        pytest.skip(WITHOUT_BPY)
+
+
+if not HAS_BPY:
+    def pytest_pycollect_makemodule(module_path, parent):
+        # Importing the module would fail on `import bpy`; a skip keeps it counted and says why.
+        return ModuleNeedingBpy.from_parent(parent, path=module_path)
 
 
 def pytest_report_header(config):
     if not HAS_BPY:
-        return "tests/blender: left out, bpy is not importable in this Python"
+        return f"tests/blender: skipped, {WITHOUT_BPY}"
 
 
 def _raise(ex):
@@ -52,14 +68,15 @@ def add_extensions_repo(name, directory):
 
 @pytest.fixture(scope="session", autouse=True)
 def extension(tmp_path_factory):
-    """The registered extension's module (`bl_ext.fba_test.fullbody_adjust`), enabled for the whole session."""
+    """The enabled extension's module (`bl_ext.fba_test.fullbody_adjust`, the root __init__.py), for the whole
+    session."""
     import bpy
 
     repo_dir = tmp_path_factory.mktemp("extensions")
-    (repo_dir / PACKAGE_DIR.name).symlink_to(PACKAGE_DIR, target_is_directory=True)
+    (repo_dir / EXTENSION_ID).symlink_to(EXTENSION_DIR, target_is_directory=True)
     bpy.ops.wm.read_factory_settings(use_empty=True)
     repo = add_extensions_repo(TEST_REPO, repo_dir)
-    module_name = f"bl_ext.{TEST_REPO}.{PACKAGE_DIR.name}"
+    module_name = f"bl_ext.{TEST_REPO}.{EXTENSION_ID}"
     module = enable_extension(module_name)
     yield module
     disable_extension(module_name)
@@ -68,8 +85,10 @@ def extension(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def extension_module_name(extension):
-    """The registered module's name, e.g. for importlib.import_module(f"{extension_module_name}.bridge")."""
-    return extension.__name__
+    """The name the package's code runs under in the session's extension
+    (`bl_ext.fba_test.fullbody_adjust.fullbody_adjust`), e.g. for
+    importlib.import_module(f"{extension_module_name}.bridge")."""
+    return f"{extension.__name__}.{PACKAGE_DIR.name}"
 
 
 @pytest.fixture(autouse=True)
@@ -80,17 +99,19 @@ def empty_file():
 
 
 @pytest.fixture
-def extension_disabled(extension_module_name):
-    """The session's extension disabled for one test (which may enable and disable it), enabled again after."""
+def extension_disabled(extension):
+    """The session's extension disabled for one test (which may enable and disable it), enabled again after;
+    yields the extension's module name, the one to enable and disable."""
     import addon_utils
 
-    disable_extension(extension_module_name)
+    module_name = extension.__name__
+    disable_extension(module_name)
     try:
-        yield extension_module_name
+        yield module_name
     finally:
-        if addon_utils.check(extension_module_name)[1]:
-            disable_extension(extension_module_name)
-        enable_extension(extension_module_name)
+        if addon_utils.check(module_name)[1]:
+            disable_extension(module_name)
+        enable_extension(module_name)
 
 
 @pytest.fixture

@@ -294,6 +294,12 @@ def test_redo_panel_shows_main_settings():
     assert {item.identifier for item in properties["variant"].enum_items} == {'FABRIK', 'WEIGHTED', 'PRIORITY'}
     # Not remembered from the last run (Blender would mark them set): each run starts from the stored settings.
     assert all(properties[name].is_skip_save for name in main)
+    # The same properties as the stored settings: texts, defaults and ranges.
+    stored = bpy.types.Object.bl_rna.properties["fullbody_adjust"].fixed_type.properties
+    for name in main:
+        for attribute in ("name", "description", "default", "hard_min", "hard_max", "subtype", "unit"):
+            if hasattr(stored[name], attribute):
+                assert getattr(properties[name], attribute) == getattr(stored[name], attribute), (name, attribute)
     drawn = []
     layout = SimpleNamespace(prop=lambda data, name, **kw: drawn.append(name), use_property_split=False)
     operator.draw(SimpleNamespace(layout=layout), bpy.context)
@@ -362,3 +368,24 @@ def test_report_counts_an_unreachable_target(capfd):
     assert max(measured[e] for e in ("hand.R", "foot.L", "foot.R")) <= REACH * pose.height()
     assert largest == pytest.approx(measured["hand.L"], rel=1e-3)
     assert measured["hand.L"] > 2.0 * pose.height()
+    assert "Warning" not in capfd.readouterr().out  # beyond reach is not a miss: INFO
+
+
+def test_a_target_missed_within_reach_is_a_warning(capfd):
+    """A left-hand target within the arm's reach, but the arm, clavicle and trunk bones have their IK X and Z
+    locked: the hand stops short, and the report is a WARNING naming the effector and its residual, as the
+    command line exits 1 for the same result."""
+    obj = rig_with_targets("basic")
+    for name in ("forearm.L", "upper_arm.L", "shoulder.L", "spine.001", "spine.002", "spine.003"):
+        obj.pose.bones[name].lock_ik_x = obj.pose.bones[name].lock_ik_z = True
+    pose = Pose(obj)
+    reach_left_hand(obj, pose, "arm")
+
+    capfd.readouterr()
+    assert bpy.ops.fullbody_adjust.adjust_pose() == {'FINISHED'}
+    out = capfd.readouterr().out
+    missed = residuals(obj)["hand.L"]
+    assert missed > 100 * REACH * pose.height()
+    assert "Warning: hand.L missed its target within reach by" in out, out
+    reported = float(out.split("within reach by ")[1].split()[0])
+    assert reported == pytest.approx(missed, rel=1e-2)

@@ -14,7 +14,8 @@ import bpy  # first: it puts Blender's own modules (addon_utils) on sys.path
 import addon_utils
 import pytest
 
-from .conftest import PACKAGE_DIR, add_extensions_repo, disable_extension, enable_extension
+from .conftest import (EXTENSION_DIR, EXTENSION_ID, PACKAGE_DIR, add_extensions_repo, disable_extension,
+                       enable_extension)
 
 EFFECTORS = ("hand.L", "hand.R", "foot.L", "foot.R", "head")
 
@@ -37,12 +38,12 @@ def new_armature(name="Rig"):
 # --- manifest and package -----------------------------------------------------------------------------------
 
 def test_manifest_passes_blenders_validator(extension_cli, capsys):
-    assert extension_cli(["validate", str(PACKAGE_DIR)]) == 0, capsys.readouterr().out
+    assert extension_cli(["validate", str(EXTENSION_DIR)]) == 0, capsys.readouterr().out
 
 
 def test_manifest_declares_the_contract():
-    manifest = tomllib.loads((PACKAGE_DIR / "blender_manifest.toml").read_text(encoding="utf-8"))
-    assert manifest["id"] == PACKAGE_DIR.name == "fullbody_adjust"
+    manifest = tomllib.loads((EXTENSION_DIR / "blender_manifest.toml").read_text(encoding="utf-8"))
+    assert manifest["id"] == EXTENSION_ID == PACKAGE_DIR.name == "fullbody_adjust"
     assert re.fullmatch(r"\d+\.\d+\.\d+", manifest["version"])
     assert manifest["blender_version_min"] == "4.2.0"
     assert manifest["license"] == ["SPDX:GPL-3.0-or-later"]
@@ -52,7 +53,7 @@ def test_manifest_declares_the_contract():
 
 
 def package_files(root):
-    """Every file an installed copy needs: the package's files less Python caches and dot-files."""
+    """Every file under `root` less Python caches and dot-files, as paths relative to it."""
     return {
         path.relative_to(root).as_posix()
         for path in root.rglob("*")
@@ -62,14 +63,26 @@ def package_files(root):
     }
 
 
+def shipped_files():
+    """What an installed copy needs: the entry point, the manifest, the licence and the package's own files."""
+    package = {f"{PACKAGE_DIR.name}/{name}" for name in package_files(PACKAGE_DIR)}
+    return {"__init__.py", "blender_manifest.toml", "LICENSE"} | package
+
+
+# Development files a checkout may hold (beside what git tracks) that the package must leave out.
+CLUTTER = ("__pycache__/__init__.cpython-311.pyc", "fullbody_adjust/__pycache__/cli.cpython-311.pyc",
+           "fullbody_adjust/solver/__pycache__/tree.cpython-313.pyc", "fullbody_adjust/.notes.txt",
+           ".git/HEAD", ".pytest_cache/README.md", ".hypothesis/examples/x", "dist/fullbody_adjust-0.0.9.zip",
+           "old-build.zip", "scene.blend1", "sample_scenes/scene.blend", "tests/test_new.py", "bench/run.py", ".ci/new-step")
+
+
 @pytest.fixture
 def built_zip(extension_cli, tmp_path, capsys):
-    """The zip Blender's build command makes from a copy of the package with development clutter planted in it."""
-    source = tmp_path / "source" / PACKAGE_DIR.name
-    shutil.copytree(PACKAGE_DIR, source, ignore=shutil.ignore_patterns("__pycache__"))
-    expected = package_files(source)
-    for clutter in ("tests/test_x.py", "bench/run.py", "sample_scenes/scene.blend", ".ci/run",
-                    "__pycache__/properties.cpython-311.pyc", "scene.blend1", "old-build.zip"):
+    """The zip Blender's build command makes from a copy of the repository with development clutter planted in
+    it, and the files it must hold."""
+    source = tmp_path / "checkout"
+    shutil.copytree(EXTENSION_DIR, source, ignore=shutil.ignore_patterns("__pycache__", ".git", ".pytest_cache", ".hypothesis", "dist", "*.zip"))
+    for clutter in CLUTTER:
         (source / clutter).parent.mkdir(parents=True, exist_ok=True)
         (source / clutter).write_bytes(b"x")
     out = tmp_path / "dist"
@@ -77,14 +90,15 @@ def built_zip(extension_cli, tmp_path, capsys):
     code = extension_cli(["build", "--source-dir", str(source), "--output-dir", str(out)])
     assert code == 0, capsys.readouterr().out
     (zip_path,) = out.glob("*.zip")
-    return zip_path, expected
+    return zip_path, shipped_files()
 
 
-def test_built_zip_holds_the_package_and_no_development_files(built_zip):
+def test_built_zip_holds_the_entry_point_manifest_licence_and_package_only(built_zip):
     zip_path, expected = built_zip
     with zipfile.ZipFile(zip_path) as archive:
         names = {name for name in archive.namelist() if not name.endswith("/")}
-    assert {"__init__.py", "blender_manifest.toml"} <= names
+    assert {"__init__.py", "blender_manifest.toml", "LICENSE", "fullbody_adjust/__init__.py",
+            "fullbody_adjust/solver/adjust.py"} <= expected
     assert names == expected
 
 
@@ -93,7 +107,7 @@ def test_built_zip_installs_and_enables(built_zip, extension_disabled, tmp_path)
     install_dir = tmp_path / "installed"
     install_dir.mkdir()
     repo = add_extensions_repo("fba_zip", install_dir)
-    module_name = "bl_ext.fba_zip.fullbody_adjust"
+    module_name = f"bl_ext.fba_zip.{EXTENSION_ID}"
     try:
         result = bpy.ops.extensions.package_install_files(
             filepath=str(zip_path), repo=repo.module, enable_on_install=True,
@@ -101,16 +115,17 @@ def test_built_zip_installs_and_enables(built_zip, extension_disabled, tmp_path)
         assert result == {'FINISHED'}
         assert addon_utils.check(module_name) == (True, True)
         # The enabled code is the installed copy, not the session's source folder.
-        assert Path(sys.modules[module_name].__file__).resolve().parent == (install_dir / "fullbody_adjust").resolve()
-        assert package_files(install_dir / "fullbody_adjust") == expected
+        installed = install_dir / EXTENSION_ID
+        assert Path(sys.modules[module_name].__file__).resolve().parent == installed.resolve()
+        assert package_files(installed) == expected
         rig = new_armature()
         assert rig.fullbody_adjust.variant == 'PRIORITY'
     finally:
         repos = bpy.context.preferences.extensions.repos
-        bpy.ops.extensions.package_uninstall(repo_index=list(repos).index(repo), pkg_id="fullbody_adjust")
+        bpy.ops.extensions.package_uninstall(repo_index=list(repos).index(repo), pkg_id=EXTENSION_ID)
         repos.remove(repo)
     assert addon_utils.check(module_name) == (False, False)
-    assert not (install_dir / "fullbody_adjust").exists()
+    assert not (install_dir / EXTENSION_ID).exists()
 
 
 # --- registration -------------------------------------------------------------------------------------------
@@ -161,8 +176,23 @@ def test_package_and_solver_import_in_a_python_without_bpy():
     code = ("import sys; sys.modules['bpy'] = None; "
             "import fullbody_adjust, fullbody_adjust.solver; "
             "assert callable(fullbody_adjust.register)")
-    done = subprocess.run([sys.executable, "-c", code], cwd=PACKAGE_DIR.parent, capture_output=True, text=True)
+    done = subprocess.run([sys.executable, "-c", code], cwd=EXTENSION_DIR, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
+
+
+def test_without_bpy_every_blender_test_module_is_reported_skipped_with_the_reason():
+    # A Python without bpy (the import blocked here) collects this folder's modules as skipped, not silently
+    # left out, and imports none of them.
+    modules = sorted(path.name for path in Path(__file__).parent.glob("test_*.py"))
+    code = ("import sys; sys.modules['bpy'] = None; import pytest; "
+            "sys.exit(pytest.main(['tests/blender', '-q', '-rs', '-p', 'no:cacheprovider']))")
+    done = subprocess.run([sys.executable, "-c", code], cwd=EXTENSION_DIR, capture_output=True, text=True,
+                          timeout=120)
+    # Nothing to run but no error either: pytest's 'no tests collected'.
+    assert done.returncode == pytest.ExitCode.NO_TESTS_COLLECTED, done.stdout + done.stderr
+    summary = done.stdout.strip().splitlines()[-1]
+    assert re.match(rf"{len(modules)} skipped in ", summary), done.stdout
+    assert f"SKIPPED [{len(modules)}]" in done.stdout and "bpy is not importable" in done.stdout
 
 
 # --- settings -----------------------------------------------------------------------------------------------

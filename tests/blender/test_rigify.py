@@ -52,12 +52,22 @@ def switch_values(rig):
     return {name: (rig.pose.bones[name]["IK_FK"], rig.pose.bones[name].get("pole_vector")) for name in SWITCHES}
 
 
-@pytest.mark.parametrize("kind, limbs, task", [
-    ("basic", "FK", "arm"), ("basic", "FK", "trunk"), ("basic", "IK", "arm"), ("basic", "IK", "trunk"),
-    ("basic", "IK", "pelvis"), ("full", "IK", "arm"), ("full", "FK", "trunk"),
+def move_rotate_scale(rig):
+    """The rig's object moved, turned about its up axis and scaled uniformly; the targets back on its wrists
+    and ankles."""
+    rig.location, rig.rotation_euler, rig.scale = (1.5, -2.0, 0.4), (0.0, 0.0, 1.1), (1.3, 1.3, 1.3)
+    bpy.ops.fullbody_adjust.create_targets(reset=True)
+
+
+@pytest.mark.parametrize("kind, limbs, task, moved", [
+    ("basic", "FK", "arm", False), ("basic", "FK", "trunk", False), ("basic", "IK", "arm", False),
+    ("basic", "IK", "trunk", False), ("basic", "IK", "pelvis", False), ("full", "IK", "arm", False),
+    ("full", "FK", "trunk", False), ("basic", "FK", "arm", True), ("basic", "IK", "trunk", True),
 ])
-def test_reach_through_the_controls(kind, limbs, task, capfd):
+def test_reach_through_the_controls(kind, limbs, task, moved, capfd):
     rig = generated_rig(kind, limbs)
+    if moved:
+        move_rotate_scale(rig)
     assert all(bone.startswith("ORG-") for bones in bone_map(rig).values() for bone in bones)
     switches = switch_values(rig)
     before = Pose(rig)
@@ -97,8 +107,7 @@ def test_moved_rotated_scaled_rig_with_an_obstacle(extension_module_name):
     no deform joint ends inside it and the hand still reaches."""
     adjustment = importlib.import_module(f"{extension_module_name}.bridge.adjustment")
     rig = generated_rig("basic", "FK")
-    rig.location, rig.rotation_euler, rig.scale = (1.5, -2.0, 0.4), (0.0, 0.0, 1.1), (1.3, 1.3, 1.3)
-    bpy.ops.fullbody_adjust.create_targets(reset=True)
+    move_rotate_scale(rig)
     start = {pb.name: pb.matrix_basis.copy() for pb in rig.pose.bones}
     before = Pose(rig)
     reach_left_hand(rig, before, "arm")
@@ -226,3 +235,49 @@ def test_ik_locks_on_a_control_hold_the_joint(capfd):
 
         angles[locked] = abs(elbow(after) - elbow(before))
     assert angles[True] < 1e-4 and angles[False] > 0.05, angles
+
+
+def test_panel_says_what_it_found_and_what_it_keys():
+    """The panel's line: a generated rig and the limb modes; for a plain rig whose mapped forearm follows a
+    constraint, the one line saying keys would be overridden; otherwise that the mapped bones are keyed."""
+    from .test_extension import draw_panel
+
+    rig = generated_rig("basic", "FK")
+    assert "Rigify rig (FK arms, FK legs): keys controls" in draw_panel("FULLBODY_ADJUST_PT_main", rig).all_labels()
+    bpy.ops.object.armature_basic_human_metarig_add()
+    metarig = bpy.context.active_object
+    bpy.ops.fullbody_adjust.create_targets()
+    assert "Keys the mapped bones" in draw_panel("FULLBODY_ADJUST_PT_main", metarig).all_labels()
+    copy = metarig.pose.bones["forearm.L"].constraints.new('COPY_ROTATION')
+    copy.target, copy.subtarget = metarig, "upper_arm.L"
+    labels = draw_panel("FULLBODY_ADJUST_PT_main", metarig).all_labels()
+    assert any(f"'forearm.L' of '{metarig.name}' follows its constraint 'Copy Rotation'" in text for text in labels), labels
+
+
+def test_live_adjust_on_a_generated_rig():
+    """Live on a generated rig: moving the hand's target re-solves through the controls (the deform hand on
+    the target, nothing keyed); Key Pose keys controls only; Live off without keying puts the controls back."""
+    rig = generated_rig("basic", "IK")
+    start = {pb.name: pb.matrix_basis.copy() for pb in rig.pose.bones}
+    rig.fullbody_adjust.live = True
+    before = Pose(rig)
+    reach_left_hand(rig, before, "arm")
+    goal = np.array(slot(rig, "hand.L").target.matrix_world.translation)
+    after = Pose(rig)  # evaluates the scene: the live handler solves
+    assert np.linalg.norm(world_head(after, "DEF-hand.L") - goal) <= REACH * before.height()
+    assert not keyed_bones(rig)
+    moved = [name for name, basis in start.items() if rig.pose.bones[name].matrix_basis != basis]
+    assert moved and not any(name.startswith(INTERNAL) for name in moved), moved
+
+    rig.fullbody_adjust.live = False
+    bpy.context.view_layer.update()
+    assert all(rig.pose.bones[name].matrix_basis == basis for name, basis in start.items())
+
+    rig.fullbody_adjust.live = True
+    Pose(rig)
+    assert bpy.ops.fullbody_adjust.key_pose() == {'FINISHED'}
+    keyed = keyed_bones(rig)
+    assert "hand_ik.L" in keyed and not any(name.startswith(INTERNAL) for name in keyed), keyed
+    rig.fullbody_adjust.live = False
+    bpy.context.scene.frame_set(bpy.context.scene.frame_current)
+    assert np.linalg.norm(world_head(Pose(rig), "DEF-hand.L") - goal) <= REACH * before.height()

@@ -1,0 +1,108 @@
+"""Speed of one Adjust Pose solve on the Rigify full human metarig (159 bones), feet planted, hands moved.
+
+Cases (tests/helpers/metarig.py): 'near' (both hands within their arms' reach), 'far' (the left hand's target
+beyond any reach), 'obstacle' (a box where the left forearm would go). For each case, in the same run:
+  - single_pose_us: median µs of solver.adjust.adjust_pose (one pose, what Adjust Pose and Live call);
+  - batch_one_frame_us: median µs of solver.adjust.adjust_frames with F = 1 (the batch path);
+  - ratio_single_to_batch: single_pose_us / batch_one_frame_us;
+  - batch_per_frame_us: µs per frame of adjust_frames over --frames frames of the case (targets jittered),
+    and ratio_single_to_batch_frame = single_pose_us / batch_per_frame_us (the price of one frame alone);
+  - max_difference: largest |single - batch row| over heads, tails, rotations and residuals, for the case's
+    pose and every jittered frame solved alone.
+Timings are process CPU time (time.process_time), medians of --repeats runs taken in turn with the figure they
+are compared to, so other processes on a shared machine disturb them less; compare figures only within one run.
+
+Run: .ci/with-bpy python bench/solver_speed.py [--repeats 30] [--frames 32]   (prints one JSON object)
+"""
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from fullbody_adjust.solver.adjust import adjust_frames, adjust_pose  # noqa: E402
+from tests.helpers import metarig  # noqa: E402
+
+
+def median_us(repeats, *fns):
+    """Median µs of each function, run in turn (a, b, a, b, ...) so a change of machine load hits them alike."""
+    for fn in fns:
+        fn()  # warm-up
+    times = [[] for _ in fns]
+    for _ in range(repeats):
+        for fn, out in zip(fns, times):
+            t0 = time.process_time()
+            fn()
+            out.append(time.process_time() - t0)
+    return [1e6 * float(np.median(t)) for t in times]
+
+
+def max_difference(a, b):
+    worst = 0.0
+    for field in ("heads", "tails", "rotations", "residuals"):
+        x, y = getattr(a, field), getattr(b, field)
+        both = ~(np.isnan(x) & np.isnan(y))
+        worst = max(worst, float(np.max(np.abs(x - y)[both], initial=0.0)))
+    return worst
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--repeats", type=int, default=30, help="timed runs per figure")
+    ap.add_argument("--frames", type=int, default=32, help="frames in the batch timing")
+    args = ap.parse_args()
+
+    model, heads, tails, x_axes = metarig.load()
+    rng = np.random.default_rng(7)
+    out = {"rig": f"Rigify human metarig, {len(model.names)} bones", "cases": {}}
+    for kind in metarig.CASES:
+        targets, boxes = metarig.case(model, heads, tails, kind)
+        kwargs = dict(obstacles=boxes)
+
+        def single(t=targets):
+            return adjust_pose(model, heads, tails, t, metarig.EFFECTORS, metarig.PRIORITIES,
+                               bone_x_axes=x_axes, **kwargs)
+
+        def batch_one():
+            return adjust_frames(model, heads[None], tails[None], targets[None], metarig.EFFECTORS,
+                                 metarig.PRIORITIES, bone_x_axes=x_axes[None], **kwargs)
+
+        jitter = rng.normal(scale=0.02, size=(args.frames, len(metarig.EFFECTORS), 3))
+        jitter[0] = 0.0
+        frames_targets = targets[None] + jitter  # the head's NaN row stays NaN (no target)
+        n = args.frames
+
+        def batch_many():
+            return adjust_frames(model, np.repeat(heads[None], n, 0), np.repeat(tails[None], n, 0), frames_targets,
+                                 metarig.EFFECTORS, metarig.PRIORITIES, bone_x_axes=np.repeat(x_axes[None], n, 0),
+                                 **kwargs)
+
+        single_us, batch1_us = median_us(args.repeats, single, batch_one)
+        many_us = median_us(max(3, args.repeats // 10), batch_many)[0] / n
+        many = batch_many()
+        diff = max_difference(single(), batch_one()[0])
+        for f in range(n):
+            diff = max(diff, max_difference(single(frames_targets[f]), many[f]))
+        result = single()
+        out["cases"][kind] = {
+            "single_pose_us": round(single_us, 1),
+            "batch_one_frame_us": round(batch1_us, 1),
+            "ratio_single_to_batch": round(single_us / batch1_us, 3),
+            "batch_per_frame_us": round(many_us, 1),
+            "ratio_single_to_batch_frame": round(single_us / many_us, 3),
+            "max_difference": diff,
+            "status": result.status.tolist(),
+            "max_residual": float(np.nanmax(result.residuals)),
+            "chain_iterations": result.iterations,
+        }
+    out["max_difference"] = max(c["max_difference"] for c in out["cases"].values())
+    print(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()

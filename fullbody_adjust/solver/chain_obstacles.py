@@ -1,0 +1,125 @@
+"""The paper's obstacle response (§4.1) for the batch chain solver: a joint that lands inside a box, or whose
+segment crosses one, is moved to the nearest clear point (ObstacleResponse._avoid, mixed into ChainModel)."""
+
+import math
+
+import numpy as np
+
+from .geometry import any_perpendicular, cross, dot, norm
+from .obstacles import points_inside, segments_cross
+
+# Obstacle response candidates (see _avoid for which one is taken).
+# The paper's circle (sphere(anchor, D) ∩ sphere(pos_i, dis)): every point is at distance dis from pos_i, so
+# "nearest the unconstrained position" does not single one out. We take the point nearest the joint's
+# position at the start of the iteration (continuity: the joint does not flip around the box between
+# iterations or frames), then the rest of the circle by increasing angle from that point.
+_CIRCLE_SAMPLES = 24
+_circle_angles = [0.0]
+for _k in range(1, _CIRCLE_SAMPLES // 2):
+    _circle_angles += [_k * 2 * math.pi / _CIRCLE_SAMPLES, -_k * 2 * math.pi / _CIRCLE_SAMPLES]
+_circle_angles.append(math.pi)
+_CIRCLE_ANGLES = np.array(_circle_angles)
+# Beyond the paper: when the circle does not exist (the box is larger than twice the segment: dis > 2D) or
+# none of its points is clear (another box, or the segment still crosses), directions on the whole sphere
+# of radius D around the anchor, by increasing angle from the unconstrained direction (the smallest change
+# to what FABRIK asked for), azimuths ordered from the reference side.
+_SPHERE_POLAR = np.radians([5, 10, 15, 20, 30, 40, 50, 60, 75, 90, 105, 120, 135, 150, 165, 180])
+
+
+class ObstacleResponse:
+    """ChainModel's obstacle methods; they use the model's boxes, corners, ignore_end/ignore_base, n and
+    settings.margin."""
+
+    def _ignored(self, rows, joint, segment):
+        """(b,K) boxes ignored for `joint` and (b,K) for `segment` (None: nothing ignored)."""
+        last = self.n - 1
+        ign_joint = self.ignore_end[rows] if joint == last else None
+        ign_seg = None
+        if segment == last - 1:
+            ign_seg = self.ignore_end[rows]
+        if segment == 0:
+            ign_seg = self.ignore_base[rows] if ign_seg is None else (ign_seg | self.ignore_base[rows])
+        return ign_joint, ign_seg
+
+    def _violations(self, boxes, anchor, points, ign_joint, ign_seg):
+        inside = points_inside(points, boxes)
+        crossing = segments_cross(anchor, points, boxes)
+        if ign_joint is not None:
+            inside &= ~ign_joint
+        if ign_seg is not None:
+            crossing &= ~ign_seg
+        return inside, crossing
+
+    def _avoid(self, rows, anchor, cand, lengths, ref, joint, segment, limit_fn):
+        """Paper §4.1.2 collision response for joints placed at `cand` (b,3) from `anchor` (b,3) at distance
+        `lengths` (b,): if a joint is inside a box or its segment crosses one, move it as described at
+        _CIRCLE_ANGLES / _SPHERE_POLAR. Returns (positions, responded (b,), failed (b,))."""
+        boxes = self.boxes.select(rows)
+        ign_joint, ign_seg = self._ignored(rows, joint, segment)
+        inside, crossing = self._violations(boxes, anchor, cand, ign_joint, ign_seg)
+        hit = inside.any(axis=1) | crossing.any(axis=1)
+        b = cand.shape[0]
+        if not hit.any():
+            return cand, hit, np.zeros(b, dtype=bool)
+        h = np.nonzero(hit)[0]
+        a, p, L, r = anchor[h], cand[h], lengths[h], ref[h]
+        # The colliding box: one containing the joint, else the first one the segment crosses.
+        k = np.where(inside[h].any(axis=1), np.argmax(inside[h], axis=1), np.argmax(crossing[h], axis=1))
+        corners = self.corners[rows[h], k] if self.boxes.batched else self.corners[k]  # (h,8,3)
+        dis = norm(corners - p[:, None, :]).max(axis=1) + self.settings.margin
+        # Circle of sphere(a, L) ∩ sphere(p, dis); |p - a| = L up to rounding.
+        axis_vec = p - a
+        dd = norm(axis_vec)
+        nvec = axis_vec / dd[:, None]
+        along = (dd * dd + L * L - dis * dis) / (2.0 * dd)
+        rho2 = L * L - along * along
+        has_circle = rho2 > 0.0
+        rho = np.sqrt(np.maximum(rho2, 0.0))
+        center = a + along[:, None] * nvec
+        # In-plane basis: e1 toward the reference (the joint's position at the start of the iteration).
+        w = r - center
+        w = w - dot(w, nvec)[:, None] * nvec
+        wn = norm(w)
+        ok = wn > 1e-12 * L
+        e1 = np.where(ok[:, None], w / np.where(ok, wn, 1.0)[:, None], any_perpendicular(nvec))
+        e2 = cross(nvec, e1)
+        cos_c, sin_c = np.cos(_CIRCLE_ANGLES), np.sin(_CIRCLE_ANGLES)
+        ring = cos_c[None, :, None] * e1[:, None, :] + sin_c[None, :, None] * e2[:, None, :]  # (h,24,3)
+        circle_pts = center[:, None, :] + rho[:, None, None] * ring
+        circle_dirs = (circle_pts - a[:, None, :]) / L[:, None, None]
+        polar = np.repeat(_SPHERE_POLAR, _CIRCLE_SAMPLES)
+        azim = np.tile(_CIRCLE_ANGLES, _SPHERE_POLAR.size)
+        sphere_dirs = (np.cos(polar)[None, :, None] * nvec[:, None, :]
+                       + (np.sin(polar) * np.cos(azim))[None, :, None] * e1[:, None, :]
+                       + (np.sin(polar) * np.sin(azim))[None, :, None] * e2[:, None, :])
+        dirs = np.concatenate([circle_dirs, sphere_dirs], axis=1)
+        dirs = dirs / norm(dirs)[..., None]
+        if limit_fn is not None:
+            dirs = limit_fn(h, dirs)
+        pts = a[:, None, :] + L[:, None, None] * dirs
+        sub = boxes.select(h)
+        ij = None if ign_joint is None else ign_joint[h][:, None, :]
+        iseg = None if ign_seg is None else ign_seg[h][:, None, :]
+        c_in, c_cross = self._violations(sub, a[:, None, :], pts, ij, iseg)
+        # Least penetration = fewest boxes entered or crossed; a missing circle is never a candidate.
+        score = c_in.sum(axis=-1) + c_cross.sum(axis=-1)
+        score[:, :_CIRCLE_SAMPLES] = np.where(has_circle[:, None], score[:, :_CIRCLE_SAMPLES], np.iinfo(np.int64).max)
+        # Which candidate: first the fewest boxes entered or crossed ("least penetration"), then
+        # - a joint inside a box (the paper's case): preference order, i.e. the paper's circle from its point
+        #   nearest the reference, then the sphere samples;
+        # - only the segment crossing a box (beyond the paper): the candidate nearest the unconstrained
+        #   position, circle and sphere alike: every circle point is `dis` away, a needlessly large jump for
+        #   a segment that only grazes a box, and the smallest correction keeps FABRIK converging.
+        never = score == np.iinfo(np.int64).max
+        order = np.broadcast_to(np.arange(score.shape[1]) / score.shape[1], score.shape)
+        deviation = norm(pts - p[:, None, :]) / (2.0 * L[:, None])  # < 1: never outweighs a penetration
+        tiebreak = np.where(inside[h].any(axis=1)[:, None], order, deviation)
+        key = np.where(never, np.inf, score + 0.5 * tiebreak)
+        pick = np.argmin(key, axis=1)
+        out = cand.copy()
+        out[h] = pts[np.arange(h.size), pick]
+        failed = np.zeros(b, dtype=bool)
+        failed[h] = score[np.arange(h.size), pick] > 0
+        return out, hit, failed
+
+    # -- passes ------------------------------------------------------------------------------------------------

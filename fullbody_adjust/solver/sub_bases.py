@@ -1,0 +1,164 @@
+"""Step 1 of Algorithm 1 (paper §5.2.1-5.2.2): where the SC and the root go, and the trunk solve that brings the
+SC there (SubBasePlacement, mixed into adjust._Problem; it uses the problem's chains, targets, reach and
+settings)."""
+
+import numpy as np
+
+from .geometry import norm
+from .obstacles import penetrations
+from .reach_balls import nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point
+
+
+class SubBasePlacement:
+    """Where the sub-bases go, for frames `rows` of the problem."""
+
+    def _upper(self):
+        return [n for n, limb in self.model.limbs.items() if limb.hub == "sc"]
+
+    def _legs(self):
+        return [n for n in ("leg.L", "leg.R")]
+
+    def _balls(self, names, rows, offsets_from):
+        """Reach balls for the sub-base `anchor`: a limb with base b (rigidly offset from the anchor by
+        o = b - anchor) reaches its target t iff |anchor' - (t - o)| <= reach."""
+        centres = np.stack([self.limb_target[n][rows] - offsets_from[n] for n in names], axis=1)
+        radii = np.stack([self.reach_eff[n][rows] * (1.0 - self.settings.reach_margin) for n in names], axis=1)
+        active = np.stack([self.limb_active[n][rows] for n in names], axis=1)
+        prio = np.array([self.limb_priority[n] for n in names])
+        return centres, radii, active, prio
+
+    def _in_reach(self, names, rows, bases):
+        """(b,) every active limb's target lies within its reach from `bases[name]` (rule (i), no margin)."""
+        ok = np.ones(len(rows), dtype=bool)
+        for n in names:
+            d = norm(self.limb_target[n][rows] - bases[n])
+            ok &= ~self.limb_active[n][rows] | (d <= self.reach_eff[n][rows])
+        return ok
+
+    def _place_sc(self, rows, pref, trunk_base, offsets):
+        """New SC for frames `rows`, from which every constrained upper limb reaches, in this order of
+        preference (the first that exists wins):
+          1. the trunk leans: the point nearest `pref` (b,3) at the SC's current distance from the trunk base
+             (the spine hardly shortens: its joints bend a few tens of degrees each, so pulling the SC
+             straight toward the target would ask for a fold the joint limits refuse);
+          2. the trunk bends: nearest `pref` within the trunk's reach from `trunk_base`;
+          3. from the arms' balls alone (the root will have to move), the variant deciding if they are
+             disjoint. The root stays in cases 1-2."""
+        upper = self._upper()
+        centres, radii, active, prio = self._balls(upper, rows, offsets)
+        trunk_r = self.reach["trunk"][rows] * (1.0 - self.settings.reach_margin)
+        lean_r = np.minimum(norm(pref - trunk_base), trunk_r)  # a straight spine: keep FABRIK off full stretch
+        lean, ok_lean = nearest_on_sphere_in_balls(pref, trunk_base, lean_r, centres, radii, active)
+        if np.all(ok_lean):
+            return lean
+        bend, ok_bend = nearest_in_balls(
+            pref, np.concatenate([centres, trunk_base[:, None]], axis=1),
+            np.concatenate([radii, trunk_r[:, None]], axis=1),
+            np.concatenate([active, np.ones((len(rows), 1), dtype=bool)], axis=1))
+        if np.all(ok_lean | ok_bend):
+            return np.where(ok_lean[:, None], lean, bend)
+        arms_only, _ = sub_base_point(pref, centres, radii, active, prio, self.settings.variant)
+        out = np.where(ok_bend[:, None], bend, arms_only)
+        return np.where(ok_lean[:, None], lean, out)
+
+    def _root_delta(self, rows, pref, trunk_centre, trunk_active):
+        """Root translation for frames `rows`: nearest to `pref` (b,3) where every constrained foot reaches its
+        target and (where trunk_active) the trunk reaches the SC target (trunk_centre = sc* - trunk base)."""
+        legs = self._legs()
+        hips = {n: self.chain0[n][rows, 0] for n in legs}
+        centres, radii, active, prio = self._balls(legs, rows, hips)
+        upper_prio = max([self.limb_priority[n] for n in self._upper()] + [0.0])
+        centres = np.concatenate([centres, trunk_centre[:, None]], axis=1)
+        radii = np.concatenate([radii, (self.reach["trunk"][rows] * (1.0 - self.settings.reach_margin))[:, None]], 1)
+        active = np.concatenate([active, trunk_active[:, None]], axis=1)
+        if self.settings.feet_first:
+            prio = np.append(prio, -np.inf)  # ankle tasks first (variant 2 at the root)
+            variant = "priority"
+        else:
+            prio = np.append(prio, upper_prio)
+            variant = self.settings.variant
+        delta, _ = sub_base_point(pref, centres, radii, active, prio, variant)
+        return delta
+
+    def _sub_bases(self, rows, offsets, force_sc=None):
+        """Steps 1-2 for frames `rows`, with the upper limbs' base offsets from the SC `offsets[name]` (b,3);
+        force_sc (b,) marks frames whose SC must move (a later pass: the turned offsets alone may look in
+        reach, but only because the SC moved). Returns (delta, sc_star, trunk joints, trunk solved, trunk status,
+        trunk reason)."""
+        upper = self._upper()
+        trunk0 = self.chain0["trunk"][rows]
+        sc0, base0 = trunk0[:, -1], trunk0[:, 0]
+        b = len(rows)
+        any_upper = np.zeros(b, dtype=bool)
+        for n in upper:
+            any_upper |= self.limb_active[n][rows]
+
+        # SC: stays exactly unless some constrained arm cannot reach from its current base (rule (i)).
+        need_sc = ~self._in_reach(upper, rows, {n: sc0 + offsets[n] for n in upper})
+        if force_sc is not None:
+            need_sc |= force_sc
+        sc_star = sc0.copy()
+        if np.any(need_sc):
+            sc_star = np.where(need_sc[:, None], self._place_sc(rows, sc0, base0, offsets), sc0)
+
+        # Root: stays exactly while every constrained foot reaches from its hip and the trunk reaches sc*.
+        legs = self._legs()
+        trunk_ok = ~need_sc | (norm(sc_star - base0) <= self.reach["trunk"][rows])
+        need_root = ~(self._in_reach(legs, rows, {n: self.chain0[n][rows, 0] for n in legs}) & trunk_ok)
+        delta = np.zeros((b, 3))
+        if np.any(need_root):
+            d = self._root_delta(rows, np.zeros((b, 3)), sc_star - base0, need_sc)
+            delta = np.where(need_root[:, None], d, 0.0)
+        moved_root = np.any(delta != 0.0, axis=1)
+
+        # A root moved for the feet carries the SC along if the arms still reach from there; else the SC goes
+        # to the nearest point (to where it was carried) from which they do.
+        carried = ~need_sc & any_upper & moved_root
+        if np.any(carried):
+            sc_c = sc0 + delta
+            need_c = carried & ~self._in_reach(upper, rows, {n: sc_c + offsets[n] for n in upper})
+            if np.any(need_c):
+                point = self._place_sc(rows, sc_c, base0 + delta, offsets)
+                sc_star = np.where(need_c[:, None], point, sc_star)
+                need_sc = need_sc | need_c
+
+        # Trunk: FABRIK from the translated root to sc* where the SC moves relative to the root; else it rides.
+        joints = trunk0 + delta[:, None, :]
+        status = np.full(b, "", dtype=object)
+        reason = np.full(b, "", dtype=object)
+        solve = np.nonzero(need_sc)[0]
+        if solve.size:
+            res = self._solve("trunk", rows[solve], joints[solve], sc_star[solve])
+            joints[solve] = res.positions
+            status[solve] = res.status
+            reason[solve] = res.reason
+            # Paper §5.2.1: when the trunk cannot bring the SC there (joint limits), the pelvis moves by the
+            # remaining error, as far as the feet allow. Not past obstacles: a blocked trunk stays.
+            err = sc_star[solve] - res.positions[:, -1]
+            late = (norm(err) > self.settings.chain.tolerance) & np.isin(res.status, ("limited", "max_iterations"))
+            if np.any(late):
+                s2 = solve[late]
+                d2 = self._root_delta(rows[s2], delta[s2] + err[late], np.zeros((s2.size, 3)),
+                                      np.zeros(s2.size, dtype=bool))
+                shift = d2 - delta[s2]
+                moved_chain = joints[s2] + shift[:, None, :]
+                if self.obstacles is not None:
+                    segs = np.stack([np.arange(joints.shape[1] - 1), np.arange(1, joints.shape[1])], axis=1)
+                    boxes = self.obstacles.select(rows[s2])
+                    before = sum(penetrations(joints[s2], segs, boxes))
+                    after = sum(penetrations(moved_chain, segs, boxes))
+                    keep = after <= before
+                    shift = np.where(keep[:, None], shift, 0.0)
+                    moved_chain = joints[s2] + shift[:, None, :]
+                joints[s2] = moved_chain
+                delta[s2] = delta[s2] + shift
+                res_err = norm(sc_star[s2] - moved_chain[:, -1])
+                fixed = res_err <= self.settings.chain.tolerance
+                status[s2[fixed]] = "reached"
+                reason[s2[fixed]] = "reached after the pelvis moved by the remaining error"
+        return delta, sc_star, joints, need_sc, status, reason
+
+    # -- the whole solve -------------------------------------------------------------------------------------
+
+    _PER_FRAME = ("H0", "T0", "targets", "active_e", "iterations")
+    _PER_FRAME_DICTS = ("chain0", "reach", "reach_eff", "limb_target", "limb_active")

@@ -1,0 +1,100 @@
+"""Adjust Pose on the Rigify full human metarig (159 bones, tests/helpers/metarig.py): one pose solved alone
+equals its row of a batch, and a target beyond reach ends at the stretched limb without running every pass.
+
+Expectations are computed here from the rig's own geometry (chain lengths, target distances)."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from fullbody_adjust.solver.adjust import AdjustSettings, adjust_frames, adjust_pose
+from fullbody_adjust.solver.obstacles import points_inside, segments_cross
+from tests.helpers import metarig
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return metarig.load()
+
+
+def _frames(rig, targets, boxes, **kwargs):
+    model, h, t, x = rig
+    n = len(targets)
+    return adjust_frames(model, np.repeat(h[None], n, 0), np.repeat(t[None], n, 0), targets, metarig.EFFECTORS,
+                         metarig.PRIORITIES, obstacles=boxes, bone_x_axes=np.repeat(x[None], n, 0), **kwargs)
+
+
+offsets = arrays(np.float64, (3, 2, 3), elements=st.floats(-0.25, 0.25))
+
+
+@settings(deadline=None, max_examples=12)
+@given(kind=st.sampled_from(metarig.CASES), hand_offsets=offsets)
+def test_a_pose_solved_alone_equals_its_row_of_a_batch_within_1e9(rig, kind, hand_offsets):
+    model, h, t, x = rig
+    base, boxes = metarig.case(model, h, t, kind)
+    targets = np.repeat(base[None], 3, 0)
+    targets[:, :2] += hand_offsets  # three frames, both hands moved differently on each; feet planted
+    batch = _frames(rig, targets, boxes)
+    for f in range(3):
+        one = adjust_pose(model, h, t, targets[f], metarig.EFFECTORS, metarig.PRIORITIES, obstacles=boxes,
+                          bone_x_axes=x)
+        np.testing.assert_allclose(one.heads, batch.heads[f], atol=1e-9, rtol=0)
+        np.testing.assert_allclose(one.tails, batch.tails[f], atol=1e-9, rtol=0)
+        np.testing.assert_allclose(one.rotations, batch.rotations[f], atol=1e-9, rtol=0)
+        np.testing.assert_allclose(one.residuals, batch.residuals[f], atol=1e-9, rtol=0)
+        assert list(one.status) == list(batch.status[f])
+
+
+def test_a_target_beyond_reach_ends_at_the_stretched_arm(rig):
+    """Without joint limits the best pose is the arm straight on the line from its base to the target."""
+    model, h, t, x = rig
+    targets, _ = metarig.case(model, h, t, "far")
+    res = _frames(rig, targets[None], None, settings=replace(AdjustSettings(), use_limits=False))
+    arm = model.limbs["arm.L"]
+    chain0 = arm.joints(h, t)
+    reach = float(np.sum(np.linalg.norm(np.diff(chain0, axis=0), axis=1)))
+    base = res.heads[0, arm.bones[0]]
+    hand = res.heads[0, arm.end_bone]
+    to_target = np.linalg.norm(targets[0] - base)
+    assert to_target > reach  # beyond reach even from where the SC went
+    assert res.status[0, 0] == "unreachable"
+    # The closed-form best pose: the arm at full stretch on the line from its base to the target.
+    np.testing.assert_allclose(np.linalg.norm(hand - base), reach, rtol=1e-9)
+    np.testing.assert_allclose(res.residuals[0, 0], to_target - reach, rtol=1e-9)
+    np.testing.assert_allclose(np.cross(hand - base, targets[0] - base), 0.0, atol=1e-9)
+    # Planted feet stay planted.
+    np.testing.assert_allclose(res.residuals[0, 2:4], 0.0, atol=AdjustSettings().chain.tolerance)
+
+
+def test_sub_base_passes_stop_at_their_fixed_point(rig):
+    """With a target beyond reach the SC converges to a fixed point; once a pass would move the arm bases by
+    less than the tolerance no further pass runs, so a higher pass cap gives exactly the same pose."""
+    model, h, t, x = rig
+    targets, _ = metarig.case(model, h, t, "far")
+    few = _frames(rig, targets[None], None, settings=replace(AdjustSettings(), sub_base_passes=4))
+    many = _frames(rig, targets[None], None, settings=replace(AdjustSettings(), sub_base_passes=12))
+    np.testing.assert_array_equal(few.heads, many.heads)
+    np.testing.assert_array_equal(few.rotations, many.rotations)
+    assert few.iterations[0] == many.iterations[0]
+    # A single pass is the first step of that iteration: the SC moves on after it.
+    one = _frames(rig, targets[None], None, settings=replace(AdjustSettings(), sub_base_passes=1))
+    assert not np.array_equal(one.heads, few.heads)
+
+
+def test_a_box_where_the_forearm_would_go_is_avoided(rig):
+    model, h, t, x = rig
+    base, boxes = metarig.case(model, h, t, "obstacle")
+    arm = model.limbs["arm.L"]
+    unobstructed = _frames(rig, base[None], None)
+    free = arm.joints(unobstructed.heads[0], unobstructed.tails[0])
+    assert segments_cross(free[:-1], free[1:], boxes).any()  # without the box the forearm would cross it
+    res = _frames(rig, base[None], boxes)
+    joints = arm.joints(res.heads[0], res.tails[0])
+    assert res.status[0, 0] == "reached"
+    assert not points_inside(joints, boxes).any()
+    assert not segments_cross(joints[:-1], joints[1:], boxes).any()
+

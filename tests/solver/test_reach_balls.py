@@ -1,0 +1,67 @@
+"""Sub-base geometry (solver/reach_balls.py) against brute force: the nearest point of a sphere inside every
+active ball, checked on dense samples of the sphere; and frames without rows."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from fullbody_adjust.solver.reach_balls import nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point
+
+
+def _sphere_samples(n=20000):
+    """Fibonacci points on the unit sphere (spacing about 0.025 rad)."""
+    k = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * k / n
+    phi = np.pi * (1.0 + 5 ** 0.5) * k
+    r = np.sqrt(1.0 - z * z)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+SAMPLES = _sphere_samples()
+coords = st.floats(-1.0, 1.0)
+
+
+@settings(deadline=None, max_examples=60)
+@given(point=arrays(np.float64, 3, elements=coords), centre=arrays(np.float64, 3, elements=coords),
+       radius=st.floats(0.3, 1.5), centres=arrays(np.float64, (3, 3), elements=coords),
+       radii=arrays(np.float64, 3, elements=st.floats(0.3, 1.5)), active=arrays(bool, 3))
+def test_nearest_point_on_a_sphere_within_balls_beats_every_sample(point, centre, radius, centres, radii, active):
+    _check_against_samples(point, centre, radius, centres, radii, active)
+
+
+def test_a_corner_of_two_caps_is_found():
+    """Two caps of the unit sphere that barely overlap, seen from straight above: the nearest point of the lens
+    is its upper corner, where the sphere meets both ball boundaries."""
+    a, b = np.radians(0.0), np.radians(50.0)
+    centres = 1.2 * np.array([[np.cos(a), np.sin(a), 0.0], [np.cos(b), np.sin(b), 0.0], [0.0, 0.0, -3.0]])
+    x = _check_against_samples(np.array([0.0, 0.0, 5.0]), np.zeros(3), 1.0, centres, np.array([0.6, 0.6, 1.0]),
+                               np.array([True, True, False]))
+    np.testing.assert_allclose(np.linalg.norm(x - centres[:2], axis=1), 0.6, rtol=1e-9)  # on both boundaries
+
+
+def _check_against_samples(point, centre, radius, centres, radii, active):
+    x, found = nearest_on_sphere_in_balls(point[None], centre[None], np.array([radius]), centres[None], radii[None],
+                                          active[None])
+    on_sphere = centre + radius * SAMPLES
+    inside = np.all((np.linalg.norm(on_sphere[:, None] - centres, axis=-1) <= radii) | ~active, axis=1)
+    if inside.any():
+        assert found[0]
+        best = np.min(np.linalg.norm(on_sphere[inside] - point, axis=1))
+        assert np.linalg.norm(x[0] - point) <= best + 1e-9
+    if found[0]:
+        np.testing.assert_allclose(np.linalg.norm(x[0] - centre), radius, rtol=1e-9)
+        assert np.all((np.linalg.norm(x[0] - centres, axis=1) <= radii * (1 + 1e-9)) | ~active)
+    else:
+        np.testing.assert_array_equal(x[0], point)
+    return x[0]
+
+
+@pytest.mark.parametrize("k", [0, 1, 2, 3, 4])
+def test_no_frames_give_no_rows(k):
+    p, c, r, a = np.zeros((0, 3)), np.zeros((0, k, 3)), np.zeros((0, k)), np.zeros((0, k), dtype=bool)
+    assert nearest_in_balls(p, c, r, a)[0].shape == (0, 3)
+    assert nearest_on_sphere_in_balls(p, p, np.zeros(0), c, r, a)[0].shape == (0, 3)
+    for variant in ("weighted", "priority", "fabrik"):
+        assert sub_base_point(p, c, r, a, np.ones(k), variant)[0].shape == (0, 3)
