@@ -4,9 +4,8 @@ open the target's .blend, import the clip, retarget it onto the target, and writ
 the clip's row. A clip that fails is a row with its reason; the worker goes on with the next one.
 
 The job (first line on stdin): file, target, import (clip_import.ImportOptions fields), contacts,
-contact_object, exact, floor,
-frame_start, frame_end, keep_sources. A task: clip, name (of the action), out (the .blend to save, one per clip)
-or part (a small .blend holding only the new action, merged by the parent).
+contact_object, exact, floor, frame_start, frame_end, keep_sources. A task: clip, name (of the action), out (the
+.blend to save, one per clip) or part (a small .blend holding only the new action, merged by the parent).
 """
 
 import json
