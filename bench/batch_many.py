@@ -97,7 +97,7 @@ def contact_errors(rig, bones, frames, targets, contacts):
     return errors[contacts]
 
 
-def baseline(character, clip, out_blend):
+def baseline(character, clip, out_blend, row):
     """(seconds of the import, of the lean constraint bake, its contact errors, ours' contact errors) for one
     clip."""
     bpy.ops.wm.open_mainfile(filepath=str(character), load_ui=False)
@@ -105,7 +105,8 @@ def baseline(character, clip, out_blend):
     started = time.perf_counter()
     source, _added = clip_import.import_clip(bpy.context, str(clip))
     imported = time.perf_counter() - started
-    prepared = retarget.prepare(bpy.context, source, target, floor=0.0)  # the plan ours solved (not timed)
+    prepared = retarget.prepare(bpy.context, source, target, row["frame_start"], row["frame_end"],
+                                floor=0.0)  # the plan ours solved, on the same frames (not timed)
     plan, frames = prepared.plan, prepared.frames
     hand_foot = [mapping.ensure_map(target).bones(e)[-1] for e in plan.effectors]
     rig = copy_target(target, "lean")
@@ -152,9 +153,9 @@ def measure(args):
         rows = runs[1]["report"]["rows"]
         per_clip_ours = runs[1]["seconds"] / args.clips
         imports, lean, theirs, ours = [], [], [], []
-        for clip in clips[:args.baseline_clips]:
+        for clip, row in zip(clips[:args.baseline_clips], rows):
             imported, seconds, their_errors, our_errors = baseline(character, clip,
-                                                                   work / "out1" / f"{clip.stem}.blend")
+                                                                   work / "out1" / f"{clip.stem}.blend", row)
             imports.append(imported)
             lean.append(seconds)
             theirs.extend(their_errors)

@@ -73,10 +73,31 @@ def remove_ids(ids):
 
 
 def _import_bvh(path, options):
+    scene = bpy.context.scene
+    resample = options.fps == "scene" and not _same_rate(bvh_frame_rate(path), scene.render.fps / scene.render.fps_base)
     bpy.ops.import_anim.bvh(
         filepath=os.path.abspath(path), global_scale=options.scale or CMU_SCALE,
         axis_forward=options.forward or '-Z', axis_up=options.up or 'Y', frame_start=options.start_frame,
-        use_fps_scale=options.fps == "scene", update_scene_fps=options.fps == "clip", update_scene_duration=False)
+        use_fps_scale=resample, update_scene_fps=options.fps == "clip", update_scene_duration=False)
+
+
+def bvh_frame_rate(path):
+    """Frames per second a BVH file's 'Frame Time:' line gives (None when it has none)."""
+    with open(path, "r", encoding="utf-8", errors="replace") as lines:
+        for line in lines:
+            if line.strip().lower().startswith("frame time:"):
+                try:
+                    seconds = float(line.split(":", 1)[1])
+                except ValueError:
+                    return None
+                return 1.0 / seconds if seconds > 0.0 else None
+    return None
+
+
+def _same_rate(clip_fps, scene_fps):
+    """True when the clip's rate is the scene's but for the rounding of its frame time (CMU's '.0083333' is
+    120.0005 fps): its keys then go one on each frame, not a hair off them."""
+    return clip_fps is not None and abs(clip_fps - scene_fps) <= 1e-4 * scene_fps
 
 
 def _import_fbx(path, options):

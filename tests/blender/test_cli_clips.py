@@ -278,3 +278,16 @@ def test_floor_puts_the_ground_contacts_at_its_height(tmp_path, clips, character
     assert own.contacts.any() and np.array_equal(raised.contacts, own.contacts)
     shift = raised.world_targets - own.world_targets  # the whole motion, contacts and all, 0.25 higher
     assert np.allclose(shift[..., :2], 0.0, atol=1e-9) and np.allclose(shift[..., 2], 0.25, atol=1e-9)
+
+
+@pytest.mark.parametrize("scene_fps, step", [(120, 1.0), (24, 0.2)])
+def test_a_clip_lands_on_the_scenes_frames(clips, extension_module_name, scene_fps, step):
+    # CMU's frame time '.0083333' is 120.0005 fps: at 120 fps the keys sit exactly on the frames (not drifting off
+    # them); at 24 fps they are resampled, 1/5 frame apart.
+    clip_import = importlib.import_module(f"{extension_module_name}.bridge.clip_import")
+    assert clip_import.bvh_frame_rate(clips / "walk_a.bvh") == pytest.approx(1 / 0.0083333)
+    bpy.context.scene.render.fps = scene_fps
+    source, _ = clip_import.import_clip(bpy.context, str(clips / "walk_a.bvh"))
+    [times] = {tuple(frames) for frames, _ in keyed_values(source.animation_data.action).values()}
+    expected = 1.0 + step * np.arange(99)
+    assert np.allclose(times, expected, atol=1e-3 if step != 1.0 else 0.0)
