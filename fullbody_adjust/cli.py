@@ -265,7 +265,7 @@ def _retarget(args, context):
     started = time.perf_counter()
     outcome = retarget_motion(context, source, target, start, end, contacts=contacts,
                               contact_object=contact_object, exact=args.exact, new_action=args.new_action,
-                              progress=progress)
+                              floor=args.floor, progress=progress)
     seconds = time.perf_counter() - started
     progress.finish()
 
@@ -280,7 +280,7 @@ def _retarget(args, context):
             targets=None if planned is None else planned[np.searchsorted(outcome.frames, shown)])
     action = getattr(outcome, "action", None)
     details = {"source": source.name, "target": target.name, "armature": target.name, "contacts": contacts,
-               "contact_object": contact_name, "exact": args.exact,
+               "contact_object": contact_name, "exact": args.exact, "floor": args.floor,
                "action": action.name if action is not None else batch.action_name(target)}
     return WorkResult(outcome=outcome, seconds=seconds, figure=figure, details=details)
 

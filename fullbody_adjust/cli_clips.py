@@ -200,8 +200,16 @@ def _job(args, input_path, target):
             "import": {"scale": args.clip_scale, "forward": args.clip_forward, "up": args.clip_up,
                        "fps": args.clip_fps, "start_frame": args.clip_start_frame},
             "contacts": contacts, "contact_object": contact_object, "exact": args.exact,
-            "floor": 0.0 if args.floor is None else args.floor, "frame_start": args.frame_start,
+            "floor": _floor(args.floor, contacts), "frame_start": args.frame_start,
             "frame_end": args.frame_end, "keep_sources": args.keep_sources}
+
+
+def _floor(floor, contacts):
+    """A clip's floor: as given; by default 0 for ground contacts (a clip's own ground is wherever its capture
+    put it), and the clip's own with an object (it must meet the object where the object is)."""
+    if floor is not None:
+        return floor
+    return 0.0 if contacts == "ground" else None
 
 
 # --- the worker processes ---------------------------------------------------------------------------------------

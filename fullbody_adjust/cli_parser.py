@@ -123,7 +123,8 @@ def build_parser(prog=f"blender -b FILE.blend -c {COMMAND}"):
                                    "clip from a file: its whole action)")
     retarget.add_argument("--floor", type=_float, metavar="Z",
                           help="world height of the floor the feet stand on: the source's ground is moved there "
-                               "(default: 0 for clips from files; the source's own ground with --source)")
+                               "(default: 0 for clips from files with ground contacts; else the source's own "
+                               "ground)")
     clips = retarget.add_argument_group("clips from files (with --source-file)")
     clips.add_argument("--clip-scale", type=_positive, metavar="S",
                        help="metres per clip unit (default: 0.056444 for BVH, the CMU database's unit; 1 for FBX, "

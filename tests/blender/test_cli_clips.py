@@ -291,3 +291,23 @@ def test_a_clip_lands_on_the_scenes_frames(clips, extension_module_name, scene_f
     [times] = {tuple(frames) for frames, _ in keyed_values(source.animation_data.action).values()}
     expected = 1.0 + step * np.arange(99)
     assert np.allclose(times, expected, atol=1e-3 if step != 1.0 else 0.0)
+
+
+def test_floor_with_a_source_in_the_file_raises_the_retargeted_motion(cli, capsys, tmp_path, extension_module_name):
+    retarget = importlib.import_module(f"{extension_module_name}.bridge.retarget")
+    samples = Path(__file__).resolve().parents[2] / "sample_scenes"
+    reopen(samples / "retarget_cmu.blend")
+    ground = retarget.prepare(bpy.context, bpy.data.objects["Source"], bpy.data.objects["Small"], 20, 22).plan.ground
+    hips = {}
+    for floor in (None, ground + 0.3):
+        out = tmp_path / f"floor{floor}.blend"
+        argv = ["retarget", samples / "retarget_cmu.blend", "--source", "Source", "--target", "Small", "--frame-start",
+                20, "--frame-end", 22, "--output", out, "--quiet"] + (["--floor", floor] if floor is not None else [])
+        code, _, err = run(cli, capsys, *argv)
+        assert code in (0, 1), err
+        reopen(out)
+        bpy.context.scene.frame_set(21)
+        small = bpy.data.objects["Small"]
+        hips[floor] = np.array(small.matrix_world @ small.pose.bones["LeftUpLeg"].head)
+    low, high = hips.values()
+    assert high - low == pytest.approx([0.0, 0.0, 0.3], abs=1e-4)
