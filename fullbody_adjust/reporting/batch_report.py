@@ -12,8 +12,8 @@ FAILED = "failed"
 SKIPPED = "skipped"
 
 COLUMNS = ("clip", "name", "status", "reason", "action", "output", "frames", "frame_start", "frame_end", "seconds",
-           "import_seconds", "solve_seconds", "reach_error_median", "reach_error_p99", "reach_error_max", "missed_within_reach",
-           "contact_frames", "contact_error_median", "contact_error_max")
+           "import_seconds", "solve_seconds", "reach_error_median", "reach_error_p99", "reach_error_max",
+           "missed_within_reach", "contact_frames", "contact_error_median", "contact_error_max")
 
 
 def batch_report(rows, seconds, **extra):
