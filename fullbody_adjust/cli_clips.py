@@ -6,7 +6,8 @@ the others go on, and the exit code is 1.
 
 Outputs: with --output-dir, one .blend per clip (the target file with that clip's action, saved by its worker);
 else every clip's action is merged into the target file and saved as --output (or over the input with
---overwrite): each worker writes its action into a small part file, appended here at the end.
+--overwrite): each worker writes its action into a small part file, appended here as the clip ends. An
+interrupted batch keeps the clips done; --skip-existing leaves them out of the next run.
 """
 
 import glob
