@@ -3,7 +3,8 @@
 ``bpy.utils.register_cli_command``) and, with the bpy wheel, ``python -m fullbody_adjust SUBCOMMAND FILE.blend
 ...`` (``__main__.py``). Both end in ``main(argv)``, which returns the exit code.
 
-Thin: the work is ``bridge.adjustment.adjust_frames`` and ``bridge.retarget.retarget``, the
+Thin: the arguments are ``cli_parser``'s, a batch of clip files (``retarget --source-file``) is
+``cli_clips``'s; the work is ``bridge.adjustment.adjust_frames`` and ``bridge.retarget.retarget``, the
 Blender-side chores (open, save, pick the armature and the frames, read the preview's skeletons) are in
 ``bridge.batch``, the report, progress line and picture in ``reporting``. Every expected problem — bad
 arguments, a missing file, an unknown armature, a frame range outside the action, a rig that cannot be mapped,
@@ -11,7 +12,6 @@ an unwritable output — ends the run with one line on stderr, a non-zero exit c
 input .blend is only ever written with --overwrite.
 """
 
-import argparse
 from dataclasses import dataclass
 import os
 import sys
@@ -21,59 +21,20 @@ import traceback
 import bpy
 import numpy as np
 
-from .solver.vocabulary import VARIANTS
 from .bridge import adjustment, batch
 from .bridge.retarget import retarget as retarget_motion
 from .bridge.errors import AdjustError
 from .reporting import preview, summary
 from .reporting.progress import ConsoleProgress, NoProgress
+from .cli_parser import (COMMAND, EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_OK, EXIT_TARGETS_MISSED, _VARIANTS,
+                         _ParserExit, _UsageError, build_parser)
 
-COMMAND = "fullbody_adjust"
-
-EXIT_OK = 0
-EXIT_TARGETS_MISSED = 1
-EXIT_BAD_INPUT = 2
-EXIT_INTERNAL = 3
-
-EXIT_CODES_HELP = """\
-exit codes:
-  0  done: every target within reach was met and no bone ends inside an obstacle (targets beyond the
-     body's reach are stretched toward and listed in the report, but do not fail the run)
-  1  done and written, but on some frame a target within reach was missed (an obstacle blocked it,
-     joint limits held it, or the iterations ran out), a retarget's contact within reach was not held, or
-     a bone ends inside an obstacle: see --report
-  2  bad arguments or input (missing or unreadable file, unknown armature or object, frame range outside
-     the action, a rig that cannot be mapped, an output that cannot be written...): one line on stderr,
-     nothing written, the input file untouched
-  3  internal error (a bug; --debug prints the traceback)"""
-
-_VARIANTS = {variant: variant.upper() for variant in VARIANTS}
+__all__ = ("COMMAND", "CommandError", "build_parser", "check_writable", "checked_outputs", "input_path", "main",
+           "register", "same_file", "unregister", "write_text")
 
 
 class CommandError(Exception):
     """A problem with the arguments or the input: exit 2 with this one line."""
-
-
-class _UsageError(Exception):
-    pass
-
-
-class _ParserExit(Exception):
-    def __init__(self, status):
-        super().__init__(status)
-        self.status = status
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse that raises instead of exiting, so a bad argument is one line and Blender keeps control."""
-
-    def error(self, message):
-        raise _UsageError(f"{self.prog}: error: {message} (see --help)")
-
-    def exit(self, status=0, message=None):
-        if message:
-            sys.stderr.write(message)
-        raise _ParserExit(status)
 
 
 def main(argv, prog=f"blender -b FILE.blend -c {COMMAND}"):
@@ -91,6 +52,9 @@ def main(argv, prog=f"blender -b FILE.blend -c {COMMAND}"):
         return EXIT_BAD_INPUT
     where = f"{COMMAND} {args.subcommand}"
     try:
+        if getattr(args, "source_file", None):
+            from . import cli_clips  # the batch of clip files: worker processes, one row per clip
+            return cli_clips.run(args)
         return _execute(args)
     except (CommandError, AdjustError) as ex:
         print(f"{where}: error: {_one_line(ex)}", file=sys.stderr)
@@ -101,165 +65,6 @@ def main(argv, prog=f"blender -b FILE.blend -c {COMMAND}"):
         print(f"{where}: internal error: {type(ex).__name__}: {_one_line(ex)} (a bug; --debug shows where)",
               file=sys.stderr)
         return EXIT_INTERNAL
-
-
-def build_parser(prog=f"blender -b FILE.blend -c {COMMAND}"):
-    parser = _Parser(
-        prog=prog,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-        description=(
-            "Full Body Adjust on the command line, without the user interface.\n\n"
-            "  adjust    a frame range of one armature: hands and feet reach their target objects\n"
-            "            (the armature's target slots), avoiding obstacles, solved in one batch\n"
-            "  retarget  the motion of one armature carried onto another, adjusted so contacts hold\n\n"
-            f"Run as `python -m {COMMAND} SUBCOMMAND FILE.blend [options]` with the bpy module, or as\n"
-            f"`blender -b FILE.blend -c {COMMAND} SUBCOMMAND [options]` in Blender. "
-            "`SUBCOMMAND --help` lists its options."),
-        epilog=EXIT_CODES_HELP,
-    )
-    subparsers = parser.add_subparsers(dest="subcommand", metavar="SUBCOMMAND")
-
-    adjust = subparsers.add_parser(
-        "adjust", help="adjust a frame range of one armature so hands and feet reach their targets",
-        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EXIT_CODES_HELP,
-        description=(
-            "Adjust every frame of a range of one armature so its hands and feet reach the target objects set in\n"
-            "its target slots (animated targets and moving obstacles are followed frame by frame), in one\n"
-            "vectorised solve, and key the bones that moved: into the armature's action, or into a new action\n"
-            "with --new-action so the original motion stays intact. The solver settings stored on the armature\n"
-            "(its Full Body panel) are used unless overridden below."))
-    _add_file_argument(adjust)
-    adjust.add_argument("--armature", metavar="NAME",
-                        help="the armature to adjust (default: the only armature with targets set; else the "
-                             "active object, or the only armature)")
-    _add_frame_arguments(adjust, "the armature's action (its manual frame range when set), or the scene's when "
-                                 "it has no action")
-    solver = adjust.add_argument_group("solver settings (default: those stored on the armature)")
-    solver.add_argument("--variant", type=str.lower, choices=tuple(_VARIANTS),
-                        help="how conflicting targets are settled: priority (the highest-priority reachable "
-                             "target is always met), weighted (priority-weighted compromise) or fabrik (plain "
-                             "FABRIK centroid, the baseline)")
-    solver.add_argument("--margin", type=_non_negative, metavar="DISTANCE",
-                        help="clearance kept from obstacle boxes, in scene units")
-    solver.add_argument("--tolerance", type=_positive, metavar="DISTANCE",
-                        help="a target counts as reached within this distance, in scene units")
-    solver.add_argument("--max-iterations", type=_positive_int, metavar="N", help="iteration limit per solve")
-    solver.add_argument("--no-limits", action="store_true",
-                        help="ignore joint limits (elbows and knees may bend backwards)")
-    _add_output_arguments(adjust, "write the keys into a new action of this name (a copy of the current one), so "
-                                  "the original action stays intact (it gets a fake user)")
-    adjust.set_defaults(work=_adjust)
-
-    retarget = subparsers.add_parser(
-        "retarget", help="carry the motion of one armature onto another and adjust it so contacts hold",
-        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EXIT_CODES_HELP,
-        description=(
-            "Carry the motion of a source armature onto a target armature of other proportions, then adjust the\n"
-            "target so its contacts hold: feet on the ground, or a hand on an object it reaches (paper §6.2.3).\n"
-            "Both armatures must be mappable onto the body model (their stored bone map or automatic mapping).\n"
-            "In the preview the source is drawn in grey, the target in blue."))
-    _add_file_argument(retarget)
-    retarget.add_argument("--source", metavar="NAME", required=True, help="the armature whose motion is carried")
-    retarget.add_argument("--target", metavar="NAME", required=True, help="the armature that receives it")
-    _add_frame_arguments(retarget, "the source's action")
-    retarget.add_argument("--contacts", nargs="+", action=_ContactsAction, metavar=("ground|object", "NAME"),
-                          help="what must hold, given once or more (e.g. --contacts ground --contacts object Bar): "
-                               "'ground' (planted feet rest on the floor and do not slide; the default) or 'object "
-                               "NAME' (hands and feet touching object NAME in the source motion keep touching it); "
-                               "feet still above the floor stand on something raised")
-    retarget.add_argument("--exact", action="store_true",
-                          help="the default, kept for older scripts: soles exactly on the ground, hands on objects "
-                               "at the source's own world positions")
-    _add_output_arguments(retarget, "name of the new action the target's motion is written into (default: "
-                                    "'<source action>_<target>'); the target's previous action is kept")
-    retarget.set_defaults(work=_retarget)
-    return parser
-
-
-def _add_file_argument(parser):
-    parser.add_argument("file", nargs="?", metavar="FILE.blend",
-                        help="the .blend file to open (under `blender -b FILE.blend -c ...` it may be left out: "
-                             "the file Blender opened is used)")
-
-
-def _add_frame_arguments(parser, default):
-    parser.add_argument("--frame-start", type=int, metavar="N", help=f"first frame (default: the start of {default})")
-    parser.add_argument("--frame-end", type=int, metavar="N", help=f"last frame (default: the end of {default})")
-
-
-def _add_output_arguments(parser, new_action_help):
-    parser.add_argument("--new-action", metavar="NAME", help=new_action_help)
-    out = parser.add_argument_group("output (nothing is saved unless --output or --overwrite is given)")
-    out.add_argument("--output", metavar="OUT.blend",
-                     help="save the result as this new .blend file (the input file is left untouched)")
-    out.add_argument("--overwrite", action="store_true",
-                     help="save the result over the input .blend file (without --output), or allow --output to "
-                          "name the input file")
-    out.add_argument("--report", metavar="REPORT.json",
-                     help="write a JSON report: frames, seconds, frames/s, reach error per effector (median, "
-                          "p99, max; targets within and beyond reach apart), penetrations, and the frames "
-                          "where a target was not met, with the reason")
-    out.add_argument("--preview", metavar="PREVIEW.png",
-                     help="draw a before/after picture: skeleton snapshots (front and side) at a few frames, "
-                          "before in grey and after in blue with the targets, and the reach error over time")
-    out.add_argument("--preview-frames", type=_positive_int, default=4, metavar="N",
-                     help="number of snapshot frames in the preview (default: 4)")
-    out.add_argument("--quiet", action="store_true", help="no progress line on stderr")
-    out.add_argument("--debug", action="store_true", help="print the Python traceback of an internal error")
-
-
-class _ContactsAction(argparse.Action):
-    """--contacts ground | --contacts object NAME, given once or more: a list of ('ground', None) and
-    ('object', NAME), in order, each once."""
-
-    def __call__(self, parser, namespace, values, option_string=None):
-        kind, names = values[0].lower(), values[1:]
-        if kind == "ground" and not names:
-            contact = ("ground", None)
-        elif kind == "object" and len(names) == 1:
-            contact = ("object", names[0])
-        elif kind == "object":
-            raise argparse.ArgumentError(self, "'object' takes exactly one object NAME")
-        elif kind == "ground":
-            raise argparse.ArgumentError(self, "'ground' takes no name")
-        else:
-            raise argparse.ArgumentError(self, f"expected 'ground' or 'object NAME', got '{values[0]}'")
-        given = list(getattr(namespace, self.dest, None) or [])
-        setattr(namespace, self.dest, given + [contact] if contact not in given else given)
-
-
-def _positive(text):
-    value = _float(text)
-    if not value > 0.0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return value
-
-
-def _non_negative(text):
-    value = _float(text)
-    if not value >= 0.0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return value
-
-
-def _float(text):
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text}") from None
-    if not np.isfinite(value):
-        raise argparse.ArgumentTypeError(f"must be finite, got {text}")
-    return value
-
-
-def _positive_int(text):
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {text}")
-    return value
 
 
 # --- a run -----------------------------------------------------------------------------------------------------
@@ -276,19 +81,19 @@ class WorkResult:
 
 
 def _execute(args):
-    input_path = _input_path(args)
-    saved = _checked_outputs(args, input_path)
-    if not _same_file(input_path, batch.current_file()):
-        batch.open_blend(input_path)
-    result = args.work(args, bpy.context)
+    blend_in = input_path(args)
+    saved = checked_outputs(args, blend_in)
+    if not same_file(blend_in, batch.current_file()):
+        batch.open_blend(blend_in)
+    result = _WORK[args.work](args, bpy.context)
 
     report = summary.summarize_outcome(
-        result.outcome, result.seconds, command=args.subcommand, file=os.path.abspath(input_path),
+        result.outcome, result.seconds, command=args.subcommand, file=os.path.abspath(blend_in),
         output=os.path.abspath(saved) if saved else None, blender=bpy.app.version_string, **result.details)
     if saved is not None:
         batch.save_blend(saved)
     if args.report:
-        _write_text(args.report, summary.to_json(report))
+        write_text(args.report, summary.to_json(report))
     if args.preview:
         _write_png(args.preview, preview.render(result.figure))
 
@@ -324,7 +129,7 @@ def _exit_code(args, report):
     return EXIT_OK
 
 
-def _input_path(args):
+def input_path(args):
     if args.file is not None:
         if not os.path.exists(args.file):
             raise CommandError(f"no such file: {args.file}")
@@ -334,11 +139,11 @@ def _input_path(args):
     raise CommandError("no .blend file: give FILE.blend")
 
 
-def _checked_outputs(args, input_path):
+def checked_outputs(args, input_path):
     """Check every output path before anything runs; returns the .blend path to save to (None: none)."""
     if args.output is not None:
         blend = args.output
-        if _same_file(blend, input_path) and not args.overwrite:
+        if same_file(blend, input_path) and not args.overwrite:
             raise CommandError(f"--output {blend} is the input file: add --overwrite to replace it")
     elif args.overwrite:
         blend = input_path
@@ -352,9 +157,9 @@ def _checked_outputs(args, input_path):
             continue
         if suffix and not path.lower().endswith(suffix):
             raise CommandError(f"{option} {path}: the file name must end in {suffix}")
-        if option != "--overwrite" and option != "--output" and _same_file(path, input_path):
+        if option != "--overwrite" and option != "--output" and same_file(path, input_path):
             raise CommandError(f"{option} {path} would overwrite the input file")
-        _check_writable(path, option)
+        check_writable(path, option)
         key = os.path.realpath(path)
         if key in seen:
             raise CommandError(f"{option} and {seen[key]} name the same file: {path}")
@@ -362,7 +167,7 @@ def _checked_outputs(args, input_path):
     return blend
 
 
-def _check_writable(path, option):
+def check_writable(path, option):
     folder = os.path.dirname(os.path.abspath(path))
     if os.path.isdir(path):
         raise CommandError(f"{option} {path} is a folder")
@@ -374,7 +179,7 @@ def _check_writable(path, option):
         raise CommandError(f"{option} {path}: folder {folder} is not writable")
 
 
-def _same_file(a, b):
+def same_file(a, b):
     if not a or not b:
         return False
     if os.path.exists(a) and os.path.exists(b):
@@ -382,7 +187,7 @@ def _same_file(a, b):
     return os.path.realpath(a) == os.path.realpath(b)
 
 
-def _write_text(path, text):
+def write_text(path, text):
     try:
         with open(path, "w", encoding="utf-8") as out:
             out.write(text)
@@ -409,6 +214,7 @@ def _adjust(args, context):
     adjustment.check_armature(obj)
     batch.check_mappable(obj, "--armature")
     start, end = batch.frame_range(obj, context.scene, args.frame_start, args.frame_end)
+    batch.check_frame_budget(context, obj, start, end)
     options = adjustment.Options(
         variant=_VARIANTS[args.variant] if args.variant else None, margin=args.margin, tolerance=args.tolerance,
         max_iterations=args.max_iterations, use_joint_limits=False if args.no_limits else None,
@@ -457,14 +263,15 @@ def _retarget(args, context):
     batch.check_mappable(target, "--target")
     contacts = [kind if name is None else (kind, batch.object_named(context, name, "--contacts object"))
                 for kind, name in args.contacts or [("ground", None)]]
-    start, end = batch.frame_range(source, context.scene, args.frame_start, args.frame_end)
+    start, end = batch.frame_range(source, context.scene, args.frame_start, args.frame_end, within_scene=True)
+    batch.check_frame_budget(context, target, start, end)
 
     frames = np.arange(start, end + 1, dtype=np.float64)
     shown = frames[preview.pick_snapshots(len(frames), args.preview_frames)]
     progress = _progress(args, len(frames), f"retarget '{source.name}' -> '{target.name}'")
     started = time.perf_counter()
     outcome = retarget_motion(context, source, target, start, end, contacts=contacts, new_action=args.new_action,
-                              progress=progress)
+                              floor=args.floor, progress=progress)
     seconds = time.perf_counter() - started
     progress.finish()
 
@@ -480,9 +287,12 @@ def _retarget(args, context):
             targets=None if planned is None else planned[np.searchsorted(outcome.frames, shown)])
     action = getattr(outcome, "action", None)
     details = {"source": source.name, "target": target.name, "armature": target.name,
-               "contacts": outcome.contact_report,
+               "contacts": outcome.contact_report, "floor": args.floor,
                "action": action.name if action is not None else batch.action_name(target)}
     return WorkResult(outcome=outcome, seconds=seconds, figure=figure, details=details)
+
+
+_WORK = {"adjust": _adjust, "retarget": _retarget}
 
 
 def _one_line(ex):

@@ -139,6 +139,16 @@ def test_progress_line_gives_rate_and_time_left_and_is_throttled():
     assert f"{0.75 * 200 / 6.0:.1f} frames/s" in lines[1] and "0:02 left" in lines[1]  # 6 s for 3/4
 
 
+def test_progress_of_a_batch_counts_clips_per_minute():
+    clock, out = _Clock(), io.StringIO()
+    progress = ConsoleProgress(24, "retarget 24 clips", stream=out, clock=clock, unit="clips", per_minute=True)
+    clock.now += 90.0
+    progress("6/24", 0.25)  # 6 clips in 90 s: 4 clips a minute, 270 s left
+    line = out.getvalue().splitlines()[0]
+    assert line.startswith("retarget 24 clips 6/24") and "25%" in line
+    assert f"{6 / 90.0 * 60.0:.1f} clips/min" in line and "4:30 left" in line
+
+
 def test_progress_writes_the_end_once():
     clock, out = _Clock(), io.StringIO()
     progress = ConsoleProgress(10, "run", stream=out, clock=clock)

@@ -173,6 +173,7 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
             goal_rows, corner_rows = [], []
 
             def read_others(row, frame):  # one pass over the frames reads pose, targets and obstacles
+                progress("reading", 0.3 * row / len(frames))
                 goal_rows.append(target_at(frame))
                 corner_rows.append(boxes_at(frame))
 

@@ -40,6 +40,29 @@ def save_blend(path):
         raise AdjustError(f"Cannot save {path}: {_blender_message(ex)}") from None
 
 
+def write_datablocks(path, datablocks):
+    """Write only ``datablocks`` (and what they use) into a new .blend at ``path``, with fake users."""
+    try:
+        bpy.data.libraries.write(os.path.abspath(path), set(datablocks), fake_user=True)
+    except (OSError, RuntimeError) as ex:
+        raise AdjustError(f"Cannot write {path}: {_blender_message(ex)}") from None
+
+
+def append_datablocks(context, path):
+    """Append the actions and objects of the .blend at ``path`` (written by write_datablocks) into the current
+    file: the actions keep a fake user, the objects join the scene. Returns {name in that file: appended
+    action} (an appended action is renamed when the current file has one of its name)."""
+    with bpy.data.libraries.load(os.path.abspath(path), link=False) as (data_from, data_to):
+        names = list(data_from.actions)
+        data_to.actions = list(names)
+        data_to.objects = list(data_from.objects)
+    for action in data_to.actions:
+        action.use_fake_user = True
+    for obj in data_to.objects:
+        context.scene.collection.objects.link(obj)
+    return dict(zip(names, data_to.actions))
+
+
 def armature_named(context, name, option="--armature"):
     """The armature object ``name`` of the current scene; AdjustError naming the scene's armatures otherwise."""
     scene = context.scene
@@ -103,23 +126,62 @@ def check_mappable(obj, option):
         raise AdjustError(f"{option} '{obj.name}' cannot be mapped: {ex}") from None
 
 
-def frame_range(obj, scene, start=None, end=None):
+def frame_range(obj, scene, start=None, end=None, within_scene=False):
     """(start, end) frames of a run on ``obj``: by default the range of its action (its manual frame range when
-    set), or the scene's when it has none. A given range must lie within the action."""
+    set; ``within_scene``: only its part within the scene's frame range, when they overlap), or the scene's when
+    it has none. A given range must lie within the action."""
     action = obj.animation_data.action if obj.animation_data is not None else None
     if action is not None:
         lo, hi = action.frame_range
         lo, hi = int(math.ceil(lo - 1e-6)), int(math.floor(hi + 1e-6))
     else:
         lo, hi = scene.frame_start, scene.frame_end
-    start = lo if start is None else int(start)
-    end = hi if end is None else int(end)
+    first, last = lo, hi
+    if within_scene and max(lo, scene.frame_start) <= min(hi, scene.frame_end):
+        first, last = max(lo, scene.frame_start), min(hi, scene.frame_end)
+    start = first if start is None else int(start)
+    end = last if end is None else int(end)
     if end < start:
         raise AdjustError(f"Frame range {start}..{end} is empty (the end is before the start)")
     if action is not None and (start < lo or end > hi):
         raise AdjustError(f"Frame range {start}..{end} lies outside action '{action.name}' of '{obj.name}' "
                           f"(frames {lo}..{hi})")
     return start, end
+
+
+# Bytes a frame range needs per bone and frame, roughly: the pose, solve and write arrays hold about eight
+# 4x4 float64 matrices for each.
+BYTES_PER_BONE_FRAME = 8 * 16 * 8
+
+
+def check_frame_budget(context, obj, start, end):
+    """AdjustError (one line) before any work when [start, end] reaches far beyond every key of the scene's
+    animation and its frame range (more than that span again, and 100 frames), or when its arrays would not
+    fit in half the memory available."""
+    scene = context.scene
+    lo, hi = scene.frame_start, scene.frame_end
+    for ob in scene.objects:
+        action = ob.animation_data.action if ob.animation_data is not None else None
+        if action is not None:
+            lo, hi = min(lo, int(math.floor(action.frame_range[0]))), max(hi, int(math.ceil(action.frame_range[1])))
+    slack = max(hi - lo + 1, 100)
+    if start < lo - slack or end > hi + slack:
+        raise AdjustError(f"Frame range {start}..{end} reaches far beyond the animation (keys and scene range: "
+                          f"frames {lo}..{hi}): give a range near it")
+    need = (end - start + 1) * len(obj.data.bones) * BYTES_PER_BONE_FRAME
+    free = available_memory()
+    if free is not None and need > free / 2:
+        raise AdjustError(f"Frame range {start}..{end} would need about {need / 2**30:.1f} GiB for "
+                          f"{len(obj.data.bones)} bones, more than half the {free / 2**30:.1f} GiB available: "
+                          f"split it into shorter ranges")
+
+
+def available_memory():
+    """Bytes of physical memory available now (None where the system does not say)."""
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (AttributeError, ValueError, OSError):
+        return None
 
 
 def action_name(obj):

@@ -80,19 +80,21 @@ class RetargetOutcome:
 
 
 def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, *, contacts=("ground",),
-             exact=True, new_action=None, progress=None):
+             exact=True, new_action=None, floor=None, progress=None):
     """Retarget ``source_obj``'s motion over [frame_start, frame_end] (default: its action's frame range)
     onto ``target_obj``, into a new action named ``new_action`` (default '<source action>_<target>').
 
     contacts: what hands and feet may touch, as ``contact_specs`` reads it: 'ground' (planted feet rest on
     the floor, still) and any number of ('object', Object or name) (hands and feet touching the object's box
     are held on it; feet still off the floor stand on something raised). exact: hands on objects at the
-    source's own world positions (else scaled like the motion). Returns a RetargetOutcome; AdjustError (one
+    source's own world positions (else scaled like the motion). ``floor``: world height the source's ground is
+    moved to (None: where it is). Returns a RetargetOutcome; AdjustError (one
     line) on bad input, before anything changes (but the bone map stored on the target, see
     mapping.ensure_map)."""
     progress = progress or (lambda stage, fraction: None)
     progress("reading", 0.0)
-    prepared = prepare(context, source_obj, target_obj, frame_start, frame_end, contacts=contacts, exact=exact)
+    prepared = prepare(context, source_obj, target_obj, frame_start, frame_end, contacts=contacts, exact=exact,
+                       floor=floor)
     target, plan = prepared.target, prepared.plan
 
     progress("solving", 0.2)
@@ -189,7 +191,7 @@ def contact_specs(context, contacts):
 
 
 def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *, contacts=("ground",),
-            exact=True):
+            exact=True, floor=None):
     """Check the input, read the source's motion and plan the retarget (see ``retarget``); changes nothing
     but the target's stored bone map."""
     _check_source(source_obj)
@@ -218,6 +220,11 @@ def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *
         if len(target.names) != len(target_basis):  # a control rig's skeleton: its bones' own bases
             target_basis = target_basis[[target_obj.pose.bones.find(name) for name in target.names]]
         plan = rt.plan_retarget(source, source_pose, target, target_basis, settings, boxes, ground=ground)
+        if floor is not None and plan.ground is not None and plan.ground != float(floor):
+            raised = source.matrix_world.copy()  # the plan is the source's, raised onto the floor
+            raised[2, 3] += float(floor) - plan.ground
+            source = _with_world(source, raised)
+            plan = rt.plan_retarget(source, source_pose, target, target_basis, settings, boxes, ground=ground)
     except SolverInputError as ex:
         raise AdjustError(f"Cannot retarget '{source_obj.name}' onto '{target_obj.name}': {ex}") from None
     names = (("ground",) if ground else ()) + tuple(f"object {obj.name}" for obj in objects)

@@ -10,8 +10,11 @@ import time
 
 
 class ConsoleProgress:
-    def __init__(self, total_frames, label, *, stream=None, interval=0.2, log_interval=5.0, clock=time.monotonic):
+    def __init__(self, total_frames, label, *, stream=None, interval=0.2, log_interval=5.0, clock=time.monotonic,
+                 unit="frames", per_minute=False):
         self.total_frames = int(total_frames)
+        self.unit = unit  # what total_frames counts (a batch counts clips)
+        self.per_minute = per_minute
         self.label = label
         self.stream = sys.stderr if stream is None else stream
         isatty = getattr(self.stream, "isatty", None)
@@ -50,9 +53,9 @@ class ConsoleProgress:
         filled = int(round(bar_width * fraction))
         text = f"{self.label} {stage:<8} {100 * fraction:3.0f}% [{'#' * filled}{'.' * (bar_width - filled)}]"
         if fraction > 0.0 and elapsed > 0.0:
-            rate = fraction * self.total_frames / elapsed
+            rate = fraction * self.total_frames / elapsed * (60.0 if self.per_minute else 1.0)
             left = elapsed * (1.0 - fraction) / fraction
-            text += f" {rate:.1f} frames/s, {format_seconds(left)} left"
+            text += f" {rate:.1f} {self.unit}/{'min' if self.per_minute else 's'}, {format_seconds(left)} left"
         return text
 
     def _write(self, text):

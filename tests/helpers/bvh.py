@@ -223,3 +223,14 @@ def read_bvh(path, scale: float = 1.0) -> BvhClip:
 def read_cmu(filename: str) -> BvhClip:
     """A clip from the mocap folder, in metres."""
     return read_bvh(MOCAP_DIR / filename, scale=CMU_SCALE)
+
+
+def cut_bvh(source, path, first, last):
+    """Write a BVH at ``path`` with ``source``'s header and its frame lines [first, last) (0-based); returns the
+    number of frames written."""
+    header, motion = Path(source).read_text().split("MOTION", 1)
+    lines = motion.strip().splitlines()
+    frame_time = next(line for line in lines[:3] if line.lower().startswith("frame time"))
+    frames = [line for line in lines if line and (line[0].isdigit() or line[0] in "-.")][first:last]
+    Path(path).write_text(f"{header}MOTION\nFrames: {len(frames)}\n{frame_time}\n" + "\n".join(frames) + "\n")
+    return len(frames)

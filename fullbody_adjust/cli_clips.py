@@ -1,0 +1,244 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""``retarget --source-file CLIP ...``: many clip files onto one target character, in parallel worker
+processes (``batch_pool``; each runs ``clip_worker``). Everything the batch can check is checked before a worker
+starts (one line, exit 2, nothing written); afterwards a clip that fails is a row of the report with its reason,
+the others go on, and the exit code is 1.
+
+Outputs: with --output-dir, one .blend per clip (the target file with that clip's action, saved by its worker);
+else every clip's action is merged into the target file and saved as --output (or over the input with
+--overwrite): each worker writes its action into a small part file, appended here as the clip ends. An
+interrupted batch keeps the clips done; --skip-existing leaves them out of the next run.
+"""
+
+import glob
+import os
+import sys
+import tempfile
+import time
+
+import bpy
+
+from . import cli
+from .batch_pool import WorkerPool
+from .bridge import batch, clip_import
+from .cli import CommandError
+from .reporting import batch_report
+from .reporting.progress import ConsoleProgress, NoProgress
+
+WORKER_FLAG = "--clip-worker"
+SAVE_EVERY = 10.0  # seconds: while a batch runs, the merged file is saved at least this often
+
+
+def run(args):
+    blend_in = cli.input_path(args)
+    clips = clip_paths(args.source_file)
+    saved, csv_path = _checked_outputs(args, blend_in, clips)
+    if not cli.same_file(blend_in, batch.current_file()):
+        batch.open_blend(blend_in)
+    target = _checked_target(args, bpy.context)
+    rows, tasks = _tasks(args, clips)
+    if args.output_dir:
+        os.makedirs(args.output_dir, exist_ok=True)
+    jobs = min(args.jobs or os.cpu_count() or 1, max(len(tasks), 1))
+
+    started = time.perf_counter()
+    rows += _run_tasks(args, tasks, jobs, blend_in, target.name, saved)
+    if saved is not None:
+        batch.save_blend(saved)
+    order = {clip: i for i, clip in enumerate(clips)}
+    rows.sort(key=lambda row: order[row["clip"]])
+    report = batch_report.batch_report(rows, time.perf_counter() - started, command="retarget",
+                                       file=os.path.abspath(blend_in), target=target.name, jobs=jobs,
+                                       blender=bpy.app.version_string)
+    if args.report:
+        cli.write_text(args.report, batch_report.to_json(report))
+        cli.write_text(csv_path, batch_report.to_csv(report))
+
+    line = f"retarget onto '{target.name}': {batch_report.one_line(report)}"
+    if args.output_dir:
+        line += f"; saved in {args.output_dir}"
+    else:
+        line += f"; saved {saved}" if saved else "; not saved (no --output)"
+    print(line)
+    failed = [row for row in rows if row["status"] == batch_report.FAILED]
+    for row in failed:
+        print(f"{cli.COMMAND} retarget: {os.path.basename(row['clip'])} failed: {row['reason']}", file=sys.stderr)
+    return cli.EXIT_TARGETS_MISSED if failed or report["missed_within_reach"] else cli.EXIT_OK
+
+
+def _checked_outputs(args, input_path, clips):
+    """Check the options and every output before anything runs: (the .blend to save the merged actions to, or
+    None; the CSV report's path, or None)."""
+    if args.preview:
+        raise CommandError("--preview draws one retarget: leave it out with --source-file")
+    if args.new_action and len(clips) > 1:
+        raise CommandError("--new-action names one action: with several clips each is named after its clip")
+    if args.output_dir and (args.output or args.overwrite):
+        raise CommandError("--output-dir writes one .blend per clip: leave out --output and --overwrite")
+    if args.clip_fps == "clip" and not args.output_dir:
+        raise CommandError("--clip-fps clip changes the scene's frame rate per clip: use it with --output-dir")
+    saved = None if args.output_dir else cli.checked_outputs(args, input_path)
+    if args.output_dir:
+        _check_output_dir(args.output_dir)
+    csv_path = os.path.splitext(args.report)[0] + ".csv" if args.report else None
+    if csv_path:
+        cli.check_writable(csv_path, "--report")
+    return saved, csv_path
+
+
+def _checked_target(args, context):
+    target = batch.armature_named(context, args.target, "--target")
+    batch.check_mappable(target, "--target")
+    for _kind, name in args.contacts or ():
+        if name is not None:
+            batch.object_named(context, name, "--contacts object")
+    return target
+
+
+def _tasks(args, clips):
+    """(rows of the clips left out by --skip-existing, tasks of the others)."""
+    rows, tasks = [], []
+    for clip in clips:
+        name = args.new_action or os.path.splitext(os.path.basename(clip))[0]
+        out = os.path.join(os.path.abspath(args.output_dir), f"{name}.blend") if args.output_dir else None
+        done_before = os.path.exists(out) if out else name in bpy.data.actions
+        if args.skip_existing and done_before:
+            rows.append({"clip": clip, "name": name, "status": batch_report.SKIPPED, "output": out,
+                         "action": name})
+        else:
+            tasks.append({"clip": clip, "name": name, "out": out})
+    return rows, tasks
+
+
+def _run_tasks(args, tasks, jobs, blend_in, target_name, saved):
+    """The rows of ``tasks``, run by ``jobs`` workers. Without --output-dir each done clip's action is appended
+    to the open file as it ends, and the file saved as ``saved`` at least every SAVE_EVERY seconds. An interrupt
+    (Ctrl+C) keeps what was done: the clips not ended by then are failed rows ('interrupted')."""
+    if not tasks:
+        return []
+    progress = NoProgress() if args.quiet else ConsoleProgress(
+        len(tasks), f"retarget {len(tasks)} clips -> '{target_name}'", unit="clips", per_minute=True)
+
+    def show(done, failed, fraction):
+        progress(f"{done}/{len(tasks)}" + (f" ({failed} failed)" if failed else ""), fraction)
+
+    ended = {}
+    last_save = [time.perf_counter()]
+
+    def merge(index, row):  # in this thread, as each clip ends
+        task = tasks[index]
+        ended[index] = row
+        row.setdefault("name", task["name"])
+        if row["status"] != batch_report.DONE:
+            return
+        if task["out"]:
+            row["output"] = task["out"]
+            return
+        row["action"] = batch.append_datablocks(bpy.context, task["part"])[row["action"]].name
+        row["output"] = os.path.abspath(saved) if saved else None
+        if saved and time.perf_counter() - last_save[0] >= SAVE_EVERY:
+            batch.save_blend(saved)
+            last_save[0] = time.perf_counter()
+
+    with tempfile.TemporaryDirectory(prefix="fba-parts-") as parts:
+        for index, task in enumerate(tasks):
+            if task["out"] is None:
+                task["part"] = os.path.join(parts, f"{index}.blend")
+        pool = WorkerPool(worker_command(), _job(args, blend_in, target_name), jobs, env=worker_env(),
+                          on_progress=show)
+        try:
+            pool.run(tasks, on_row=merge)
+        except KeyboardInterrupt:
+            print(f"{cli.COMMAND} retarget: interrupted; what was done is kept: run again with --skip-existing "
+                  f"to finish", file=sys.stderr)
+        progress.finish()
+    return [ended.get(index) or {"clip": task["clip"], "name": task["name"], "status": batch_report.FAILED,
+                                 "reason": "interrupted before it ended"} for index, task in enumerate(tasks)]
+
+
+def clip_paths(patterns):
+    """Absolute paths of the clips that ``patterns`` name: files, folders (their .bvh and .fbx files) and globs,
+    each clip once, in the order given (a folder's or glob's clips sorted). CommandError when a pattern names no
+    clip or two clips have the same name."""
+    paths = []
+    for pattern in patterns:
+        if os.path.isdir(pattern):
+            found = sorted(os.path.join(pattern, name) for name in os.listdir(pattern)
+                           if os.path.splitext(name)[1].lower() in clip_import.FORMATS)
+        elif os.path.isfile(pattern):
+            if os.path.splitext(pattern)[1].lower() not in clip_import.FORMATS:
+                raise CommandError(f"--source-file {pattern}: not a clip file (use .bvh or .fbx)")
+            found = [pattern]
+        else:
+            found = sorted(p for p in glob.glob(pattern) if os.path.splitext(p)[1].lower() in clip_import.FORMATS)
+        if not found:
+            raise CommandError(f"--source-file {pattern}: no such file, or no .bvh or .fbx file there")
+        paths.extend(os.path.abspath(p) for p in found)
+    unique = list(dict.fromkeys(paths))
+    names = {}
+    for path in unique:
+        name = os.path.splitext(os.path.basename(path))[0]
+        if name in names:
+            raise CommandError(f"two clips are named '{name}' ({names[name]} and {path}): their actions and files "
+                               f"would collide")
+        names[name] = path
+    return unique
+
+
+def _check_output_dir(folder):
+    """The folder exists and is writable, or can be made (made only once the batch starts)."""
+    if os.path.exists(folder) and not os.path.isdir(folder):
+        raise CommandError(f"--output-dir {folder} is a file, not a folder")
+    existing = folder if os.path.isdir(folder) else os.path.dirname(os.path.abspath(folder))
+    if not os.path.isdir(existing):
+        raise CommandError(f"--output-dir {folder}: folder {existing} does not exist")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise CommandError(f"--output-dir {folder}: folder {existing} is not writable")
+
+
+def _job(args, input_path, target):
+    contacts = [list(contact) for contact in args.contacts or [("ground", None)]]
+    return {"file": os.path.abspath(input_path), "target": target,
+            "import": {"scale": args.clip_scale, "forward": args.clip_forward, "up": args.clip_up,
+                       "fps": args.clip_fps, "start_frame": args.clip_start_frame},
+            "contacts": contacts,
+            "floor": _floor(args.floor, contacts), "frame_start": args.frame_start,
+            "frame_end": args.frame_end, "keep_sources": args.keep_sources}
+
+
+def _floor(floor, contacts):
+    """A clip's floor: as given; by default 0 when the ground is a contact (a clip's own ground is wherever its
+    capture put it), else the clip's own (it must meet its objects where they are)."""
+    if floor is not None:
+        return floor
+    return 0.0 if ["ground", None] in contacts else None
+
+
+# --- the worker processes ---------------------------------------------------------------------------------------
+
+def _package():
+    """(folder holding the package, the package's name): what a fresh process imports it as."""
+    real = os.path.realpath(os.path.dirname(os.path.abspath(__file__)))
+    return os.path.dirname(real), os.path.basename(real)
+
+
+def worker_command(binary=None):
+    """How to start a worker: under Blender (``binary``, default: this one), the same Blender in the background
+    without the user's settings, running worker_code(); with the bpy module, the same Python."""
+    binary = bpy.app.binary_path if binary is None else binary
+    if binary and os.path.basename(binary).lower().startswith("blender"):
+        return [binary, "-b", "--factory-startup", "--python-expr", worker_code()]
+    return [sys.executable, "-m", _package()[1], WORKER_FLAG]
+
+
+def worker_code():
+    """The Python a Blender worker runs: this package imported from its folder, then its worker loop."""
+    parent, name = _package()
+    return f"import sys; sys.path.insert(0, {parent!r}); from {name}.__main__ import worker; worker()"
+
+
+def worker_env():
+    parent, _name = _package()
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (parent, env.get("PYTHONPATH")) if p)
+    return env

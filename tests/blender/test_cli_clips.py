@@ -1,0 +1,314 @@
+"""`retarget --source-file`: clip files (short cuts of the repository's CMU clips, and broken ones) retargeted
+onto a character in 2 worker processes, through cli.main as `blender -c` would call it; the outputs reopened.
+Also the frame-range refusal of `adjust` before any work."""
+
+import csv
+import importlib
+import json
+import os
+from pathlib import Path
+import sys
+
+import bpy
+import numpy as np
+import pytest
+
+from tests.helpers.bvh import MOCAP_DIR, cut_bvh
+
+from .test_cli import Untouched, keyed_values, reopen, run
+
+CUTS = {"walk_a": ("cmu_07_01_walk.bvh", 1, 100), "walk_b": ("cmu_07_01_walk.bvh", 150, 260),
+        "jump": ("cmu_02_04_jump.bvh", 1, 90)}  # name: (clip, first, last frame line, 0-based, end excluded)
+
+
+@pytest.fixture(scope="module")
+def cli(extension_module_name):
+    return importlib.import_module(f"{extension_module_name}.cli")
+
+
+@pytest.fixture
+def clips(tmp_path):
+    """A folder of three good clip cuts and a corrupt one (its header cut off mid-hierarchy)."""
+    folder = tmp_path / "clips"
+    folder.mkdir()
+    for name, (clip, first, last) in CUTS.items():
+        cut_bvh(MOCAP_DIR / clip, folder / f"{name}.bvh", first, last)
+    (folder / "broken.bvh").write_text((MOCAP_DIR / "cmu_07_01_walk.bvh").read_text()[:400])
+    return folder
+
+
+@pytest.fixture
+def character(tmp_path, rig):
+    """A .blend with the Rigify basic metarig named 'Hero' and nothing else."""
+    rig.name = "Hero"
+    path = tmp_path / "hero.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    bpy.ops.wm.read_homefile(use_empty=True)
+    return path
+
+
+def scene_frames(path):
+    """The whole scene frames a clip cut covers at the scene's 24 fps, imported as the batch does (its keys 1/5
+    of a frame apart at 120 fps, from frame 1)."""
+    count = int(Path(path).read_text().split("Frames:", 1)[1].split()[0])
+    return 1, 1 + (count - 1) * 24 // 120
+
+
+def test_clips_become_actions_of_the_target_and_a_broken_clip_is_reported(cli, capsys, tmp_path, clips, character):
+    before = Untouched(character)
+    out, report_path = tmp_path / "out.blend", tmp_path / "batch.json"
+    code, stdout, err = run(cli, capsys, "retarget", character, "--target", "Hero", "--source-file", clips,
+                            "--jobs", 2, "--output", out, "--report", report_path)
+    before.check()
+    assert code == 1, err  # the broken clip fails the batch, at the end
+    report = json.loads(report_path.read_text())
+    rows = {row["name"]: row for row in report["rows"]}
+    assert sorted(rows) == sorted([*CUTS, "broken"])
+    assert rows["broken"]["status"] == "failed" and "Cannot import broken.bvh" in rows["broken"]["reason"]
+    assert f"broken.bvh failed: {rows['broken']['reason']}" in err
+    assert "clips/min" in err  # the batch's progress line
+    assert report["clips"] == {"total": 4, "done": 3, "failed": 1, "skipped": 0} and report["jobs"] == 2
+    assert "3 of 4 clips retargeted" in stdout
+
+    reopen(out)
+    assert [ob.name for ob in bpy.data.objects if ob.type == 'ARMATURE'] == ["Hero"]  # no imported source left
+    for name in CUTS:
+        row = rows[name]
+        assert row["status"] == "done" and row["reason"] is None and row["action"] == name
+        action = bpy.data.actions[name]
+        assert action.use_fake_user
+        keyed = {float(f) for frames, _ in keyed_values(action).values() for f in frames}
+        first, last = scene_frames(clips / f"{name}.bvh")
+        assert (row["frame_start"], row["frame_end"], row["frames"]) == (first, last, last - first + 1)
+        assert keyed == set(map(float, range(first, last + 1)))
+        assert row["contact_frames"] >= 0 and row["solve_seconds"] <= row["seconds"]
+    assert bpy.data.objects["Hero"].animation_data is None  # the target's own motion is as it was (none)
+
+    # Resumed on its own output: the clips it holds are left out, the broken one is tried (and fails) again.
+    code, stdout, _ = run(cli, capsys, "retarget", out, "--target", "Hero", "--source-file", clips, "--jobs", 2,
+                          "--overwrite", "--skip-existing", "--quiet", "--report", tmp_path / "again.json")
+    again = {row["name"]: row["status"] for row in json.loads((tmp_path / "again.json").read_text())["rows"]}
+    assert code == 1 and again == {**{name: "skipped" for name in CUTS}, "broken": "failed"}
+    reopen(out)
+    assert sorted(a.name for a in bpy.data.actions) == sorted(CUTS)  # nothing added twice
+
+    # The CSV beside the JSON holds the same rows.
+    with open(report_path.with_suffix(".csv"), newline="") as table:
+        listed = list(csv.DictReader(table))
+    assert [r["name"] for r in listed] == [r["name"] for r in report["rows"]]
+    for text_row, row in zip(listed, report["rows"]):
+        for column, value in row.items():
+            if value is None:
+                assert text_row[column] == "", column
+            elif isinstance(value, (int, float)):
+                assert float(text_row[column]) == pytest.approx(value, rel=1e-12), column
+            else:
+                assert text_row[column] == str(value), column
+
+
+def test_output_dir_writes_one_blend_per_clip_and_skip_existing_resumes(cli, capsys, tmp_path, clips, character):
+    os.remove(clips / "broken.bvh")
+    os.remove(clips / "jump.bvh")
+    folder = tmp_path / "out"
+    code, _, err = run(cli, capsys, "retarget", character, "--target", "Hero", "--source-file", clips / "walk_*.bvh",
+                       "--jobs", 2, "--output-dir", folder, "--quiet")
+    report_code = code
+    assert sorted(p.name for p in folder.iterdir()) == ["walk_a.blend", "walk_b.blend"]
+    for name in ("walk_a", "walk_b"):
+        reopen(folder / f"{name}.blend")
+        assert [ob.name for ob in bpy.data.objects if ob.type == 'ARMATURE'] == ["Hero"]
+        assert bpy.data.objects["Hero"].animation_data.action.name == name
+        assert [a.name for a in bpy.data.actions] == [name]
+    assert report_code in (0, 1) and "failed" not in err
+
+    # Resume with one clip more: the two done are left alone, only the new one runs.
+    cut_bvh(MOCAP_DIR / "cmu_02_04_jump.bvh", clips / "walk_c.bvh", 1, 60)
+    done_before = {p.name: p.stat().st_mtime_ns for p in folder.iterdir()}
+    code, stdout, _ = run(cli, capsys, "retarget", character, "--target", "Hero", "--source-file", clips,
+                          "--jobs", 2, "--output-dir", folder, "--skip-existing", "--quiet", "--report",
+                          tmp_path / "again.json")
+    rows = {row["name"]: row["status"] for row in json.loads((tmp_path / "again.json").read_text())["rows"]}
+    assert rows == {"walk_a": "skipped", "walk_b": "skipped", "walk_c": "done"}
+    assert {p.name: p.stat().st_mtime_ns for p in folder.iterdir() if p.name in done_before} == done_before
+    assert (folder / "walk_c.blend").exists() and "2 skipped" in stdout
+
+
+def test_an_fbx_clip_through_blenders_fbx_importer_and_kept_sources(cli, capsys, tmp_path, clips, character,
+                                                                     extension_module_name):
+    # An FBX of a clip, written by Blender's FBX exporter from the imported BVH.
+    import addon_utils
+
+    clip_import = importlib.import_module(f"{extension_module_name}.bridge.clip_import")
+    source, _ = clip_import.import_clip(bpy.context, str(clips / "jump.bvh"))
+    addon_utils.enable("io_scene_fbx", default_set=False)
+    bpy.ops.object.select_all(action='DESELECT')
+    source.select_set(True)
+    bpy.context.scene.frame_end = 20
+    fbx = tmp_path / "jump_fbx.fbx"
+    bpy.ops.export_scene.fbx(filepath=str(fbx), use_selection=True, object_types={'ARMATURE'}, add_leaf_bones=False,
+                             bake_anim=True, bake_anim_use_nla_strips=False, bake_anim_use_all_actions=False)
+    out = tmp_path / "out.blend"
+    code, _, err = run(cli, capsys, "retarget", character, "--target", "Hero", "--source-file", fbx, "--jobs", 1,
+                       "--keep-sources", "--output", out, "--report", tmp_path / "r.json", "--quiet")
+    row = json.loads((tmp_path / "r.json").read_text())["rows"][0]
+    assert row["status"] == "done", row["reason"]
+    assert code == (1 if row["missed_within_reach"] else 0)
+    reopen(out)
+    kept = sorted(ob.name for ob in bpy.data.objects if ob.type == 'ARMATURE')
+    assert kept == ["Hero", "jump"]  # the source, named as the exported object
+    action = bpy.data.actions["jump_fbx"]
+    keyed = {float(f) for frames, _ in keyed_values(action).values() for f in frames}
+    assert len(keyed) == row["frames"] == 20 and min(keyed) == row["frame_start"]
+
+
+def test_the_blender_worker_command_runs_the_worker_loop(tmp_path, clips, character, extension_module_name):
+    # Under Blender a worker is `blender -b --factory-startup --python-expr CODE`; no Blender binary here, so CODE
+    # runs in this Python (with the bpy module) and serves one clip through the pool.
+    cli_clips = importlib.import_module(f"{extension_module_name}.cli_clips")
+    pool_module = importlib.import_module(f"{extension_module_name}.batch_pool")
+    command = cli_clips.worker_command("/opt/blender/blender")
+    assert command[:4] == ["/opt/blender/blender", "-b", "--factory-startup", "--python-expr"]
+    job = {"file": str(character), "target": "Hero", "import": {}, "floor": 0.0}
+    task = {"clip": str(clips / "jump.bvh"), "name": "jump", "out": str(tmp_path / "jump.blend")}
+    [row] = pool_module.WorkerPool([sys.executable, "-c", command[4]], job, 1, env=cli_clips.worker_env()).run([task])
+    assert row["status"] == "done", row.get("reason")
+    reopen(tmp_path / "jump.blend")
+    assert bpy.data.objects["Hero"].animation_data.action.name == "jump"
+
+
+def test_an_interrupted_batch_keeps_the_clips_done_and_resumes(cli, capsys, tmp_path, clips, character,
+                                                               monkeypatch, extension_module_name):
+    os.remove(clips / "broken.bvh")
+    batch = importlib.import_module(f"{extension_module_name}.bridge.batch")
+    append = batch.append_datablocks
+
+    def append_then_interrupt(context, path):  # Ctrl+C right after the first clip joined the file
+        appended = append(context, path)
+        monkeypatch.setattr(batch, "append_datablocks", append)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(batch, "append_datablocks", append_then_interrupt)
+    out, report_path = tmp_path / "out.blend", tmp_path / "r.json"
+    code, _, err = run(cli, capsys, "retarget", character, "--target", "Hero", "--source-file", clips, "--jobs", 1,
+                       "--output", out, "--report", report_path, "--quiet")
+    rows = json.loads(report_path.read_text())["rows"]
+    assert code == 1 and "interrupted" in err and "--skip-existing" in err
+    assert [row["status"] for row in rows] == ["done", "failed", "failed"]  # jump, walk_a, walk_b in name order
+    assert [row["reason"] for row in rows[1:]] == ["interrupted before it ended"] * 2
+    reopen(out)
+    assert sorted(a.name for a in bpy.data.actions) == ["jump"]
+
+    code, _, _ = run(cli, capsys, "retarget", out, "--target", "Hero", "--source-file", clips, "--jobs", 2,
+                     "--overwrite", "--skip-existing", "--report", report_path, "--quiet")
+    rows = json.loads(report_path.read_text())["rows"]
+    assert [row["status"] for row in rows] == ["skipped", "done", "done"]
+    reopen(out)
+    assert sorted(a.name for a in bpy.data.actions) == ["jump", "walk_a", "walk_b"]
+
+
+@pytest.mark.parametrize("extra, words", [
+    (["--source-file", "{tmp}/none.bvh"], "no such file"),
+    (["--source-file", "{clips}/walk_a.bvh", "--source", "Hero"], "not allowed with argument"),
+    (["--source-file", "{clips}", "--new-action", "One"], "--new-action names one action"),
+    (["--source-file", "{clips}", "--target", "Nobody", "--output-dir", "{tmp}/d"], "no object named 'Nobody'"),
+    (["--source-file", "{clips}", "--output-dir", "{tmp}/no/d"], "does not exist"),
+    (["--source-file", "{clips}", "--output-dir", "{tmp}/d", "--output", "{tmp}/o.blend"], "--output-dir"),
+])
+def test_bad_batch_input_exits_2_before_any_work(cli, capsys, tmp_path, clips, character, extra, words):
+    before = Untouched(character)
+    argv = [a.format(tmp=tmp_path, clips=clips) for a in extra]
+    if "--target" not in argv:
+        argv += ["--target", "Hero"]
+    code, _, err = run(cli, capsys, "retarget", character, *argv, "--quiet")
+    assert code == 2 and len(err.strip().splitlines()) == 1 and words in err, err
+    before.check()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clips", "hero.blend"]
+
+
+def test_a_frame_range_far_beyond_the_animation_is_refused_in_one_line(cli, capsys, tmp_path, character):
+    before = Untouched(character)
+    out = tmp_path / "out.blend"
+    code, _, err = run(cli, capsys, "adjust", character, "--armature", "Hero", "--frame-start", 1, "--frame-end",
+                       1_000_000, "--output", out, "--report", tmp_path / "r.json")
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert "far beyond the animation" in err and "frames 1..250" in err
+    assert "reading" not in err  # refused before the reading started
+    before.check()
+    assert not out.exists() and not (tmp_path / "r.json").exists()
+
+
+def test_a_frame_range_too_large_for_memory_is_refused_in_one_line(cli, capsys, tmp_path, character, monkeypatch,
+                                                                   extension_module_name):
+    batch = importlib.import_module(f"{extension_module_name}.bridge.batch")
+    bones = 29  # the basic metarig
+    need = 10 * bones * batch.BYTES_PER_BONE_FRAME  # frames 1..10
+    monkeypatch.setattr(batch, "available_memory", lambda: 2 * need - 1)
+    code, _, err = run(cli, capsys, "adjust", character, "--armature", "Hero", "--frame-start", 1, "--frame-end", 10,
+                       "--quiet")
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "would need about" in err, err
+    monkeypatch.setattr(batch, "available_memory", lambda: 2 * need)  # exactly half: allowed
+    code, _, err = run(cli, capsys, "adjust", character, "--armature", "Hero", "--frame-start", 1, "--frame-end", 10,
+                       "--quiet")
+    assert "would need" not in err
+
+
+def test_retarget_frames_default_to_the_source_action_within_the_scene_range(cli, capsys, tmp_path):
+    samples = Path(__file__).resolve().parents[2] / "sample_scenes"
+    reopen(samples / "retarget_cmu.blend")
+    action = bpy.data.objects["Source"].animation_data.action
+    first, last = (int(round(f)) for f in action.frame_range)
+    scene = bpy.context.scene
+    scene.frame_start, scene.frame_end = first + 4, first + 9  # shorter than the action, inside it
+    path = tmp_path / "short.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    run(cli, capsys, "retarget", path, "--source", "Source", "--target", "Small", "--quiet", "--report",
+        tmp_path / "r.json")
+    assert json.loads((tmp_path / "r.json").read_text())["frames"] == {"start": first + 4, "end": first + 9,
+                                                                      "count": 6}
+
+
+def test_floor_puts_the_ground_contacts_at_its_height(tmp_path, clips, character, extension_module_name):
+    clip_import = importlib.import_module(f"{extension_module_name}.bridge.clip_import")
+    retarget = importlib.import_module(f"{extension_module_name}.bridge.retarget")
+    reopen(character)
+    source, _ = clip_import.import_clip(bpy.context, str(clips / "walk_a.bvh"))
+    hero = bpy.data.objects["Hero"]
+    own = retarget.prepare(bpy.context, source, hero).plan
+    raised = retarget.prepare(bpy.context, source, hero, floor=own.ground + 0.25).plan
+    assert raised.ground == pytest.approx(own.ground + 0.25, abs=1e-9)
+    assert own.contacts.any() and np.array_equal(raised.contacts, own.contacts)
+    shift = raised.world_targets - own.world_targets  # the whole motion, contacts and all, 0.25 higher
+    assert np.allclose(shift[..., :2], 0.0, atol=1e-9) and np.allclose(shift[..., 2], 0.25, atol=1e-9)
+
+
+@pytest.mark.parametrize("scene_fps, step", [(120, 1.0), (24, 0.2)])
+def test_a_clip_lands_on_the_scenes_frames(clips, extension_module_name, scene_fps, step):
+    # CMU's frame time '.0083333' is 120.0005 fps: at 120 fps the keys sit exactly on the frames (not drifting off
+    # them); at 24 fps they are resampled, 1/5 frame apart.
+    clip_import = importlib.import_module(f"{extension_module_name}.bridge.clip_import")
+    assert clip_import.bvh_frame_rate(clips / "walk_a.bvh") == pytest.approx(1 / 0.0083333)
+    bpy.context.scene.render.fps = scene_fps
+    source, _ = clip_import.import_clip(bpy.context, str(clips / "walk_a.bvh"))
+    [times] = {tuple(frames) for frames, _ in keyed_values(source.animation_data.action).values()}
+    expected = 1.0 + step * np.arange(99)
+    assert np.allclose(times, expected, atol=1e-3 if step != 1.0 else 0.0)
+
+
+def test_floor_with_a_source_in_the_file_raises_the_retargeted_motion(cli, capsys, tmp_path, extension_module_name):
+    retarget = importlib.import_module(f"{extension_module_name}.bridge.retarget")
+    samples = Path(__file__).resolve().parents[2] / "sample_scenes"
+    reopen(samples / "retarget_cmu.blend")
+    ground = retarget.prepare(bpy.context, bpy.data.objects["Source"], bpy.data.objects["Small"], 20, 22).plan.ground
+    hips = {}
+    for floor in (None, ground + 0.3):
+        out = tmp_path / f"floor{floor}.blend"
+        argv = ["retarget", samples / "retarget_cmu.blend", "--source", "Source", "--target", "Small", "--frame-start",
+                20, "--frame-end", 22, "--output", out, "--quiet"] + (["--floor", floor] if floor is not None else [])
+        code, _, err = run(cli, capsys, *argv)
+        assert code in (0, 1), err
+        reopen(out)
+        bpy.context.scene.frame_set(21)
+        small = bpy.data.objects["Small"]
+        hips[floor] = np.array(small.matrix_world @ small.pose.bones["LeftUpLeg"].head)
+    low, high = hips.values()
+    assert high - low == pytest.approx([0.0, 0.0, 0.3], abs=1e-4)
