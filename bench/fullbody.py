@@ -40,7 +40,6 @@ import argparse
 import json
 from dataclasses import replace
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -53,6 +52,7 @@ from fullbody_adjust.solver.body import HumanLimits, default_limits  # noqa: E40
 from fullbody_adjust.solver.geometry import swing_rotation  # noqa: E402
 from limits_fit import DAZ_CLIP, fit_limits, load_clip  # noqa: E402
 from plain_fabrik import BODY_CHAINS, plain_fabrik  # noqa: E402
+from timing import best_time  # noqa: E402
 
 FIT_CLIPS = ("cmu_07_01_walk.bvh", "cmu_02_06_pickup_f0-1349.bvh", "cmu_01_06_climb_sit_f360-1559.bvh")
 HELD_OUT_CLIPS = ("cmu_02_04_jump.bvh", "cmu_05_02_dance.bvh", DAZ_CLIP)
@@ -132,15 +132,6 @@ def reach_summary(residuals, tol):
     r = residuals[np.isfinite(residuals)]
     return {"median": float(np.median(r)), "p99": float(np.percentile(r, 99)), "max": float(r.max()),
             "share_met": float(np.mean(r <= tol))}
-
-
-def timed(fn, repeat=1):
-    best = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def solvers(refit):
@@ -232,12 +223,12 @@ def speed(model, st_h, st_t, targets, settings_by_method, single_poses, batch_fr
     single, batch = {}, {}
     for m in ("ours", "fabrik_variant_with_limits"):
         s = settings_by_method[m]
-        single[m] = timed(lambda: [adjust_pose(model, st_h[i], st_t[i], targets[i], EFFECTORS, settings=s)
+        single[m] = best_time(lambda: [adjust_pose(model, st_h[i], st_t[i], targets[i], EFFECTORS, settings=s)
                                    for i in range(k)], repeat=2) / k
-        batch[m] = timed(lambda: adjust_frames(model, bh, bt, btg, EFFECTORS, settings=s), repeat=2) / batch_frames
-    single["plain_fabrik"] = timed(lambda: [plain_fabrik(model, st_h[i:i + 1], st_t[i:i + 1], targets[i:i + 1],
+        batch[m] = best_time(lambda: adjust_frames(model, bh, bt, btg, EFFECTORS, settings=s), repeat=2) / batch_frames
+    single["plain_fabrik"] = best_time(lambda: [plain_fabrik(model, st_h[i:i + 1], st_t[i:i + 1], targets[i:i + 1],
                                                          EFFECTORS) for i in range(k)], repeat=2) / k
-    batch["plain_fabrik"] = timed(lambda: plain_fabrik(model, bh, bt, btg, EFFECTORS), repeat=2) / batch_frames
+    batch["plain_fabrik"] = best_time(lambda: plain_fabrik(model, bh, bt, btg, EFFECTORS), repeat=2) / batch_frames
     return {
         "us_per_pose_single": {m: v * 1e6 for m, v in single.items()},
         "us_per_pose_vectorised_%d" % batch_frames: {m: v * 1e6 for m, v in batch.items()},

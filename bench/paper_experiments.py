@@ -54,6 +54,7 @@ from fullbody_adjust.solver.adjust import AdjustSettings, adjust_frames  # noqa:
 from fullbody_adjust.solver.body import BodyModel  # noqa: E402
 from fullbody_adjust.solver.vocabulary import VARIANTS  # noqa: E402
 from plain_fabrik import plain_fabrik  # noqa: E402
+from timing import best_time  # noqa: E402
 
 SC = np.array([0.0, 0.0, 0.9])
 EFFECTORS = ("hand.L", "hand.R", "head", "foot.L", "foot.R")
@@ -191,15 +192,6 @@ def fig9():
     return out
 
 
-def _best_time(fn, repeat=3):
-    best = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
-
-
 def speed(model, heads, tails, cases, single_cases):
     targets = _targets(model, heads, random_fig8_targets(cases, seed=4))
     h, t = np.broadcast_to(heads, (cases,) + heads.shape), np.broadcast_to(tails, (cases,) + tails.shape)
@@ -214,12 +206,12 @@ def speed(model, heads, tails, cases, single_cases):
 
     every = slice(None)
     singles = [slice(i, i + 1) for i in range(min(single_cases, cases))]
-    batch = {"ours_free": _best_time(lambda: ours(free, every)) / cases,
-             "ours_limits": _best_time(lambda: ours(AdjustSettings(), every)) / cases,
-             "plain_fabrik": _best_time(lambda: baseline(every)) / cases}
-    one = {"ours_free": _best_time(lambda: [ours(free, s) for s in singles]) / len(singles),
-           "ours_limits": _best_time(lambda: [ours(AdjustSettings(), s) for s in singles]) / len(singles),
-           "plain_fabrik": _best_time(lambda: [baseline(s) for s in singles]) / len(singles)}
+    batch = {"ours_free": best_time(lambda: ours(free, every)) / cases,
+             "ours_limits": best_time(lambda: ours(AdjustSettings(), every)) / cases,
+             "plain_fabrik": best_time(lambda: baseline(every)) / cases}
+    one = {"ours_free": best_time(lambda: [ours(free, s) for s in singles]) / len(singles),
+           "ours_limits": best_time(lambda: [ours(AdjustSettings(), s) for s in singles]) / len(singles),
+           "plain_fabrik": best_time(lambda: [baseline(s) for s in singles]) / len(singles)}
     r = ours(free, every)
     _chains, base_iterations = baseline(every)
     return {

@@ -6,18 +6,13 @@ import math
 
 import numpy as np
 
-from .geometry import any_perpendicular, cross, dot, norm
+from .geometry import any_perpendicular, cross, dot, norm, outward_angles
 from .limits import CONE, FREE, HINGE, apply_cone, apply_hinge, carry_axis
 
 # Two-segment finish (ChainModel._two_bone_finish): swivel angles of the middle joint around the pivot ->
 # target line, from FABRIK's proposal outward (0, +d, -d, +2d, ...), and the least hinge twist range that
 # leaves an interval of them to pick from (a twist-free hinge fits one swivel angle, never a sample).
-_SWIVEL_SAMPLES = 48
-_swivel = [0.0]
-for _k in range(1, _SWIVEL_SAMPLES // 2):
-    _swivel += [_k * 2 * math.pi / _SWIVEL_SAMPLES, -_k * 2 * math.pi / _SWIVEL_SAMPLES]
-_swivel.append(math.pi)
-_SWIVEL_ANGLES = np.array(_swivel)
+_SWIVEL_ANGLES = outward_angles(48)
 _MIN_FINISH_TWIST = math.radians(5)
 
 

@@ -1,11 +1,9 @@
 """The paper's obstacle response (§4.1) for the batch chain solver: a joint that lands inside a box, or whose
 segment crosses one, is moved to the nearest clear point (ObstacleResponse._avoid, mixed into ChainModel)."""
 
-import math
-
 import numpy as np
 
-from .geometry import any_perpendicular, cross, dot, norm
+from .geometry import any_perpendicular, cross, dot, norm, outward_angles
 from .obstacles import points_inside, segments_cross
 
 # Obstacle response candidates (see _avoid for which one is taken).
@@ -14,11 +12,7 @@ from .obstacles import points_inside, segments_cross
 # position at the start of the iteration (continuity: the joint does not flip around the box between
 # iterations or frames), then the rest of the circle by increasing angle from that point.
 _CIRCLE_SAMPLES = 24
-_circle_angles = [0.0]
-for _k in range(1, _CIRCLE_SAMPLES // 2):
-    _circle_angles += [_k * 2 * math.pi / _CIRCLE_SAMPLES, -_k * 2 * math.pi / _CIRCLE_SAMPLES]
-_circle_angles.append(math.pi)
-_CIRCLE_ANGLES = np.array(_circle_angles)
+_CIRCLE_ANGLES = outward_angles(_CIRCLE_SAMPLES)
 # Beyond the paper: when the circle does not exist (the box is larger than twice the segment: dis > 2D) or
 # none of its points is clear (another box, or the segment still crosses), directions on the whole sphere
 # of radius D around the anchor, by increasing angle from the unconstrained direction (the smallest change

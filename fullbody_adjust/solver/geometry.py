@@ -1,5 +1,7 @@
 """Small vectorised vector helpers: every function works on arrays of 3-vectors with any leading shape."""
 
+import math
+
 import numpy as np
 
 from .errors import SolverInputError
@@ -115,3 +117,12 @@ def rotate_about_axis(v, axis, angle):
 def apply_matrix(m, v):
     """Row-wise matrix @ vector: (...,3,3) @ (...,3) -> (...,3)."""
     return np.einsum("...ij,...j->...i", m, v)
+
+
+def outward_angles(samples):
+    """``samples`` angles around a circle, from 0 outward: 0, +d, -d, +2d, -2d, ..., pi (d = 2 pi / samples), so
+    the first that works is the nearest to where one started."""
+    angles = [0.0]
+    for k in range(1, samples // 2):
+        angles += [k * 2 * math.pi / samples, -k * 2 * math.pi / samples]
+    return np.array(angles + [math.pi])
