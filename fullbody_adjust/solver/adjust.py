@@ -440,6 +440,14 @@ class _Problem(SubBasePlacement):
                         w = np.nonzero(np.isfinite(self.end_turns[name][:, 0, 0]))[0]
                         rot[w, j] = end_rotation(self.end_turns[name][w], rot[w, p], T0[w, j] - H0[w, j])
                         moved[w, j] = True
+        leaves, anchors = self.prepared.leaves
+        if leaves.size:
+            ma = moved[:, anchors]
+            if ma.any():
+                h = heads[:, anchors] + apply_matrix(rot[:, anchors], H0[:, leaves] - H0[:, anchors])
+                heads[:, leaves] = np.where(ma[..., None], h, H0[:, leaves])
+                rot[:, leaves] = rot[:, anchors]
+                moved[:, leaves] = ma
         tails = np.where(moved[..., None], heads + apply_matrix(rot, T0 - H0), T0) if np.any(moved) else T0.copy()
         return heads, tails, rot, solves
 

@@ -10,14 +10,16 @@ from .errors import SolverInputError
 # only need to tell "no direction at all" from "a direction".
 TINY = 1e-300
 _EYE = np.eye(3)
+_ADD_REDUCE = np.add.reduce
 # Up to this many rotations swing_rotation builds them from outer products (fewer numpy calls); beyond, entry
 # by entry (less memory traffic on large batches).
 _FEW_ROTATIONS = 256
 
 
 def dot(a, b):
-    """Row-wise dot product (...,3)·(...,3) -> (...). Written out so batched and single calls round the same."""
-    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+    """Row-wise dot product (...,3)·(...,3) -> (...). Summed in order, (x0 + x1) + x2, so batched and single
+    calls round the same (numpy adds a three-element last axis in order; einsum does not always)."""
+    return _ADD_REDUCE(np.multiply(a, b), axis=-1)
 
 
 def norm(v):
@@ -73,7 +75,8 @@ def swing_rotation(old_dirs, new_dirs):
     deterministic axis perpendicular to old."""
     a = normalize(old_dirs)
     b = normalize(new_dirs)
-    a, b = np.broadcast_arrays(a, b)
+    if a.shape != b.shape:
+        a, b = np.broadcast_arrays(a, b)
     c = dot(a, b)
     w = b - c[..., None] * a
     s = norm(w)

@@ -34,7 +34,7 @@ class PreparedStart:
 
     def __init__(self, model, heads, tails, settings, bone_x_axes):
         self.model = model
-        self.levels = levels_of(model)
+        self.levels, self.leaves = levels_of(model)
         # Copies: the caller may change its arrays in place after the solve.
         self._heads, self._tails = heads.copy(), tails.copy()
         self._x_axes = None if bone_x_axes is None else bone_x_axes.copy()
@@ -128,7 +128,7 @@ def _read_only(a):
 
 
 def levels_of(model):
-    """The model's levels (_levels), computed once per model."""
+    """The model's (levels, leaves) (_levels), computed once per model."""
     cached = _levels_cache.get(id(model))
     if cached is not None and cached[0] is model:
         return cached[1]
@@ -143,16 +143,37 @@ _levels_cache = {}
 
 
 def _levels(model):
-    """The bones that move (not FIXED) by depth in the hierarchy, parents' levels first: per level the rigidly
-    carried bones (k,) and their parents (k,) (every bone with a parent: chain bones are carried first, then
-    placed), and the root, chain and end bones as (bone, parent, role, limb name, index in the limb)."""
+    """The order the top-down pass places the bones that move (not FIXED) in: (levels, leaves).
+
+    levels: by depth in the hierarchy, parents' levels first, the bones on the way to a root, chain or end
+    bone: per level the rigidly carried bones (k,) and their parents (k,) (every bone with a parent: chain
+    bones are carried first, then placed), and the root, chain and end bones as (bone, parent, role, limb
+    name, index in the limb).
+    leaves: (bones (k,), anchors (k,)): the other bones (fingers, face, ...), each carried rigidly by its
+    nearest ancestor in the levels, all at once after them (a rigid bone turns as its parent does, so a chain
+    of rigid bones turns as the bone it hangs from)."""
     parents, roles = model.parents.tolist(), model.roles.tolist()
+    placed_roles = (ROOT, CHAIN, END)
+    # Bones with a root, chain or end bone at or below them.
+    leads = set()
+    for j in model.order.tolist()[::-1]:
+        if roles[j] in placed_roles or j in leads:
+            if parents[j] >= 0:
+                leads.add(parents[j])
+            leads.add(j)
     depth = {}
     levels = []
+    leaves, anchors = [], []
+    anchor_of = {}
     for j in model.order.tolist():
         p = parents[j]
         d = depth[j] = depth[p] + 1 if p >= 0 else 0
         if roles[j] == FIXED:
+            continue
+        if j not in leads and p >= 0:
+            anchor_of[j] = anchor_of.get(p, p)
+            leaves.append(j)
+            anchors.append(anchor_of[j])
             continue
         while len(levels) <= d:
             levels.append(([], [], []))
@@ -160,6 +181,7 @@ def _levels(model):
         if roles[j] != ROOT and p >= 0:
             rigid.append(j)
             par.append(p)
-        if roles[j] in (ROOT, CHAIN, END):
+        if roles[j] in placed_roles:
             limb_bones.append((j, p, roles[j], model.role_limb[j], int(model.role_index[j])))
-    return [(np.array(r, dtype=np.int64), np.array(p, dtype=np.int64), b) for r, p, b in levels if r or b]
+    levels = [(np.array(r, dtype=np.int64), np.array(p, dtype=np.int64), b) for r, p, b in levels if r or b]
+    return levels, (np.array(leaves, dtype=np.int64), np.array(anchors, dtype=np.int64))
