@@ -44,6 +44,8 @@ class Options:
     skip_missing_targets: bool = False  # leave out an enabled slot whose target is gone instead of failing
     new_action: str = None  # write keys into a new action of this name (the original stays intact)
     insert_keys: bool = True
+    # Residuals of the pose as Blender evaluates the applied result (a scene evaluation more), or the solver's.
+    evaluated_residuals: bool = True
 
 
 @dataclass
@@ -232,7 +234,7 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
                                       for bone, props in channels.items()})
     progress("done", 1.0)
 
-    if apply_pose:
+    if apply_pose and options.evaluated_residuals:
         # What the user sees is the pose Blender evaluates from the written channels (float32, constraints):
         # report the residuals of that pose rather than the solver's.
         applied = pose.read_pose(obj, rig.static(obj))

@@ -24,8 +24,9 @@ from bpy.app.handlers import persistent
 from . import adjustment, frames, keyframes, pose, rig_cache, targets
 from .errors import AdjustError
 
-# How a live solve differs from Adjust Pose: no keys, and a deleted target's slot is left out.
-LIVE_OPTIONS = adjustment.Options(insert_keys=False, skip_missing_targets=True)
+# How a live solve differs from Adjust Pose: no keys, a deleted target's slot is left out, and no residuals
+# of the evaluated pose (measuring them costs a scene evaluation more; Blender evaluates what it shows anyway).
+LIVE_OPTIONS = adjustment.Options(insert_keys=False, skip_missing_targets=True, evaluated_residuals=False)
 
 
 @dataclass

@@ -31,6 +31,7 @@ import bpy
 import numpy as np
 from mathutils import Euler, Matrix, Vector
 
+from ..solver.geometry import cross
 from ..solver.vocabulary import ROTATION_PROPERTY
 from .errors import AdjustError
 from .frames import step_frames
@@ -417,7 +418,7 @@ def affine_inverse(matrices):
     pool wakes up for a single 4x4 and, right after Blender's own threads evaluated the scene, can take
     milliseconds to get a core."""
     a0, a1, a2 = (matrices[..., :3, k] for k in range(3))  # the linear part's columns
-    rows = np.stack([np.cross(a1, a2), np.cross(a2, a0), np.cross(a0, a1)], axis=-2)
+    rows = np.stack([cross(a1, a2), cross(a2, a0), cross(a0, a1)], axis=-2)
     linear = rows / np.sum(a0 * rows[..., 0, :], axis=-1)[..., None, None]
     out = np.zeros(matrices.shape)
     out[..., :3, :3] = linear
