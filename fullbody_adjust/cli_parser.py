@@ -219,35 +219,21 @@ class _ContactsAction(argparse.Action):
         setattr(namespace, self.dest, given + [contact] if contact not in given else given)
 
 
-def _positive(text):
-    value = _float(text)
-    if not value > 0.0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return value
+def _argument_type(convert, accept, rule, kind="number"):
+    """An argparse type: ``convert(text)``, refused in one line when the text is not a ``kind`` or when
+    ``accept(value)`` is false (the value 'must be ``rule``')."""
+    def parse(text):
+        try:
+            value = convert(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a {kind}: {text}") from None
+        if not accept(value):
+            raise argparse.ArgumentTypeError(f"must be {rule}, got {text}")
+        return value
+    return parse
 
 
-def _non_negative(text):
-    value = _float(text)
-    if not value >= 0.0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return value
-
-
-def _float(text):
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text}") from None
-    if not np.isfinite(value):
-        raise argparse.ArgumentTypeError(f"must be finite, got {text}")
-    return value
-
-
-def _positive_int(text):
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {text}")
-    return value
+_float = _argument_type(float, np.isfinite, "finite")
+_positive = _argument_type(_float, lambda value: value > 0.0, "> 0")
+_non_negative = _argument_type(_float, lambda value: value >= 0.0, ">= 0")
+_positive_int = _argument_type(int, lambda value: value >= 1, ">= 1", kind="whole number")
