@@ -32,10 +32,6 @@ Run: .ci/with-bpy python bench/batch.py [--repeat 3] [--frames 1000]   (prints o
 Blender's and the importers' chatter goes to stderr)
 """
 
-import argparse
-import contextlib
-import ctypes
-import json
 import os
 import statistics
 import sys
@@ -50,6 +46,7 @@ import numpy as np  # noqa: E402
 from mathutils import Matrix  # noqa: E402
 
 import fullbody_adjust  # noqa: E402
+from bench.command_line import print_report, whole_number_options  # noqa: E402
 from fullbody_adjust.bridge import mapping, retarget  # noqa: E402
 from fullbody_adjust.solver import retarget as rt  # noqa: E402
 from tests.helpers.bvh import CMU_SCALE, MOCAP_DIR  # noqa: E402
@@ -61,30 +58,6 @@ LAYERED = "layers" in bpy.types.Action.bl_rna.properties  # 4.4+: F-Curves are m
 # IK chains of the reference: the bone carrying the constraint (its tail is the wrist / ankle) and its length.
 IK_CHAINS = {"hand.L": ("forearm.L", 3), "hand.R": ("forearm.R", 3), "foot.L": ("shin.L", 2),
              "foot.R": ("shin.R", 2)}
-
-
-@contextlib.contextmanager
-def stdout_to_stderr():
-    """Send everything written to file descriptor 1 (Python's and C's stdout: the BVH importer, rigify,
-    Blender itself) to stderr, so stdout carries only the JSON."""
-    def flush_all():
-        sys.stdout.flush()
-        if libc is not None:
-            libc.fflush(None)  # C stdio buffers hold text meant for the descriptor they were written to
-
-    try:
-        libc = ctypes.CDLL(None)
-    except (OSError, TypeError):  # no C library to open by no name (Windows): Python's buffer is still flushed
-        libc = None
-    flush_all()
-    saved = os.dup(1)
-    os.dup2(2, 1)
-    try:
-        yield
-    finally:
-        flush_all()
-        os.dup2(saved, 1)
-        os.close(saved)
 
 
 def build_scene():
@@ -278,14 +251,9 @@ def stats(values):
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=5,
-                        help="timed runs of each method (median and best reported)")
-    parser.add_argument("--frames", type=int, default=1000, help="frames to retarget, from frame 2")
-    args = parser.parse_args()
-    with stdout_to_stderr():
-        report = measure(args)
-    print(json.dumps(report, indent=2))
+    print_report(measure, whole_number_options(
+        __doc__, ("--repeat", 5, "timed runs of each method (median and best reported)"),
+        ("--frames", 1000, "frames to retarget, from frame 2")))
 
 
 def measure(args):

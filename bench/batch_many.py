@@ -23,7 +23,6 @@ Run: .ci/with-bpy python bench/batch_many.py [--clips 24] [--jobs N] [--baseline
 stdout). Data credit: mocap.cs.cmu.edu (NSF EIA-0196217), BVH conversion by Bruce Hahne (cgspeed).
 """
 
-import argparse
 import json
 import os
 from pathlib import Path
@@ -40,7 +39,8 @@ sys.path.insert(0, str(REPO))
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 
-from bench.batch import copy_target, reach_errors, remove_run, run_constraints, stdout_to_stderr  # noqa: E402
+from bench.batch import copy_target, reach_errors, remove_run, run_constraints  # noqa: E402
+from bench.command_line import print_report, whole_number_options  # noqa: E402
 import fullbody_adjust  # noqa: E402
 from fullbody_adjust.bridge import clip_import, mapping, retarget  # noqa: E402
 from tests.helpers.bvh import CMU_CLIPS, MOCAP_DIR, cut_bvh  # noqa: E402
@@ -130,14 +130,9 @@ def stats(values):
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--clips", type=int, default=24, help="clips in the batch")
-    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="workers of the parallel run")
-    parser.add_argument("--baseline-clips", type=int, default=24, help="clips also run through the lean bake")
-    args = parser.parse_args()
-    with stdout_to_stderr():
-        report = measure(args)
-    print(json.dumps(report, indent=2))
+    print_report(measure, whole_number_options(
+        __doc__, ("--clips", 24, "clips in the batch"), ("--jobs", os.cpu_count() or 1, "workers of the parallel run"),
+        ("--baseline-clips", 24, "clips also run through the lean bake")))
 
 
 def measure(args):

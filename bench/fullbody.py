@@ -36,7 +36,6 @@ vectorised over --batch-frames frames, as ratios against plain FABRIK and the 'f
 Run: .ci/with-bpy python bench/fullbody.py [--poses-per-clip 50]   (prints one JSON object)
 """
 
-import argparse
 import json
 from dataclasses import replace
 import sys
@@ -50,6 +49,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from fullbody_adjust.solver.adjust import AdjustSettings, adjust_frames, adjust_pose  # noqa: E402
 from fullbody_adjust.solver.body import HumanLimits, default_limits  # noqa: E402
 from fullbody_adjust.solver.geometry import swing_rotation  # noqa: E402
+from command_line import whole_number_options  # noqa: E402
 from limits_fit import DAZ_CLIP, fit_limits, load_clip  # noqa: E402
 from plain_fabrik import BODY_CHAINS, plain_fabrik  # noqa: E402
 from timing import best_time  # noqa: E402
@@ -241,11 +241,9 @@ def speed(model, st_h, st_t, targets, settings_by_method, single_poses, batch_fr
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--poses-per-clip", type=int, default=50, help="captured poses per held-out clip")
-    ap.add_argument("--single-poses", type=int, default=60, help="poses timed one at a time")
-    ap.add_argument("--batch-frames", type=int, default=1000, help="frames in the vectorised timing")
-    args = ap.parse_args()
+    args = whole_number_options(__doc__, ("--poses-per-clip", 50, "captured poses per held-out clip"),
+                                ("--single-poses", 60, "poses timed one at a time"),
+                                ("--batch-frames", 1000, "frames in the vectorised timing"))
 
     refit, fit_report = fit_limits(FIT_CLIPS)
     settings_by_method = solvers(refit)

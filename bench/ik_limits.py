@@ -20,7 +20,6 @@ adjust_plain shows that, not the reading.
 Run: .ci/with-bpy python bench/ik_limits.py [--repeat 20]
 """
 
-import argparse
 import json
 import statistics
 import sys
@@ -33,6 +32,7 @@ import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 
 import fullbody_adjust  # noqa: E402
+from bench.command_line import whole_number_options  # noqa: E402
 from fullbody_adjust.bridge import adjustment, ik_limits, mapping, pose  # noqa: E402
 from fullbody_adjust.solver.body import default_limits  # noqa: E402
 
@@ -98,9 +98,7 @@ def summary(times):
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=20)
-    args = parser.parse_args()
+    args = whole_number_options(__doc__, ("--repeat", 20, "timed runs of each measure"))
     obj = build_scene()
     out = {"bones": len(obj.data.bones), "blender": bpy.app.version_string, "numpy": np.__version__}
     out["adjust_plain"] = summary(time_adjust(obj, args.repeat))

@@ -29,7 +29,6 @@ bench goes on.
 Run: .ci/with-bpy python bench/interactive.py [--repeat 15]   (prints one JSON object on stdout)
 """
 
-import argparse
 import json
 import statistics
 import sys
@@ -44,7 +43,7 @@ import numpy as np  # noqa: E402
 from mathutils import Matrix, Vector  # noqa: E402
 
 import fullbody_adjust  # noqa: E402
-from bench.batch import stdout_to_stderr  # noqa: E402
+from bench.command_line import stdout_to_stderr, whole_number_options  # noqa: E402
 from fullbody_adjust.bridge import adjustment, live, pose, rig_cache  # noqa: E402
 
 RIGS = ("basic", "full", "generated")
@@ -290,9 +289,7 @@ def goals_met(rigs):
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--repeat", type=int, default=15, help="repetitions per case and measure")
-    args = parser.parse_args()
+    args = whole_number_options(__doc__, ("--repeat", 15, "repetitions per case and measure"))
     global SOLVER
     SOLVER = SolverClock()
     with stdout_to_stderr():

@@ -35,24 +35,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from fullbody_adjust.solver.body import BodyModel, HumanLimits, default_limits  # noqa: E402
-from tests.helpers.bvh import CMU_CLIPS, CMU_GROUPS, MOCAP_DIR, read_bvh, read_cmu  # noqa: E402
+from tests.helpers.bvh import CMU_CLIPS, CMU_GROUPS, DAZ_GROUPS, MOCAP_DIR, read_bvh, read_cmu  # noqa: E402
 
 DAZ_CLIP = "cmu_daz_02_01_walk.bvh"
 DAZ_SCALE = 0.01  # the Daz conversion is in centimetres
-# The Daz BVH's bones in the body model's groups (as bridge/mapping_presets.py maps them).
-DAZ_GROUPS = {
-    "root": ["hip"],
-    "trunk": ["abdomen", "chest"],
-    "arm.L": ["lCollar", "lShldr", "lForeArm"],
-    "arm.R": ["rCollar", "rShldr", "rForeArm"],
-    "hand.L": ["lHand"],
-    "hand.R": ["rHand"],
-    "leg.L": ["lThigh", "lShin"],
-    "leg.R": ["rThigh", "rShin"],
-    "foot.L": ["lFoot"],
-    "foot.R": ["rFoot"],
-    "head": ["neck", "head"],
-}
 ALL_CLIPS = CMU_CLIPS + (DAZ_CLIP,)
 PERCENTILE = 99.9
 MARGIN_DEG = 5.0

@@ -37,7 +37,6 @@ for the plain multi-effector FABRIK of bench/plain_fabrik.py (free joints, fixed
     call; best of 3 runs each, ratios from this run.
 """
 
-import argparse
 import json
 import platform
 import sys
@@ -49,6 +48,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from command_line import whole_number_options  # noqa: E402
 from fullbody_adjust.solver import Boxes, penetrations, solve_chain_batch  # noqa: E402
 from fullbody_adjust.solver.adjust import AdjustSettings, adjust_frames  # noqa: E402
 from fullbody_adjust.solver.body import BodyModel  # noqa: E402
@@ -228,11 +228,9 @@ def speed(model, heads, tails, cases, single_cases):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--random-cases", type=int, default=60, help="random Fig. 8 cases")
-    ap.add_argument("--cases", type=int, default=200, help="random cases in the speed comparison")
-    ap.add_argument("--single-cases", type=int, default=20, help="of those, timed one per call")
-    args = ap.parse_args()
+    args = whole_number_options(__doc__, ("--random-cases", 60, "random Fig. 8 cases"),
+                                ("--cases", 200, "random cases in the speed comparison"),
+                                ("--single-cases", 20, "of those, timed one per call"))
     t0 = time.perf_counter()
     model, heads, tails = small_body()
     report = {

@@ -18,7 +18,6 @@ are compared to, so other processes on a shared machine disturb them less; compa
 Run: .ci/with-bpy python bench/solver_speed.py [--repeats 30] [--frames 32]   (prints one JSON object)
 """
 
-import argparse
 import json
 import sys
 import time
@@ -28,6 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.command_line import whole_number_options  # noqa: E402
 from fullbody_adjust.solver import prepared  # noqa: E402
 from fullbody_adjust.solver.adjust import adjust_frames, adjust_pose  # noqa: E402
 from tests.helpers import metarig  # noqa: E402
@@ -56,10 +56,8 @@ def max_difference(a, b):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--repeats", type=int, default=30, help="timed runs per figure")
-    ap.add_argument("--frames", type=int, default=32, help="frames in the batch timing")
-    args = ap.parse_args()
+    args = whole_number_options(__doc__, ("--repeats", 30, "timed runs per figure"),
+                                ("--frames", 32, "frames in the batch timing"))
 
     model, heads, tails, x_axes = metarig.load()
     rng = np.random.default_rng(7)

@@ -13,7 +13,6 @@ _MODULE_NAMES = (
     "properties",
     "bridge.live",
     "operators",
-    "retarget_operator",
     "panel",
     "cli",
 )

@@ -73,15 +73,13 @@ def build_parser(prog=f"blender -b FILE.blend -c {COMMAND}"):
     )
     subparsers = parser.add_subparsers(dest="subcommand", metavar="SUBCOMMAND")
 
-    adjust = subparsers.add_parser(
-        "adjust", help="adjust a frame range of one armature so hands and feet reach their targets",
-        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EXIT_CODES_HELP,
-        description=(
-            "Adjust every frame of a range of one armature so its hands and feet reach the target objects set in\n"
-            "its target slots (animated targets and moving obstacles are followed frame by frame), in one\n"
-            "vectorised solve, and key the bones that moved: into the armature's action, or into a new action\n"
-            "with --new-action so the original motion stays intact. The solver settings stored on the armature\n"
-            "(its Full Body panel) are used unless overridden below."))
+    adjust = _add_subcommand(
+        subparsers, "adjust", "adjust a frame range of one armature so hands and feet reach their targets",
+        "Adjust every frame of a range of one armature so its hands and feet reach the target objects set in\n"
+        "its target slots (animated targets and moving obstacles are followed frame by frame), in one\n"
+        "vectorised solve, and key the bones that moved: into the armature's action, or into a new action\n"
+        "with --new-action so the original motion stays intact. The solver settings stored on the armature\n"
+        "(its Full Body panel) are used unless overridden below.")
     _add_file_argument(adjust)
     adjust.add_argument("--armature", metavar="NAME",
                         help="the armature to adjust (default: the only armature with targets set; else the "
@@ -104,14 +102,12 @@ def build_parser(prog=f"blender -b FILE.blend -c {COMMAND}"):
                                   "the original action stays intact (it gets a fake user)")
     adjust.set_defaults(work="adjust")
 
-    retarget = subparsers.add_parser(
-        "retarget", help="carry the motion of one armature onto another and adjust it so contacts hold",
-        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EXIT_CODES_HELP,
-        description=(
-            "Carry the motion of a source armature onto a target armature of other proportions, then adjust the\n"
-            "target so its contacts hold: feet on the ground, or a hand on an object it reaches (paper §6.2.3).\n"
-            "Both armatures must be mappable onto the body model (their stored bone map or automatic mapping).\n"
-            "In the preview the source is drawn in grey, the target in blue."))
+    retarget = _add_subcommand(
+        subparsers, "retarget", "carry the motion of one armature onto another and adjust it so contacts hold",
+        "Carry the motion of a source armature onto a target armature of other proportions, then adjust the\n"
+        "target so its contacts hold: feet on the ground, or a hand on an object it reaches (paper §6.2.3).\n"
+        "Both armatures must be mappable onto the body model (their stored bone map or automatic mapping).\n"
+        "In the preview the source is drawn in grey, the target in blue.")
     _add_file_argument(retarget)
     source = retarget.add_mutually_exclusive_group(required=True)
     source.add_argument("--source", metavar="NAME", help="the armature of FILE.blend whose motion is carried")
@@ -164,6 +160,13 @@ def build_parser(prog=f"blender -b FILE.blend -c {COMMAND}"):
                                     "'<source action>_<target>'); the target's previous action is kept")
     retarget.set_defaults(work="retarget")
     return parser
+
+
+def _add_subcommand(subparsers, name, summary, description):
+    """A subcommand's parser: ``summary`` in the command's list, ``description`` (laid out as written) and the
+    exit codes in its own --help."""
+    return subparsers.add_parser(name, help=summary, description=description, epilog=EXIT_CODES_HELP,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
 
 
 def _add_file_argument(parser):
@@ -219,35 +222,21 @@ class _ContactsAction(argparse.Action):
         setattr(namespace, self.dest, given + [contact] if contact not in given else given)
 
 
-def _positive(text):
-    value = _float(text)
-    if not value > 0.0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return value
+def _argument_type(convert, accept, rule, kind="number"):
+    """An argparse type: ``convert(text)``, refused in one line when the text is not a ``kind`` or when
+    ``accept(value)`` is false (the value 'must be ``rule``')."""
+    def parse(text):
+        try:
+            value = convert(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"not a {kind}: {text}") from None
+        if not accept(value):
+            raise argparse.ArgumentTypeError(f"must be {rule}, got {text}")
+        return value
+    return parse
 
 
-def _non_negative(text):
-    value = _float(text)
-    if not value >= 0.0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
-    return value
-
-
-def _float(text):
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text}") from None
-    if not np.isfinite(value):
-        raise argparse.ArgumentTypeError(f"must be finite, got {text}")
-    return value
-
-
-def _positive_int(text):
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a whole number: {text}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {text}")
-    return value
+_float = _argument_type(float, np.isfinite, "finite")
+_positive = _argument_type(_float, lambda value: value > 0.0, "> 0")
+_non_negative = _argument_type(_float, lambda value: value >= 0.0, ">= 0")
+_positive_int = _argument_type(int, lambda value: value >= 1, ">= 1", kind="whole number")

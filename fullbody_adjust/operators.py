@@ -1,11 +1,12 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
-"""Operators: thin wrappers around bridge.adjustment. Each catches the bridge's AdjustError and reports it as
-one line, so a bad input never shows a traceback and changes nothing."""
+"""Operators: thin wrappers around the bridge (adjustment, live, mapping, retarget). Each catches the bridge's
+AdjustError and reports it as one line, so a bad input never shows a traceback and changes nothing; every option
+is SKIP_SAVE, so a run starts from its defaults and the stored settings, never from the last run's values."""
 
 import bpy
-from bpy.props import BoolProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
-from .bridge import adjustment, live, mapping
+from .bridge import adjustment, live, mapping, retarget
 from .bridge.errors import AdjustError
 from .properties import FULLBODY_ADJUST_PG_settings
 
@@ -48,6 +49,16 @@ class ArmatureOperator:
         except AdjustError as ex:
             self.report({'ERROR'}, str(ex))
             return None
+
+    def run_with_progress(self, context, action):
+        """run(), with the window's progress bar following the ``progress(stage, fraction)`` callback that
+        ``action`` is given."""
+        wm = context.window_manager
+        wm.progress_begin(0, 100)
+        try:
+            return self.run(context, lambda: action(lambda stage, fraction: wm.progress_update(int(100 * fraction))))
+        finally:
+            wm.progress_end()
 
 
 # The solver settings an adjust operator shows in its redo panel (same names as the stored settings).
@@ -162,14 +173,9 @@ class FULLBODY_ADJUST_OT_adjust_frames(_SolverOptions, ArmatureOperator, bpy.typ
         scene = context.scene
         start = self.frame_start if self.properties.is_property_set("frame_start") else scene.frame_start
         end = self.frame_end if self.properties.is_property_set("frame_end") else scene.frame_end
-        wm = context.window_manager
-        wm.progress_begin(0, 100)
-        try:
-            outcome = self.run(context, lambda: adjustment.adjust_frames(
-                context, context.active_object, start, end, self.solver_options(new_action=self.new_action or None),
-                progress=lambda stage, fraction: wm.progress_update(int(100 * fraction))))
-        finally:
-            wm.progress_end()
+        outcome = self.run_with_progress(context, lambda progress: adjustment.adjust_frames(
+            context, context.active_object, start, end, self.solver_options(new_action=self.new_action or None),
+            progress=progress))
         if outcome is None:
             return {'CANCELLED'}
         report_outcome(self, outcome)
@@ -207,12 +213,101 @@ class FULLBODY_ADJUST_OT_key_pose(ArmatureOperator, bpy.types.Operator):
         return {'FINISHED'}
 
 
+def _armature_names(self, context, edit_text):
+    return [ob.name for ob in context.scene.objects if ob.type == 'ARMATURE' and ob != context.active_object
+            and edit_text.lower() in ob.name.lower()]
+
+
+def _object_names(self, context, edit_text):
+    return [ob.name for ob in context.scene.objects if ob.type != 'ARMATURE' and edit_text.lower() in ob.name.lower()]
+
+
+def source_armature(context, name=""):
+    """The armature to retarget from: the object named ``name``, else the one selected armature other than the
+    active one. AdjustError (one line) when there is none or more than one."""
+    if name:
+        source = bpy.data.objects.get(name)
+        if source is None:
+            raise AdjustError(f"No object named '{name}' to retarget from")
+        return source
+    candidates = [ob for ob in context.selected_objects if ob.type == 'ARMATURE' and ob != context.active_object]
+    if not candidates:
+        raise AdjustError("Select the source armature too (the target is the active one), or name the source")
+    if len(candidates) > 1:
+        raise AdjustError("More than one other armature is selected: select only the source, or name it")
+    return candidates[0]
+
+
+def contact_list(kinds, object_names):
+    """bridge.retarget's contacts of the operator's settings: 'ground' if GROUND is among ``kinds``, and with
+    OBJECT one ('object', name) per comma-separated name (one with None when none is given: a clear error)."""
+    out = ["ground"] if 'GROUND' in kinds else []
+    if 'OBJECT' in kinds:
+        names = [n.strip() for n in object_names.split(",") if n.strip()]
+        out += [("object", n) for n in names] or [("object", None)]
+    return out
+
+
+class FULLBODY_ADJUST_OT_retarget(ArmatureOperator, bpy.types.Operator):
+    """Retarget another armature's motion onto the active armature, into a new action (hands and feet keep \
+to the source's trajectories and contacts)"""
+    bl_idname = "fullbody_adjust.retarget"
+    bl_label = "Retarget Motion"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    source: StringProperty(name="Source", search=_armature_names, options={'SKIP_SAVE'},
+                           description="Armature whose motion to retarget (default: the selected armature "
+                                       "other than the active one)")
+    frame_start: IntProperty(name="Start", description="First frame (default: the source action's first)",
+                             options={'SKIP_SAVE'})
+    frame_end: IntProperty(name="End", description="Last frame (default: the source action's last)",
+                           options={'SKIP_SAVE'})
+    contacts: EnumProperty(
+        name="Contacts",
+        items=(('GROUND', "Ground", "Planted feet rest on the floor and do not slide"),
+               ('OBJECT', "Object", "Hands and feet touching the contact object are held on it")),
+        options={'ENUM_FLAG', 'SKIP_SAVE'},
+        default={'GROUND'},
+        description="What hands and feet may touch (one or both)",
+    )
+    contact_object: StringProperty(name="Contact Object", search=_object_names, options={'SKIP_SAVE'},
+                                   description="Object whose contacts are kept (for Object contacts; several: "
+                                               "names separated by commas)")
+    exact: BoolProperty(name="Exact Contacts", default=True, options={'SKIP_SAVE'},
+                        description="Hands on the object go to the source's own positions on it, instead of "
+                                    "the source's scaled by the legs' ratio (soles always rest on the floor)")
+    new_action: StringProperty(name="New Action", options={'SKIP_SAVE'},
+                               description="Name of the new action (default: <source action>_<target>)")
+
+    def execute(self, context):
+        props = self.properties
+        outcome = self.run_with_progress(context, lambda progress: retarget.retarget(
+            context, source_armature(context, self.source), context.active_object,
+            self.frame_start if props.is_property_set("frame_start") else None,
+            self.frame_end if props.is_property_set("frame_end") else None,
+            contacts=contact_list(self.contacts, self.contact_object), exact=self.exact,
+            new_action=self.new_action or None, progress=progress))
+        if outcome is None:
+            return {'CANCELLED'}
+        self.report({'INFO'}, outcome.summary())
+        return {'FINISHED'}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        for name in ("source", "frame_start", "frame_end", "contacts", "contact_object", "exact", "new_action"):
+            row = layout.row()
+            row.prop(self, name)
+            row.enabled = name != "contact_object" or 'OBJECT' in self.contacts
+
+
 classes = (
     FULLBODY_ADJUST_OT_map_bones,
     FULLBODY_ADJUST_OT_create_targets,
     FULLBODY_ADJUST_OT_adjust_pose,
     FULLBODY_ADJUST_OT_adjust_frames,
     FULLBODY_ADJUST_OT_key_pose,
+    FULLBODY_ADJUST_OT_retarget,
 )
 
 register, unregister = bpy.utils.register_classes_factory(classes)

@@ -47,132 +47,65 @@ def _is_not_owner(slot, obj):
     return obj is not slot.id_data
 
 
+def _object_of_slot(name, description):
+    """A target slot's Object pointer (any object but the armature that owns the slot)."""
+    return PointerProperty(name=name, description=description, type=bpy.types.Object, poll=_is_not_owner)
+
+
+def _distance(name, description, **keywords):
+    """A length in scene units."""
+    return FloatProperty(name=name, description=description, subtype='DISTANCE', unit='LENGTH', **keywords)
+
+
 class FULLBODY_ADJUST_PG_target(bpy.types.PropertyGroup):
-    effector: EnumProperty(
-        name="Effector",
-        description="The body part that reaches for the target",
-        items=EFFECTOR_ITEMS,
-        default='hand.L',
-    )
-    target: PointerProperty(
-        name="Target",
-        description="Object (normally an empty) whose location the effector reaches for",
-        type=bpy.types.Object,
-        poll=_is_not_owner,
-    )
-    priority: IntProperty(
-        name="Priority",
-        description="When targets conflict, the higher priority is met first (by default feet 3, hands 2, head 1)",
-        default=DEFAULT_PRIORITY['hand.L'],
-        min=0,
-        soft_max=10,
-    )
-    enabled: BoolProperty(
-        name="Enabled",
-        description="Use this target when adjusting",
-        default=True,
-    )
-    use_rotation: BoolProperty(
-        name="Rotation",
-        description="The hand or foot takes the target's world orientation (as far as the wrist's or ankle's "
-                    "limits allow); off: it keeps its own",
-        default=False,
-    )
-    pole: PointerProperty(
-        name="Pole",
-        description="Object the elbow or knee points toward: the limb bends in the plane of the shoulder or hip, "
-                    "the target and the pole. Empty: the limb keeps its own bend plane",
-        type=bpy.types.Object,
-        poll=_is_not_owner,
-    )
+    effector: EnumProperty(name="Effector", description="The body part that reaches for the target",
+                           items=EFFECTOR_ITEMS, default='hand.L')
+    target: _object_of_slot("Target", "Object (normally an empty) whose location the effector reaches for")
+    priority: IntProperty(name="Priority", default=DEFAULT_PRIORITY['hand.L'], min=0, soft_max=10,
+                          description="When targets conflict, the higher priority is met first (by default feet 3, "
+                                      "hands 2, head 1)")
+    enabled: BoolProperty(name="Enabled", description="Use this target when adjusting", default=True)
+    use_rotation: BoolProperty(name="Rotation", default=False,
+                               description="The hand or foot takes the target's world orientation (as far as the "
+                                           "wrist's or ankle's limits allow); off: it keeps its own")
+    pole: _object_of_slot("Pole", "Object the elbow or knee points toward: the limb bends in the plane of the "
+                                  "shoulder or hip, the target and the pole. Empty: the limb keeps its own bend plane")
 
 
 class FULLBODY_ADJUST_PG_bone_map_item(bpy.types.PropertyGroup):
-    group: StringProperty(
-        name="Group",
-        description="Body model group: root, trunk, arm.L, arm.R, hand.L, hand.R, leg.L, leg.R, foot.L, foot.R "
-                    "or head",
-    )
-    bone: StringProperty(
-        name="Bone",
-        description="Name of the rig bone in that group (items of one group are in chain order, parent first)",
-    )
+    group: StringProperty(name="Group", description="Body model group: root, trunk, arm.L, arm.R, hand.L, hand.R, "
+                                                    "leg.L, leg.R, foot.L, foot.R or head")
+    bone: StringProperty(name="Bone", description="Name of the rig bone in that group (items of one group are in "
+                                                  "chain order, parent first)")
 
 
 class FULLBODY_ADJUST_PG_settings(bpy.types.PropertyGroup):
-    targets: CollectionProperty(
-        name="Targets",
-        type=FULLBODY_ADJUST_PG_target,
-    )
-    active_target_index: IntProperty(
-        name="Active Target",
-        description="Target slot selected in the list",
-    )
-    obstacles: PointerProperty(
-        name="Obstacles",
-        description="Collection whose meshes are obstacles. Empty: every visible mesh that this armature "
-                    "neither deforms nor parents",
-        type=bpy.types.Collection,
-    )
-    bone_map: CollectionProperty(
-        name="Bone Map",
-        description="Which rig bones form each body model group",
-        type=FULLBODY_ADJUST_PG_bone_map_item,
-    )
-    active_bone_map_index: IntProperty(
-        name="Active Bone Map Item",
-        description="Bone map row selected in the list",
-    )
-    variant: EnumProperty(
-        name="Variant",
-        description="How the groups meeting at the chest and at the pelvis settle conflicting targets",
-        items=VARIANT_ITEMS,
-        default=DEFAULT_VARIANT.upper(),
-    )
-    margin: FloatProperty(
-        name="Margin",
-        description="Clearance kept between joints and obstacle boxes (the paper's Δd)",
-        default=0.01,
-        min=0.0,
-        soft_max=0.5,
-        subtype='DISTANCE',
-        unit='LENGTH',
-    )
-    tolerance: FloatProperty(
-        name="Tolerance",
-        description="A target counts as reached within this distance",
-        default=1e-5,
-        min=1e-9,
-        soft_max=0.01,
-        precision=6,
-        subtype='DISTANCE',
-        unit='LENGTH',
-    )
-    max_iterations: IntProperty(
-        name="Max Iterations",
-        description="Iteration limit per solve",
-        default=200,
-        min=1,
-        soft_max=1000,
-    )
-    use_joint_limits: BoolProperty(
-        name="Joint Limits",
-        description="Respect the rig's own IK locks and limits and Local Space Limit Rotation constraints on the "
-                    "mapped bones; elbows and knees that set none never bend backwards",
-        default=True,
-    )
-    keep_hand_orientation: BoolProperty(
-        name="Keep Hand Orientation",
-        description="Hands keep their world orientation while the arms move",
-        default=True,
-    )
-    live: BoolProperty(
-        name="Live Adjust",
-        description="Re-solve and show the pose (without keys) whenever a target moves or the frame changes; "
-                    "Key Pose keys what is shown, turning it off returns to the keyed pose",
-        default=False,
-        update=_live_toggled,
-    )
+    targets: CollectionProperty(name="Targets", type=FULLBODY_ADJUST_PG_target)
+    active_target_index: IntProperty(name="Active Target", description="Target slot selected in the list")
+    obstacles: PointerProperty(name="Obstacles", type=bpy.types.Collection,
+                               description="Collection whose meshes are obstacles. Empty: every visible mesh that "
+                                           "this armature neither deforms nor parents")
+    bone_map: CollectionProperty(name="Bone Map", description="Which rig bones form each body model group",
+                                 type=FULLBODY_ADJUST_PG_bone_map_item)
+    active_bone_map_index: IntProperty(name="Active Bone Map Item", description="Bone map row selected in the list")
+    variant: EnumProperty(name="Variant", items=VARIANT_ITEMS, default=DEFAULT_VARIANT.upper(),
+                          description="How the groups meeting at the chest and at the pelvis settle conflicting "
+                                      "targets")
+    margin: _distance("Margin", "Clearance kept between joints and obstacle boxes (the paper's Δd)",
+                      default=0.01, min=0.0, soft_max=0.5)
+    tolerance: _distance("Tolerance", "A target counts as reached within this distance",
+                         default=1e-5, min=1e-9, soft_max=0.01, precision=6)
+    max_iterations: IntProperty(name="Max Iterations", description="Iteration limit per solve",
+                                default=200, min=1, soft_max=1000)
+    use_joint_limits: BoolProperty(name="Joint Limits", default=True,
+                                   description="Respect the rig's own IK locks and limits and Local Space Limit "
+                                               "Rotation constraints on the mapped bones; elbows and knees that set "
+                                               "none never bend backwards")
+    keep_hand_orientation: BoolProperty(name="Keep Hand Orientation", default=True,
+                                        description="Hands keep their world orientation while the arms move")
+    live: BoolProperty(name="Live Adjust", default=False, update=_live_toggled,
+                       description="Re-solve and show the pose (without keys) whenever a target moves or the frame "
+                                   "changes; Key Pose keys what is shown, turning it off returns to the keyed pose")
 
 
 classes = (

@@ -24,7 +24,7 @@ from fullbody_adjust.bridge.mapping import (
     side_of_name,
 )
 from fullbody_adjust.solver.vocabulary import GROUPS, REQUIRED_GROUPS
-from tests.helpers.bvh import CMU_GROUPS, read_cmu
+from tests.helpers.bvh import CMU_GROUPS, DAZ_GROUPS, read_cmu
 
 # BVH files are Y up, facing +Z; Blender's importer turns (x, y, z) into (x, -z, y).
 BVH_TO_BLENDER = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -185,11 +185,7 @@ def daz_bvh_rig():
 
 
 def daz_bvh_groups():
-    groups = {"root": ["hip"], "trunk": ["abdomen", "chest"], "head": ["neck", "head"]}
-    for s, x in (("L", "l"), ("R", "r")):
-        groups.update({f"arm.{s}": [f"{x}Collar", f"{x}Shldr", f"{x}ForeArm"], f"hand.{s}": [f"{x}Hand"],
-                       f"leg.{s}": [f"{x}Thigh", f"{x}Shin"], f"foot.{s}": [f"{x}Foot"]})
-    return BoneMap(groups)
+    return BoneMap(DAZ_GROUPS)
 
 
 # (rig factory, expected map, preset label)

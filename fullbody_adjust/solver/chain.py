@@ -58,7 +58,7 @@ def solve_chain(positions, target, *, settings=ChainSettings(), limits=None, obs
     limited = limits is not None and limits.any_active
     if not limited and (obstacles is None or len(obstacles) == 0):
         return _solve_plain(positions, target, settings)
-    p = _as_points(positions, "positions")
+    p = _as_chains(positions, batched=False)
     t = _as_vector(target, "target")
     pd = None if parent_direction is None else _as_vector(parent_direction, "parent_direction")[None]
     if obstacles is not None and obstacles.batched and obstacles.mins.shape[0] != 1:
@@ -79,13 +79,7 @@ def solve_chain_batch(positions, targets, *, settings=ChainSettings(), limits=No
     limit. Each problem stops iterating when it converges, so row i equals solve_chain on problem i."""
     if not isinstance(settings, ChainSettings):
         raise SolverInputError("settings must be a ChainSettings")
-    p = np.asarray(positions, dtype=np.float64)
-    if p.ndim != 3 or p.shape[2] != 3:
-        raise SolverInputError(f"positions must have shape (B,n,3), got {p.shape}")
-    if p.shape[1] < 2:
-        raise SolverInputError("a chain needs at least 2 joints")
-    if not np.all(np.isfinite(p)):
-        raise SolverInputError("positions have NaN/inf")
+    p = _as_chains(positions, batched=True)
     t = np.asarray(targets, dtype=np.float64)
     if t.shape != (p.shape[0], 3):
         raise SolverInputError(f"targets must have shape ({p.shape[0]},3), got {t.shape}")
@@ -99,14 +93,16 @@ def solve_chain_batch(positions, targets, *, settings=ChainSettings(), limits=No
 # Input conversion
 
 
-def _as_points(positions, name):
+def _as_chains(positions, batched):
+    """``positions`` as floats: one chain (n,3), or with ``batched`` a batch of them (B,n,3), of at least 2
+    finite joints each."""
     p = np.asarray(positions, dtype=np.float64)
-    if p.ndim != 2 or p.shape[1] != 3:
-        raise SolverInputError(f"{name} must have shape (n,3), got {p.shape}")
-    if p.shape[0] < 2:
+    if p.ndim != 2 + batched or p.shape[-1] != 3:
+        raise SolverInputError(f"positions must have shape {'(B,n,3)' if batched else '(n,3)'}, got {p.shape}")
+    if p.shape[-2] < 2:
         raise SolverInputError("a chain needs at least 2 joints")
     if not np.all(np.isfinite(p)):
-        raise SolverInputError(f"{name} have NaN/inf")
+        raise SolverInputError("positions have NaN/inf")
     return p
 
 

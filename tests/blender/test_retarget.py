@@ -431,6 +431,15 @@ def test_operator_retargets_the_selected_armature_onto_the_active_one():
     assert_unchanged(source, before, action)
 
 
+def test_operator_options_are_not_remembered_from_the_last_run():
+    # Blender would otherwise start each run with the last run's source, frames and action name, marked as set.
+    properties = bpy.ops.fullbody_adjust.retarget.get_rna_type().properties
+    options = [p for p in properties if p.identifier != "rna_type"]
+    assert {p.identifier for p in options} >= {"source", "frame_start", "frame_end", "contacts", "contact_object",
+                                               "exact", "new_action"}
+    assert [p.identifier for p in options if not p.is_skip_save] == []
+
+
 def test_operator_reports_what_is_missing():
     source = import_clip()
     target = add_metarig()

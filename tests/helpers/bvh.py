@@ -24,20 +24,28 @@ CMU_SCALE = 0.056444  # metres per CMU BVH unit (tests/data/mocap/README.md)
 # The CMU clips the tests and benches use ship with the repository; FBA_MOCAP_DIR overrides.
 MOCAP_DIR = Path(os.environ.get("FBA_MOCAP_DIR", Path(__file__).resolve().parents[1] / "data" / "mocap"))
 
+
+def body_groups(sides, *, root, trunk, arm, hand, leg, foot, head):
+    """A body-model bone map {group: [bone, ...]} of a skeleton: ``{side}`` in the arm, hand, leg and foot names
+    becomes each of ``sides`` (left spelling, right spelling), for groups "arm.L" and "arm.R"..."""
+    sided = {"arm": arm, "hand": hand, "leg": leg, "foot": foot}
+    groups = {"root": root, "trunk": trunk}
+    for kind, names in sided.items():
+        for suffix, side in zip(("L", "R"), sides):
+            groups[f"{kind}.{suffix}"] = [name.format(side=side) for name in names]
+    groups["head"] = head
+    return groups
+
+
 # Body-model groups for the MotionBuilder-style CMU skeleton.
-CMU_GROUPS = {
-    "root": ["Hips"],
-    "trunk": ["LowerBack", "Spine", "Spine1"],
-    "arm.L": ["LeftShoulder", "LeftArm", "LeftForeArm"],
-    "arm.R": ["RightShoulder", "RightArm", "RightForeArm"],
-    "hand.L": ["LeftHand"],
-    "hand.R": ["RightHand"],
-    "leg.L": ["LeftUpLeg", "LeftLeg"],
-    "leg.R": ["RightUpLeg", "RightLeg"],
-    "foot.L": ["LeftFoot"],
-    "foot.R": ["RightFoot"],
-    "head": ["Neck", "Neck1", "Head"],
-}
+CMU_GROUPS = body_groups(("Left", "Right"), root=["Hips"], trunk=["LowerBack", "Spine", "Spine1"],
+                         arm=["{side}Shoulder", "{side}Arm", "{side}ForeArm"], hand=["{side}Hand"],
+                         leg=["{side}UpLeg", "{side}Leg"], foot=["{side}Foot"], head=["Neck", "Neck1", "Head"])
+# ... and for the Daz-skeleton BVH (cmu_daz_02_01_walk.bvh), as bridge/mapping_presets.py maps it.
+DAZ_GROUPS = body_groups(("l", "r"), root=["hip"], trunk=["abdomen", "chest"],
+                         arm=["{side}Collar", "{side}Shldr", "{side}ForeArm"], hand=["{side}Hand"],
+                         leg=["{side}Thigh", "{side}Shin"], foot=["{side}Foot"], head=["neck", "head"])
+
 CMU_CLIPS = (
     "cmu_07_01_walk.bvh",
     "cmu_02_06_pickup_f0-1349.bvh",
