@@ -138,8 +138,8 @@ def build_parser(prog=f"blender -b FILE.blend -c {COMMAND}"):
     clips.add_argument("--clip-start-frame", type=int, default=1, metavar="N",
                        help="the scene frame the clip's first frame lands on (default: 1)")
     clips.add_argument("--jobs", type=_positive_int, metavar="N",
-                       help=f"clips retargeted at once, each in its own worker process (default: the number of "
-                            f"cores)")
+                       help="clips retargeted at once, each in its own worker process (default: the number of "
+                            "cores)")
     clips.add_argument("--output-dir", metavar="DIR",
                        help="write one .blend per clip, DIR/<clip>.blend (the target file with that clip's "
                             "action), instead of all actions into --output")

@@ -22,6 +22,7 @@ Everything is vectorised over frames; a frame's result depends only on its own d
 converged problems and every other step is row-wise), so adjust_pose equals a row of adjust_frames.
 
 Modules: adjust_types.py (settings, results), reach_balls.py (sub-base geometry), sub_bases.py (step 1),
+limb_placement.py (steps 2-4: the chain solves and the top-down pass that places the bones),
 two_bone_start.py (a hinged limb's warm start), limb_rotations.py (bone rotations), prepared.py (the work that
 depends only on the start pose, kept while it is the same: Live's updates share it).
 """
@@ -31,18 +32,16 @@ from __future__ import annotations
 import numpy as np
 
 from .adjust_types import UNCONSTRAINED, VARIANTS, AdjustBatchResult, AdjustResult, AdjustSettings
-from .body import CHAIN, GROUPS, LIMB_OF_EFFECTOR, ROOT, BodyModel, LimbLimits
-from .chain import solve_chain_batch
-from .chain_types import _final_status
+from .body import GROUPS, LIMB_OF_EFFECTOR, BodyModel, LimbLimits
 from .errors import SolverInputError
 from .geometry import apply_matrix, norm
-from .limb_rotations import _EYE, LimbSolve, chest_rotation, end_rotation
-from .limits import FREE, HINGE, carry_axis
-from .obstacles import Boxes, points_inside, segments_cross
+from .limb_placement import LimbPlacement
+from .limb_rotations import LimbSolve, chest_rotation
+from .limits import FREE
+from .obstacles import Boxes
 from .prepared import prepare
 from .reach_balls import nearest_in_balls, project_onto_balls, sub_base_point
 from .sub_bases import SubBasePlacement
-from .two_bone_start import two_bone_start
 
 __all__ = ["UNCONSTRAINED", "VARIANTS", "AdjustBatchResult", "AdjustResult", "AdjustSettings", "adjust_frames",
            "adjust_pose", "nearest_in_balls", "project_onto_balls", "sub_base_point"]
@@ -98,7 +97,7 @@ def adjust_frames(model, heads, tails, targets, effectors, priorities=None, *, o
 # ----------------------------------------------------------------------------------------------------------
 # The solve
 
-class _Problem(SubBasePlacement):
+class _Problem(SubBasePlacement, LimbPlacement):
     _PER_FRAME_DICTS = SubBasePlacement._PER_FRAME_DICTS + ("end_turns", "limb_pole")
 
     def __init__(self, model, heads, tails, targets, effectors, priorities, obstacles, settings, limits,
@@ -208,67 +207,6 @@ class _Problem(SubBasePlacement):
                 if e != "head" and not unset.all():
                     store[LIMB_OF_EFFECTOR[e]] = given[:, k]
 
-    # -- chain solves on a subset of frames --------------------------------------------------------------
-
-    def _solve(self, name, rows, start, targets, carry=None):
-        """solve_chain_batch on frames `rows` with the limb's limits and the frames' obstacles. `carry` (b,3,3):
-        the rotation that took the limb's start-pose chain to `start` (its parent's rotation), applied to
-        joint 0's parent direction (and a hinge axis at joint 0), which are given at the start pose. The other
-        hinge axes are carried from the start pose's own chain (hinge_reference; any reference the caller's
-        limits had is replaced), the frame _segment_rotations writes the bones in.
-
-        Warm start for a hinged limb (elbow, knee) whose end is not at its target yet: the last two segments
-        are first placed by the two-bone solution in the plane of the start hinge axis carried to the
-        target (two_bone_start), which keeps the elbow/knee near where it was (measured: without it the
-        mean joint angle error of bench/fullbody.py rises from 0.118 to 0.144 rad); FABRIK and the chain's
-        two-segment finish then settle the twist, the cones, obstacles and the clavicle. A pole (set_end_goals)
-        sets that plane instead, on every frame that has one."""
-        kwargs = {}
-        pole = self.limb_pole[name][rows] if name in self.limb_pole else np.full((len(rows), 3), np.nan)
-        pole_placed = False
-        ll = self.limits.get(name)
-        if ll is not None and ll.limits.any_active:
-            lim = ll.limits
-            m = len(lim)
-            axes = np.broadcast_to(lim.hinge_axis, (self.F,) + lim.hinge_axis.shape[-2:])[rows].copy()
-            pdir = None if ll.parent_direction is None else ll.parent_direction[rows]
-            # Hinge axes of joints > 0 stay in the start pose's frame: the solver carries them from the START
-            # chain's parent directions by the parent's minimal swing, as _segment_rotations turns the bones,
-            # so the output's elbow/knee is the hinge the solver enforced. Joint 0's parent direction (and a
-            # hinge there) rides on the limb's parent.
-            reference = np.diff(self.chain0[name][rows], axis=1)
-            reference = np.concatenate([reference[:, :1], reference[:, :-1]], axis=1)
-            if carry is not None:
-                axes[:, 0] = apply_matrix(carry, axes[:, 0])
-                pdir = None if pdir is None else apply_matrix(carry, pdir)
-            if lim.kind[m - 1] == HINGE and m >= 2:
-                warm = np.nonzero((norm(start[:, -1] - targets) > self.settings.chain.tolerance)
-                                  | np.isfinite(pole[:, 0]))[0]
-                if warm.size:
-                    at_start = carry_axis(axes[warm, m - 1], reference[warm, m - 1],
-                                          start[warm, m - 1] - start[warm, m - 2])
-                    start = start.copy()
-                    start[warm] = two_bone_start(start[warm], targets[warm], at_start, pole[warm])
-                pole_placed = True
-            kwargs["limits"] = lim.derived(hinge_axis=axes, hinge_reference=reference)
-            kwargs["parent_directions"] = pdir
-        pending = np.nonzero(np.isfinite(pole[:, 0]) & (not pole_placed))[0]
-        if pending.size and start.shape[1] >= 3:  # a pole without a hinge limit: the same warm start
-            start = start.copy()
-            start[pending] = two_bone_start(start[pending], targets[pending], np.zeros((pending.size, 3)),
-                                            pole[pending])
-        if self.obstacles is not None:
-            # Every joint of a chain solve stays within the chain's reach of its base (backward passes) or of
-            # its target (forward passes): boxes farther than that (and the clearance) cannot take part.
-            radius = self.reach[name][rows] + self.settings.chain.margin + self.settings.chain.tolerance
-            boxes = self.obstacles.select(rows).near(np.stack([start[:, 0], targets], axis=1), radius)
-            if boxes is not None:
-                kwargs["obstacles"] = boxes
-        res = solve_chain_batch(start, targets, settings=self.settings.chain, **kwargs)
-        self.iterations[rows] += res.iterations
-        return res
-
-
     def _subset(self, rows):
         """The same problem restricted to frames `rows` (a fresh iteration count)."""
         sub = object.__new__(type(self))
@@ -327,7 +265,7 @@ class _Problem(SubBasePlacement):
         return result
 
     def _solve_once(self) -> AdjustBatchResult:
-        model, F = self.model, self.F
+        F = self.F
         upper = self._upper()
         trunk0 = self.chain0["trunk"]
         sc0 = trunk0[:, -1]
@@ -366,152 +304,6 @@ class _Problem(SubBasePlacement):
         trunk = LimbSolve(trunk_joints, trunk_solved, t_status, t_reason)
         heads, tails, rotations, limb_solves = self._propagate(delta, trunk)
         return self._result(heads, tails, rotations, limb_solves)
-
-    def _fixable(self, upper, offsets):
-        """{upper limb: (F,) bool}: whether re-placing the SC could still bring the limb's target into reach.
-        Turning the chest moves an arm base on a sphere of radius |offset| about the SC, the SC stays within
-        the trunk's reach of the trunk base, and the trunk base moves with the root only where every
-        constrained foot still reaches its target: a target no such trunk base puts within the sum of the
-        three is out of reach however the chest turns. Two limbs whose targets are farther apart than their
-        reaches and the (turn-invariant) distance between their bases cannot both reach: when the one the
-        priorities keep (the higher, or the earlier on a tie) is out of reach itself, the one they drop cannot
-        be helped either (while the kept one can reach, the passes still refine its placement). Such a frame
-        has its best-effort answer after one placement."""
-        tol = self.settings.chain.tolerance
-        base0 = self.chain0["trunk"][:, 0]
-        legs = self._legs()
-        # Where the trunk base may go: balls about each constrained ankle target, carried from hip to base.
-        centres = [self.limb_target[n] - (self.chain0[n][:, 0] - base0) for n in legs]
-        radii = [self.reach_eff[n] + tol for n in legs]
-        active = [self.limb_active[n] for n in legs]
-        alone = {}
-        for n in upper:
-            reach = self.reach["trunk"] + norm(offsets[n]) + self.reach_eff[n] + tol
-            _, alone[n] = nearest_in_balls(base0, np.stack(centres + [self.limb_target[n]], axis=1),
-                                           np.stack(radii + [reach], axis=1), np.stack(active + [self.limb_active[n]], axis=1))
-        out = dict(alone)
-        for i, a in enumerate(upper):
-            for b in upper[i + 1:]:
-                kept, dropped = (a, b) if self.limb_priority[b] <= self.limb_priority[a] else (b, a)
-                apart = norm(self.limb_target[a] - self.limb_target[b]) > (
-                    norm(offsets[a] - offsets[b]) + self.reach_eff[a] + self.reach_eff[b] + tol)
-                out[dropped] = out[dropped] & ~(self.limb_active[kept] & ~alone[kept] & apart)
-        return out
-
-    def _propagate(self, delta, trunk):
-        """Top-down pass over the bones, one hierarchy level at a time: new heads, tails and world rotation
-        deltas; limbs other than the trunk are solved when their first bone is reached (their base then rides
-        on its parent)."""
-        model, F, H0, T0 = self.model, self.F, self.H0, self.T0
-        J = len(model.names)
-        heads = H0.copy()
-        rot = np.broadcast_to(_EYE, (F, J, 3, 3)).copy()
-        moved = np.zeros((F, J), dtype=bool)
-        solves = {"trunk": trunk}
-
-        for rigid, par, limb_bones in self.prepared.levels:
-            # Rigid children of their parents (overridden below for solved chain bones); where the parent did
-            # not move, a bone stays as initialised (its parent's rotation is then the identity).
-            if rigid.size:
-                mp = moved[:, par]
-                if mp.any():
-                    h = heads[:, par] + apply_matrix(rot[:, par], H0[:, rigid] - H0[:, par])
-                    heads[:, rigid] = np.where(mp[..., None], h, H0[:, rigid])
-                    rot[:, rigid] = rot[:, par]
-                    moved[:, rigid] = mp
-            for j, p, role, name, k in limb_bones:
-                if role == ROOT:
-                    heads[:, j] = H0[:, j] + delta  # x + 0.0 == x: an unmoved root stays bit-exact
-                    moved[:, j] = np.any(delta != 0.0, axis=1)
-                elif role == CHAIN:
-                    if k == 0 and name not in solves:
-                        solves[name] = self._solve_limb(name, heads[:, j], rot[:, p] if p >= 0 else None,
-                                                        moved[:, p] if p >= 0 else np.zeros(F, dtype=bool))
-                    ls = solves[name]
-                    s = ls.solved
-                    if np.any(s):
-                        heads[s, j] = ls.joints[s, k]
-                        rot[s, j] = ls.segment_rotations(self.chain0[name], self.limits.get(name))[s, k]
-                        moved[s, j] = True
-                else:
-                    ls = solves[name]
-                    s = ls.solved
-                    if np.any(s):
-                        # Hands, feet and the head keep their world orientation on a solved limb.
-                        heads[s, j] = ls.joints[s, -1]
-                        rot[s, j] = _EYE
-                        moved[s, j] = True
-                    if name in self.end_turns:  # ... or turn toward a wanted orientation
-                        w = np.nonzero(np.isfinite(self.end_turns[name][:, 0, 0]))[0]
-                        rot[w, j] = end_rotation(self.end_turns[name][w], rot[w, p], T0[w, j] - H0[w, j])
-                        moved[w, j] = True
-        leaves, anchors = self.prepared.leaves
-        if leaves.size:
-            ma = moved[:, anchors]
-            if ma.any():
-                h = heads[:, anchors] + apply_matrix(rot[:, anchors], H0[:, leaves] - H0[:, anchors])
-                heads[:, leaves] = np.where(ma[..., None], h, H0[:, leaves])
-                rot[:, leaves] = rot[:, anchors]
-                moved[:, leaves] = ma
-        tails = np.where(moved[..., None], heads + apply_matrix(rot, T0 - H0), T0) if np.any(moved) else T0.copy()
-        return heads, tails, rot, solves
-
-    def _solve_limb(self, name, base, parent_rot, parent_moved):
-        """Solve limb `name` on the frames where its effector has a target, from its base `base` (F,3) riding
-        on its parent (rotation parent_rot (F,3,3), moved (F,) bool); the start chain is the old one carried
-        rigidly. A limb whose parent did not move and whose start pose already meets its target (within its
-        limits, clear of the obstacles) stays exactly as it was: not solved, so its bones keep their
-        positions bit-exact and their rotations exactly identity ("moves only the joints that need to")."""
-        F = self.F
-        c0 = self.chain0[name]
-        r = np.broadcast_to(_EYE, (F, 3, 3)) if parent_rot is None else parent_rot
-        carried = base[:, None, :] + np.einsum("fij,fkj->fki", r, c0 - c0[:, :1])
-        carried = np.where(parent_moved[:, None, None], carried, c0)  # (c0 - b) + b may differ from c0 by 1 ulp
-        solved = self.limb_active[name].copy()
-        status = np.full(F, "", dtype=object)
-        reason = np.full(F, "", dtype=object)
-        joints = carried
-        rows = np.nonzero(solved)[0]
-        untouched = self._untouched_start(name, rows, parent_moved)
-        if untouched.any():
-            # The chain solve's status of a start at its target within reach: reached in 0 iterations.
-            for f in rows[untouched].tolist():
-                status[f], reason[f] = _final_status(True, True, 0.0, 1.0, 0.0, False, 0, False, False)
-            solved[rows[untouched]] = False
-            rows = rows[~untouched]
-        if rows.size:
-            res = self._solve(name, rows, carried[rows], self.limb_target[name][rows], carry=r[rows])
-            joints = carried.copy()
-            joints[rows] = res.positions
-            status[rows] = res.status
-            reason[rows] = res.reason
-            # The chain returns a valid start pose that meets its target untouched (0 iterations).
-            kept = (res.iterations == 0) & ~parent_moved[rows] & np.all(res.positions == c0[rows], axis=(1, 2))
-            solved[rows[kept]] = False
-        return LimbSolve(joints, solved, status, reason)
-
-    def _untouched_start(self, name, rows, parent_moved):
-        """(b,) bool over frames `rows`: the chain solve would return limb `name`'s start chain untouched (0
-        iterations, status reached: parent not moved, the target within reach and met at the start, the start
-        within the limb's limits and, with obstacles, every joint and segment and the target outside every
-        box), known from the prepared start pose without building a chain solve."""
-        keep = ~parent_moved[rows]
-        if not keep.any():
-            return keep
-        c0, target = self.chain0[name][rows], self.limb_target[name][rows]
-        keep &= (norm(c0[:, -1] - target) <= self.settings.chain.tolerance) \
-            & ~(norm(target - c0[:, 0]) > self.reach[name][rows])
-        if keep.any() and self.obstacles is not None:
-            # Clear of every box, the chain solve finds nothing to respond to and nothing to note.
-            boxes = self.obstacles.select(rows)
-            keep &= ~points_inside(c0, boxes).any(axis=(1, 2)) & ~points_inside(target, boxes).any(axis=1) \
-                & ~segments_cross(c0[:, :-1], c0[:, 1:], boxes).any(axis=(1, 2))
-        ll = self.limits.get(name)
-        if keep.any() and ll is not None and ll.limits.any_active:
-            if not self.default_limits:  # the caller's limits: only a chain solve checks them
-                return np.zeros(rows.size, dtype=bool)
-            keep &= self.prepared.start_keeps_limits(name, self.settings.chain)[self.start_frames[rows]]
-        return keep
 
     def _result(self, heads, tails, rotations, solves) -> AdjustBatchResult:
         model, F = self.model, self.F

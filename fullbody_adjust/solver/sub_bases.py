@@ -158,6 +158,37 @@ class SubBasePlacement:
                 reason[s2[fixed]] = "reached after the pelvis moved by the remaining error"
         return delta, sc_star, joints, need_sc, status, reason
 
+    def _fixable(self, upper, offsets):
+        """{upper limb: (F,) bool}: whether re-placing the SC could still bring the limb's target into reach.
+        Turning the chest moves an arm base on a sphere of radius |offset| about the SC, the SC stays within
+        the trunk's reach of the trunk base, and the trunk base moves with the root only where every
+        constrained foot still reaches its target: a target no such trunk base puts within the sum of the
+        three is out of reach however the chest turns. Two limbs whose targets are farther apart than their
+        reaches and the (turn-invariant) distance between their bases cannot both reach: when the one the
+        priorities keep (the higher, or the earlier on a tie) is out of reach itself, the one they drop cannot
+        be helped either (while the kept one can reach, the passes still refine its placement). Such a frame
+        has its best-effort answer after one placement."""
+        tol = self.settings.chain.tolerance
+        base0 = self.chain0["trunk"][:, 0]
+        legs = self._legs()
+        # Where the trunk base may go: balls about each constrained ankle target, carried from hip to base.
+        centres = [self.limb_target[n] - (self.chain0[n][:, 0] - base0) for n in legs]
+        radii = [self.reach_eff[n] + tol for n in legs]
+        active = [self.limb_active[n] for n in legs]
+        alone = {}
+        for n in upper:
+            reach = self.reach["trunk"] + norm(offsets[n]) + self.reach_eff[n] + tol
+            _, alone[n] = nearest_in_balls(base0, np.stack(centres + [self.limb_target[n]], axis=1),
+                                           np.stack(radii + [reach], axis=1), np.stack(active + [self.limb_active[n]], axis=1))
+        out = dict(alone)
+        for i, a in enumerate(upper):
+            for b in upper[i + 1:]:
+                kept, dropped = (a, b) if self.limb_priority[b] <= self.limb_priority[a] else (b, a)
+                apart = norm(self.limb_target[a] - self.limb_target[b]) > (
+                    norm(offsets[a] - offsets[b]) + self.reach_eff[a] + self.reach_eff[b] + tol)
+                out[dropped] = out[dropped] & ~(self.limb_active[kept] & ~alone[kept] & apart)
+        return out
+
     # -- the whole solve -------------------------------------------------------------------------------------
 
     _PER_FRAME = ("H0", "T0", "targets", "active_e", "iterations")
