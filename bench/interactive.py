@@ -109,8 +109,10 @@ class Scene:
                    / self.arm_reach[s] for s in "LR")
 
     def reset(self):
-        """Back to the rest pose without keys, so every measure of a case starts from the same pose."""
-        self.obj.animation_data_clear()
+        """Back to the rest pose without keys, so every measure of a case starts from the same pose. Only the
+        action goes: a generated rig's drivers (its IK/FK switches) stay."""
+        if self.obj.animation_data is not None:
+            self.obj.animation_data.action = None
         for pose_bone in self.obj.pose.bones:
             pose_bone.matrix_basis = Matrix.Identity(4)
         bpy.context.view_layer.update()

@@ -14,9 +14,14 @@ Each control is paired with one bone it drives, in one of two ways:
 - scale: the control is the first bone of a stretchy IK chain (Rigify's IK shrinks or stretches its bones to
   reach), scaled by the ratio of the bone's desired to its evaluated axis lengths, as Rigify's own IK-to-FK
   snapping does.
-Pairs are applied level by level, parents' controls first, with one evaluation of the rig between levels, and
-the sweep is repeated until every driven bone is within tolerance. Nothing here knows a rig's names: the rig
-module (``control_rig``) says which control drives which bone.
+Pairs are applied level by level, parents' controls first, and the sweep is repeated until every driven bone is
+within tolerance. An evaluation of the rig costs about as much as Blender's own IK on it, so a level is
+evaluated only when the moves since the last evaluation leave its pairs' matrices unknown: a rigid pair whose
+control hangs (in the pose hierarchy) below a control moved since, or below the bone that control drives, is
+carried by that move, control and bone alike, and is placed from the carried matrices; pairs of other limbs
+are unaffected (limbs are independent given the trunk); anything else (a bend or scale pair after a move of
+its limb, a move of the trunk, a limb between IK and FK) is evaluated first. Nothing here knows a rig's names:
+the rig module (``control_rig``) says which control drives which bone.
 """
 
 from dataclasses import dataclass
@@ -35,6 +40,10 @@ _CONTROL_MOVED = 1e-7
 _STALLED = 0.7
 
 
+# The group of the trunk's pairs: a move of the trunk carries every limb.
+TRUNK_GROUP = "trunk"
+
+
 @dataclass(frozen=True)
 class ControlPair:
     """``control`` drives ``bone``; controls of lower ``level`` are placed first."""
@@ -44,6 +53,9 @@ class ControlPair:
     level: int
     end: str = None  # bend pairs: the bone whose head ends the chain (hand, foot)
     kind: str = "rigid"  # 'rigid' | 'bend' | 'scale'
+    # The limb (or TRUNK_GROUP) whose bones the pair poses; pairs of different limbs do not affect each other.
+    # None: unknown, every move is evaluated before the pair is placed.
+    group: str = None
 
     @property
     def bends(self):
@@ -72,12 +84,7 @@ def _axis_scales(matrix):
 
 
 def _pair_error(pose_bones, pair, desired, lengths):
-    bone = _matrix(pose_bones[pair.bone])
-    if pair.kind == "scale":
-        return float(np.max(np.abs(_axis_scales(bone) - _axis_scales(desired[pair.bone])))) * lengths[pair.bone]
-    if pair.bends:
-        return float(np.linalg.norm(_middle(bone, lengths[pair.bone]) - _middle(desired[pair.bone], lengths[pair.bone])))
-    return _bone_error(bone, desired[pair.bone], lengths[pair.bone])
+    return _error(_matrix(pose_bones[pair.bone]), pair, pose_bones, desired, lengths)
 
 
 def _bend_step(pose_bones, pair, desired, lengths):
@@ -106,23 +113,33 @@ def _bend_step(pose_bones, pair, desired, lengths):
 
 def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
     """Place the controls of ``pairs`` so each pair's bone reaches ``desired[bone]`` (4x4 armature-space
-    matrices). Evaluates the rig (``view_layer.update()``) between levels. Returns the largest remaining bone
-    error (armature units) after the last sweep; the controls' channels are left set."""
+    matrices). Evaluates the rig (``view_layer.update()``) where the moves since the last evaluation leave a
+    level's matrices unknown (module notes), and after each sweep. Returns the largest remaining bone error
+    (armature units) after the last sweep; the controls' channels are left set."""
     pose_bones = obj.pose.bones
     levels = sorted({p.level for p in pairs})
     by_level = [[p for p in pairs if p.level == level] for level in levels]
     lengths = {p.bone: pose_bones[p.bone].bone.length for p in pairs}
+    above = {p.control: {b.name for b in pose_bones[p.control].parent_recursive} for p in pairs}
     view_layer.update()
     error = np.inf
     for _sweep in range(max_sweeps):
+        pending = []  # (pair, armature-space step) of the controls moved since the last evaluation
         for level_pairs in by_level:
+            if pending and not all(_carried_or_apart(pair, pending, above) is not None for pair in level_pairs):
+                view_layer.update()
+                pending = []
             moves, scales = [], []
             for pair in level_pairs:
-                if _pair_error(pose_bones, pair, desired, lengths) <= tolerance:
+                carry = _carried_or_apart(pair, pending, above) if pending else None
+                bone = _matrix(pose_bones[pair.bone])
+                if carry is not None:
+                    bone = carry @ bone
+                if _error(bone, pair, pose_bones, desired, lengths) <= tolerance:
                     continue
                 control = pose_bones[pair.control]
                 if pair.kind == "scale":
-                    ratio = _axis_scales(desired[pair.bone]) / _axis_scales(_matrix(pose_bones[pair.bone]))
+                    ratio = _axis_scales(desired[pair.bone]) / _axis_scales(bone)
                     scales.append((control, np.array(control.scale) * ratio))
                     continue
                 if pair.bends:
@@ -130,19 +147,57 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
                     if step is None:
                         continue
                 else:
-                    step = desired[pair.bone] @ np.linalg.inv(_matrix(pose_bones[pair.bone]))
-                moves.append((control, step @ _matrix(control)))
+                    step = desired[pair.bone] @ np.linalg.inv(bone)
+                if carry is None:
+                    moves.append((pair, control, step, step @ _matrix(control)))
+                else:
+                    # Blender turns an armature-space matrix into channels against the parent's evaluated
+                    # matrix, which the carry has not reached yet: hand it the matrix relative to that.
+                    new = step @ carry @ _matrix(control)
+                    moves.append((pair, control, step @ carry, np.linalg.inv(carry) @ new))
             if not moves and not scales:
                 continue
-            for control, new in moves:
+            for pair, control, step, new in moves:
                 control.matrix = Matrix(new.tolist())
+                pending.append((pair, step))
             for control, scale in scales:
                 control.scale = scale.tolist()
+            if scales:
+                view_layer.update()
+                pending = []
+        if pending:
             view_layer.update()
         previous, error = error, max(_pair_error(pose_bones, p, desired, lengths) for p in pairs)
         if error <= tolerance or error > _STALLED * previous:
             break  # met, or a sweep no longer helps (an IK chain's own solver tolerance, a stretchy chain)
     return error
+
+
+def _carried_or_apart(pair, pending, above):
+    """How the moves ``pending`` (pair, step) since the last evaluation move ``pair``'s control and bone: the
+    armature-space motion of the nearest moved control above it (the last one: levels are placed parents
+    first, and a recorded step is the control's whole motion since the evaluation), the identity when only
+    other limbs moved, or None when a move may move it in a way not known without evaluating the rig (the
+    trunk's controls blend into each other, so a trunk move is always evaluated)."""
+    carry = np.eye(4)
+    for moved, step in pending:
+        groups = (moved.group, pair.group)
+        if None not in groups and TRUNK_GROUP not in groups and moved.group != pair.group:
+            continue  # another limb
+        if None in groups or TRUNK_GROUP in groups or pair.kind != "rigid" \
+                or not ({moved.control, moved.bone} & above[pair.control]):
+            return None
+        carry = step
+    return carry
+
+
+def _error(bone, pair, pose_bones, desired, lengths):
+    """_pair_error from the bone's (possibly carried) matrix ``bone``."""
+    if pair.kind == "scale":
+        return float(np.max(np.abs(_axis_scales(bone) - _axis_scales(desired[pair.bone])))) * lengths[pair.bone]
+    if pair.bends:
+        return float(np.linalg.norm(_middle(bone, lengths[pair.bone]) - _middle(desired[pair.bone], lengths[pair.bone])))
+    return _bone_error(bone, desired[pair.bone], lengths[pair.bone])
 
 
 def control_channels(obj, view_layer, pairs, bones, desired, tolerance, rows):

@@ -26,7 +26,7 @@ import re
 
 import numpy as np
 
-from .control_match import ControlPair
+from .control_match import TRUNK_GROUP, ControlPair
 
 ORG = "ORG-"
 _SUFFIX = re.compile(r"^(.*)\.(\d{3})$")
@@ -136,24 +136,27 @@ def control_pairs(obj, bone_map):
     mapped = {bone for _group, bone in bone_map.items()}
     pairs = []
 
-    def add(control, bone, level, end=None, kind="rigid"):
+    def add(control, bone, level, end=None, kind="rigid", group=None):
         if control in bones and bone in mapped:
-            pairs.append(ControlPair(control, bone, level, end, kind))
+            pairs.append(ControlPair(control, bone, level, end, kind, group))
 
     for name, (control, level) in _TRUNK.items():
-        add(control, ORG + name, level)
+        add(control, ORG + name, level, group=TRUNK_GROUP)
     for mode in limb_modes(obj):
         limb, side = mode.limb.split(".")
         _switch, chain, fk, ik_end, pole, ik_base = _LIMBS[limb]
+        # A limb between IK and FK follows a blend of both chains: no control carries its bones rigidly.
+        group = mode.limb if mode.ik_fk in (0.0, 1.0) else None
         if limb == "arm":
-            add(f"shoulder.{side}", f"{ORG}shoulder.{side}", _CLAVICLE_LEVEL)
+            add(f"shoulder.{side}", f"{ORG}shoulder.{side}", _CLAVICLE_LEVEL, group=group)
         org = [f"{ORG}{b}.{side}" for b in chain]
         if mode.ik_fk > 0.0:
             for k, control in enumerate(fk):
-                add(f"{control}.{side}", org[k], _CLAVICLE_LEVEL + 1 + k)
+                add(f"{control}.{side}", org[k], _CLAVICLE_LEVEL + 1 + k, group=group)
         if mode.ik_fk < 1.0:
-            add(f"{ik_end}.{side}", org[2], _CLAVICLE_LEVEL + 1)
+            add(f"{ik_end}.{side}", org[2], _CLAVICLE_LEVEL + 1, group=group)
             bend_control = f"{pole}.{side}" if mode.pole else f"{ik_base}.{side}"
-            add(bend_control, org[0], _CLAVICLE_LEVEL + 2, end=org[2], kind="bend")
-            add(f"{ik_base}.{side}", org[0], _CLAVICLE_LEVEL + 3, kind="scale")
+            add(bend_control, org[0], _CLAVICLE_LEVEL + 2, end=org[2], kind="bend", group=group)
+            # Scaled from the same evaluation as the bend: turning the chain about its axis leaves its scale.
+            add(f"{ik_base}.{side}", org[0], _CLAVICLE_LEVEL + 2, kind="scale", group=group)
     return pairs
