@@ -122,6 +122,7 @@ def run(out):
 
 
 def measure(dirs):
+    from fullbody_adjust.bridge.retarget_read import rig_of
     from fullbody_adjust.solver import retarget as rt
     results = {}
     for clip in sorted(p.name for p in MOCAP_DIR.glob("*.bvh")):
@@ -131,7 +132,7 @@ def measure(dirs):
                 contacts = ["ground"] + ([("object", bar)] if bar else [])
                 prepared = retarget.prepare(bpy.context, source, target, int(frames[0]), int(frames[-1]),
                                             contacts=contacts)
-            plan, rig = prepared.plan, retarget._rig(target, mapping.load_map(target))
+            plan, rig = prepared.plan, rig_of(target, mapping.load_map(target))
             names = [b.name for b in target.data.bones]
             order = [names.index(n) for n in rig.names]
             s_heads, s_tails = prepared.source.world_points(prepared.source_pose)

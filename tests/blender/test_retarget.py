@@ -15,6 +15,7 @@ import pytest
 from fullbody_adjust.bridge import keyframes, mapping, retarget
 from fullbody_adjust.bridge.errors import AdjustError
 from fullbody_adjust.bridge.pose import read_pose_frames
+from fullbody_adjust.bridge.retarget_read import read_motion, rig_of, source_map
 from fullbody_adjust.solver import retarget as rt
 from tests.helpers.bvh import CMU_SCALE, MOCAP_DIR
 
@@ -124,7 +125,7 @@ def foot_points(rig, frames, effector):
 
 def source_foot_points(source, frames, effector):
     """foot_points of the source (its bone map read, not stored)."""
-    foot = source.data.bones[retarget._source_map(source).bones(effector)[0]]
+    foot = source.data.bones[source_map(source).bones(effector)[0]]
     bones = bone_indices(source, [foot.name] + [b.name for b in foot.children_recursive])
     snapshot = read_pose_frames(source, np.asarray(frames, dtype=float))
     return np.concatenate([snapshot.heads[:, bones], snapshot.tails[:, bones]], axis=1)
@@ -150,7 +151,7 @@ def slides(points, runs):
 
 def source_floor(source, frames):
     """The floor under the source: the 2nd percentile of its lowest foot points, evaluated by Blender."""
-    rig = retarget._rig(source, retarget._source_map(source))
+    rig = rig_of(source, source_map(source))
     return np.percentile(rt.sole_heights(rig, evaluated_heads(source, frames), evaluated_tails(source, frames)), 2)
 
 
@@ -161,8 +162,8 @@ def source_floor(source, frames):
 def test_the_f_curves_give_the_pose_blender_evaluates():
     source = import_clip()
     frames = np.arange(2, 60, 3, dtype=float)
-    rig = retarget._rig(source, retarget._source_map(source))
-    fast, world, how = retarget.read_motion(source, rig, frames)
+    rig = rig_of(source, source_map(source))
+    fast, world, how = read_motion(source, rig, frames)
     assert how == "F-Curves"
     evaluated = read_pose_frames(source, frames)
     np.testing.assert_allclose(fast, evaluated.pose_matrices, atol=2e-5)
@@ -174,9 +175,9 @@ def test_a_constrained_source_is_read_frame_by_frame():
     constraint = source.pose.bones["LeftForeArm"].constraints.new('LIMIT_ROTATION')
     constraint.use_limit_x = True
     constraint.owner_space = 'LOCAL'
-    rig = retarget._rig(source, retarget._source_map(source))
+    rig = rig_of(source, source_map(source))
     frames = np.arange(2, 30, 3, dtype=float)
-    pose, _world, how = retarget.read_motion(source, rig, frames)
+    pose, _world, how = read_motion(source, rig, frames)
     assert how == "frame by frame"
     np.testing.assert_allclose(pose, read_pose_frames(source, frames).pose_matrices, atol=1e-6)
 
@@ -205,7 +206,7 @@ def test_retarget_onto_another_skeleton_reaches_holds_and_leaves_the_source_alon
     frames = frames_of(outcome)
     heads = evaluated_heads(target, frames)[:, bone_indices(target, effector_bones(target))]
     reach = np.linalg.norm(heads - outcome.targets, axis=-1)
-    size = rt.leg_length(retarget._rig(target, mapping.load_map(target)))
+    size = rt.leg_length(rig_of(target, mapping.load_map(target)))
     assert np.percentile(reach, 99) < 1e-4 * size and reach.max() < 1e-3 * size
 
     # Planted feet do not slide: the point each turns about (heel, ball, toes) stays where it is.
@@ -227,7 +228,7 @@ def test_retargeted_motion_is_as_smooth_as_the_source():
         bone_map = mapping.load_map(rig) or mapping.map_rig(mapping.describe_armature(rig))
         bones = [b for _, b in bone_map.items()]
         heads = evaluated_heads(rig, frames)[:, bone_indices(rig, bones)]
-        roughness.append(rt.roughness(heads, rt.leg_length(retarget._rig(rig, bone_map))).max())
+        roughness.append(rt.roughness(heads, rt.leg_length(rig_of(rig, bone_map))).max())
     assert roughness[1] <= 1.5 * roughness[0]
 
 
@@ -242,7 +243,7 @@ def test_a_scaled_copy_of_the_source_follows_it_scaled():
     frames = frames_of(outcome)
     s_heads = evaluated_heads(source, frames)
     t_heads = evaluated_heads(target, frames)
-    s_rig = retarget._rig(source, retarget._source_map(source))
+    s_rig = rig_of(source, source_map(source))
     hips = [s_rig.groups["leg.L"][0], s_rig.groups["leg.R"][0]]
     s_anchor = s_rig.rest[hips, :3, 3].mean(axis=0)
     t_anchor = 0.85 * s_anchor
@@ -266,7 +267,7 @@ def test_soles_rest_on_the_floor_never_below_it_and_do_not_slide(fps, speed, sca
     outcome = retarget.retarget(bpy.context, source, target, *((None, None) if fps else FRAMES))
     frames = frames_of(outcome)
     floor = source_floor(source, frames)
-    size = rt.leg_length(retarget._rig(target, mapping.load_map(target)))
+    size = rt.leg_length(rig_of(target, mapping.load_map(target)))
     figures = outcome.contact_report["effectors"]
     assert outcome.contact_report["floor"] == pytest.approx(floor, abs=1e-5)
     planted = 0
