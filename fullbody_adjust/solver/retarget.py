@@ -63,8 +63,8 @@ from .body import BodyModel, HumanLimits, LimbLimits, default_limits
 from .geometry import apply_matrix, cross, dot, norm
 from .limits import HINGE
 # The retargeting API in one namespace (the bridge and tests use ``retarget.X``).
-from .contacts import (GROUND, OBJECT, RAISED, Contact, RetargetSettings, box_distance,  # noqa: F401
-                       detect_contacts, detect_plants, hold, intervals)
+from .contacts import (GROUND, OBJECT, RAISED, Contact, ContactDetection, RetargetSettings,  # noqa: F401
+                       box_distance, detect_contacts, detect_plants, hold, intervals)
 from .retarget_metrics import angular_roughness, contact_figures, roughness  # noqa: F401
 from .retarget_plan import RetargetPlan, body_shift, moving_average, plan_retarget  # noqa: F401
 from .retarget_rig import (EFFECTORS, Rig, affine_inverse, ankle_above_sole, basis_from_pose,  # noqa: F401

@@ -416,7 +416,8 @@ def test_a_step_is_found_as_two_plants():
     assert a0 == 0 and b1 == frames
     # The plants end and start where the foot is still moving slower than the threshold.
     speed = np.linalg.norm(np.gradient(ankle, axis=0), axis=1) * FPS
-    assert np.all(speed[a0:b0] < settings.plant_speed * 0.9) and np.all(speed[a1:b1] < settings.plant_speed * 0.9)
+    limit = settings.detection.plant_speed * 0.9
+    assert np.all(speed[a0:b0] < limit) and np.all(speed[a1:b1] < limit)
     assert 38 <= b0 <= 41 and 79 <= a1 <= 82
 
 
@@ -639,6 +640,10 @@ def test_bad_plans_are_clear_errors():
         rt.plan_retarget(source, pose, target, identity)
     with pytest.raises(SolverInputError, match="fps"):
         rt.RetargetSettings(fps=0)
+    with pytest.raises(SolverInputError, match="plant_speed"):
+        rt.RetargetSettings(detection=rt.ContactDetection(plant_speed=-1.0))
+    with pytest.raises(SolverInputError, match="detection"):
+        rt.RetargetSettings(detection={"plant_speed": 0.3})
 
 
 def test_motion_limits_fix_each_hinge_in_its_upper_bone():
