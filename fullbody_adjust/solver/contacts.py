@@ -194,15 +194,18 @@ def hold(free, holds, blend):
     """Trajectory (F,3): ``free`` (F,3), with each hold (start, stop, path[, (blend_in, blend_out)]) of
     ``holds`` following ``path`` (a point (3,) or one per frame (stop-start,3)) over [start, stop), blended in
     and out over ``blend`` frames either side (or the hold's own blend_in before and blend_out after;
-    smoothstep weights; before the hold its first point, after it its last), never into another hold's
-    frames; where the blends of two holds overlap, their paths are averaged by weight, so the result is
-    continuous wherever two holds are apart."""
+    smoothstep weights), never into another hold's frames. What is blended is the hold's offset from the free
+    trajectory where the hold begins (before it) or ends (after it), carried along the free trajectory: the
+    effector keeps the free motion and moves at most 1.5 |offset| / (blend + 1) further per frame, however
+    fast the free trajectory runs towards or away from the held point. Where the blends of two holds overlap,
+    their offsets are averaged by weight, so the result is continuous wherever two holds are apart."""
     free = np.asarray(free, dtype=np.float64)
     if not holds:
         return free.copy()
     f = np.arange(len(free))
     total = np.zeros(len(free))
     weighted = np.zeros(free.shape)
+    inside = []
     for h in holds:
         start, stop, path = h[:3]
         blend_in, blend_out = h[3] if len(h) > 3 else (blend, blend)
@@ -213,9 +216,12 @@ def hold(free, holds, blend):
         x = np.clip(1.0 - np.maximum(outside, 0.0), 0.0, 1.0)
         w = x * x * (3.0 - 2.0 * x)
         path = np.asarray(path, dtype=np.float64)
-        extended = path if path.ndim == 1 else path[np.clip(f - start, 0, len(path) - 1)]
+        within = np.clip(f, start, stop - 1)
+        extended = path if path.ndim == 1 else path[within - start]
         total += w
-        weighted += w[:, None] * extended
-    mix = weighted / np.maximum(total, 1e-300)[:, None]
-    amount = np.minimum(total, 1.0)[:, None]
-    return free + amount * (mix - free)
+        weighted += w[:, None] * (extended - free[within])
+        inside.append((start, stop, extended[start:stop] if path.ndim > 1 else path))
+    out = free + np.minimum(total, 1.0)[:, None] * (weighted / np.maximum(total, 1e-300)[:, None])
+    for start, stop, path in inside:
+        out[start:stop] = path  # exactly the held path (free + offset rounds)
+    return out

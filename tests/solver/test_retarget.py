@@ -429,12 +429,26 @@ def test_holds_are_still_inside_and_blend_without_a_jump():
     np.testing.assert_array_equal(out[30:50], np.broadcast_to(held_point, (20, 3)))
     np.testing.assert_array_equal(out[:30 - blend - 1], free[:30 - blend - 1])
     np.testing.assert_array_equal(out[50 + blend + 1:], free[50 + blend + 1:])
-    # Smoothstep over blend+1 frames: a step at most 1.5/(blend+1) of the largest gap between the held point
-    # and the free trajectory over the blends, plus the free step.
-    window = np.r_[30 - blend - 1:30, 50:50 + blend + 1]
-    jump = np.linalg.norm(held_point - free[window], axis=1).max()
+    # Smoothstep over blend+1 frames of the offset from the free trajectory where the hold begins or ends: a
+    # step at most 1.5/(blend+1) of that offset more than the free step, however far the free trajectory
+    # runs from the held point meanwhile.
+    jump = max(np.linalg.norm(held_point - free[30]), np.linalg.norm(held_point - free[49]))
     steps = np.linalg.norm(np.diff(out, axis=0), axis=1)
     assert steps.max() <= 1.5 * jump / (blend + 1) + np.linalg.norm(free[1] - free[0]) + 1e-12
+
+
+def test_a_hold_approached_fast_is_entered_no_faster_than_its_offset_allows():
+    """A hand swinging up fast onto a bar held a little aside: before the hold it keeps the free motion and
+    moves at most 1.5/(blend+1) of the offset at the hold's first frame faster than it."""
+    frames = 60
+    free = np.zeros((frames, 3))
+    free[:, 2] = np.minimum(np.arange(frames), 30) * 0.05  # 5 cm a frame up to the bar at frame 30
+    bar = free[30] + np.array([0.12, 0.0, 0.02])
+    blend = 6
+    out = rt.hold(free, [(30, 45, bar)], blend)
+    np.testing.assert_array_equal(out[30:45], np.broadcast_to(bar, (15, 3)))
+    extra = np.linalg.norm(np.diff(out - free, axis=0), axis=1)
+    assert extra.max() <= 1.5 * np.linalg.norm(bar - free[30]) / (blend + 1) + 1e-12
 
 
 def test_overlapping_holds_blend_continuously():
