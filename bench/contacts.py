@@ -17,6 +17,12 @@ versions of the package are measured the same way:
 Per case and effector: contact frames, contact error (max, p95: a foot, its lowest point to what it stands
 on; a hand, its nearest point to the bar's box), sliding p95 over plants, frames below the floor, pops
 (frame-to-frame steps of the wrist or ankle faster than the source's, scaled, by 1.5 leg lengths per second).
+
+Per case, naturalness as in bench/fullbody.py's Table 1: the mean joint angle error (radians) against the
+source's pose on the same frame (angles between adjacent segments of the trunk, arm and leg chains, and each
+chain's first segment against its parent segment; both skeletons have chains of the same lengths), of each
+result and of the unadjusted start pose (the source's rotations carried onto the target, before the targets
+are reached), over all frames and, on the climb, over the hang (both hands on the bar).
 """
 
 import argparse
@@ -54,6 +60,7 @@ import fullbody_adjust  # noqa: E402
 from fullbody_adjust.bridge import mapping, retarget  # noqa: E402
 from fullbody_adjust.bridge.pose import read_pose_frames  # noqa: E402
 from tests.helpers.bvh import CMU_SCALE, MOCAP_DIR  # noqa: E402
+from tests.helpers.climb_bar import add_bar  # noqa: E402
 
 
 @contextlib.contextmanager
@@ -88,14 +95,7 @@ def build(clip, scale):
     if clip == CLIMB:
         names = [b.name for b in source.data.bones]
         wrists = read_pose_frames(source, frames).heads[:, [names.index("LeftHand"), names.index("RightHand")]]
-        speed = np.linalg.norm(np.gradient(wrists, axis=0), axis=-1) * FPS
-        high = wrists[..., 2] > np.percentile(wrists[..., 2], 75)  # hanging: the hands above the head
-        points = wrists[(speed < 0.1).all(axis=1) & high.all(axis=1)].reshape(-1, 3)
-        bpy.ops.mesh.primitive_cube_add()
-        bar = bpy.context.active_object
-        bar.name = "Bar"
-        bar.location = (points.min(axis=0) + points.max(axis=0)) / 2
-        bar.scale = (points.max(axis=0) - points.min(axis=0)) / 2 + 0.02
+        bar = add_bar(wrists, FPS)
     bpy.ops.object.armature_basic_human_metarig_add()
     target = bpy.context.active_object
     target.scale = (scale,) * 3
@@ -121,7 +121,26 @@ def run(out):
             print(f"ran {clip} x{scale}", file=sys.stderr)
 
 
+def angles_of(rig, heads, tails):
+    """(F,A) joint angles of bench/fullbody.py's Table 1 of a rig's world heads and tails (F,J,3)."""
+    from fullbody import body_chains, joint_angles
+    from fullbody_adjust.solver import retarget as rt
+    model, bones = rt.body_model(rig)
+    heads, tails = heads[:, bones], tails[:, bones]
+    return joint_angles(model, body_chains(model, heads, tails), heads, tails)
+
+
+def angle_errors(angles, source_angles, hang):
+    """Mean joint angle error (radians) against the source's, over all frames and over the hang (None where
+    the skeletons' chains differ in length or there is no hang)."""
+    if angles.shape != source_angles.shape:
+        return {"all": None, "hang": None}
+    error = np.abs(angles - source_angles).mean(axis=1)
+    return {"all": float(error.mean()), "hang": float(error[hang].mean()) if hang.any() else None}
+
+
 def measure(dirs):
+    from fullbody_adjust.bridge.retarget_read import rig_of
     from fullbody_adjust.solver import retarget as rt
     results = {}
     for clip in sorted(p.name for p in MOCAP_DIR.glob("*.bvh")):
@@ -131,16 +150,22 @@ def measure(dirs):
                 contacts = ["ground"] + ([("object", bar)] if bar else [])
                 prepared = retarget.prepare(bpy.context, source, target, int(frames[0]), int(frames[-1]),
                                             contacts=contacts)
-            plan, rig = prepared.plan, retarget._rig(target, mapping.load_map(target))
+            plan, rig = prepared.plan, rig_of(target, mapping.load_map(target))
             names = [b.name for b in target.data.bones]
             order = [names.index(n) for n in rig.names]
             s_heads, s_tails = prepared.source.world_points(prepared.source_pose)
             s_points = {e: rt.effector_points(prepared.source, s_heads, s_tails, e) for e in rt.EFFECTORS}
             listed = {e: [f"{c.kind} {c.start}-{c.stop}" for c in plan.contact_list[e]] for e in rt.EFFECTORS}
             case = {"frames": len(frames), "contacts": listed}
+            source_angles = angles_of(prepared.source, s_heads, s_tails)
+            hang = plan.contacts[:, :2].all(axis=1)  # both hands held on the bar
+            start_heads, start_tails = prepared.target.world_points(plan.start_pose)
+            case["naturalness"] = {"start_pose": angle_errors(angles_of(rig, start_heads, start_tails),
+                                                              source_angles, hang)}
             for d in dirs:
                 saved = np.load(d / f"{clip}_{scale}.npz")
                 heads, tails = saved["heads"][:, order], saved["tails"][:, order]
+                case["naturalness"][d.name] = angle_errors(angles_of(rig, heads, tails), source_angles, hang)
                 figures, _ = rt.contact_figures(
                     plan.contact_list, {e: rt.effector_points(rig, heads, tails, e) for e in rt.EFFECTORS}, s_points,
                     plan.boxes, plan.ground, rt.leg_length(rig), plan.leg_ratio, FPS)

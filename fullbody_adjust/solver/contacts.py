@@ -11,10 +11,18 @@ from .errors import SolverInputError
 from .geometry import norm
 
 
+def _check_numbers(settings, positive, at_least_zero):
+    for name in positive + at_least_zero:
+        v = getattr(settings, name)
+        if not (isinstance(v, (int, float)) and np.isfinite(v) and (v > 0 if name in positive else v >= 0)):
+            raise SolverInputError(f"{name} must be " + ("a positive number" if name in positive else "a number >= 0"))
+
+
 @dataclass(frozen=True)
-class RetargetSettings:
-    """fps: frames per second of the timeline (speeds are per second, durations in seconds: every threshold
-        holds at any frame rate); distances are in source leg lengths (any unit, any performer's size).
+class ContactDetection:
+    """What counts as a contact in the source. Speeds are per second and durations in seconds (so they hold
+    at any frame rate), distances in source leg lengths (any unit, any performer's size).
+
     plant_speed: a hand or foot whose slowest point (wrist, ankle, heel, toes) moves slower than this may be
         in contact; plant_height: a foot touches the floor when its lowest point is within this of it;
     plant_min_duration: seconds a floor or object contact lasts at least (a run's stance is short);
@@ -22,7 +30,24 @@ class RetargetSettings:
         standing on something raised (a step, a rung, uneven ground) rather than turning in the air;
     gap_duration: a contact interrupted for at most this long is one contact;
     contact_distance: a still hand or foot within this of a contact object's box touches it;
-    touch_distance: one this close touches it even while moving (a hand swinging on a bar);
+    touch_distance: one this close touches it even while moving (a hand swinging on a bar)."""
+
+    plant_speed: float = 0.3
+    plant_height: float = 0.1
+    plant_min_duration: float = 0.04
+    raised_min_duration: float = 0.12
+    gap_duration: float = 0.1
+    contact_distance: float = 0.08
+    touch_distance: float = 0.05
+
+    def __post_init__(self):
+        _check_numbers(self, ("plant_speed", "plant_height", "contact_distance"),
+                       ("plant_min_duration", "raised_min_duration", "gap_duration", "touch_distance"))
+
+
+@dataclass(frozen=True)
+class RetargetSettings:
+    """fps: frames per second of the timeline;
     blend_duration: seconds over which a held contact blends in and out of the free trajectory at least (and
         the window over which the body's shift is smoothed); blend_speed: the blend lasts longer where the
         held point is far from the free one, so the effector moves there at most about this fast (leg
@@ -33,32 +58,21 @@ class RetargetSettings:
         the root and chest where they are and one just beyond moves them, and the body pops;
     settle_margin: after smoothing the shift, each target is within its reach less this fraction;
     exact: hands on objects go to the source's own world positions and feet on raised supports to their
-        world height (otherwise both scaled like the rest of the motion); soles on the floor are always on it."""
+        world height (otherwise both scaled like the rest of the motion); soles on the floor are always on it;
+    detection: what counts as a contact (ContactDetection)."""
 
     fps: float = 24.0
-    plant_speed: float = 0.3
-    plant_height: float = 0.1
-    plant_min_duration: float = 0.04
-    raised_min_duration: float = 0.12
-    gap_duration: float = 0.1
-    contact_distance: float = 0.08
-    touch_distance: float = 0.05
     blend_duration: float = 0.1
     blend_speed: float = 1.0
     reach_margin: float = 0.03
     settle_margin: float = 0.015
     exact: bool = True
+    detection: ContactDetection = ContactDetection()
 
     def __post_init__(self):
-        for name in ("fps", "plant_speed", "plant_height", "contact_distance", "blend_speed"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
-                raise SolverInputError(f"{name} must be a positive number")
-        for name in ("plant_min_duration", "raised_min_duration", "gap_duration", "touch_distance",
-                     "blend_duration", "reach_margin", "settle_margin"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
-                raise SolverInputError(f"{name} must be a number >= 0")
+        _check_numbers(self, ("fps", "blend_speed"), ("blend_duration", "reach_margin", "settle_margin"))
+        if not isinstance(self.detection, ContactDetection):
+            raise SolverInputError("detection must be a ContactDetection")
 
     def frames(self, seconds):
         return max(int(round(seconds * self.fps)), 1)
@@ -113,8 +127,9 @@ def detect_plants(points, up, fps, leg, settings=RetargetSettings()):
     points = points[:, None] if points.ndim == 2 else points
     height = points[..., up].min(axis=1)
     low = np.percentile(height, 2) if len(height) else 0.0
-    candidate = (_speeds(points, fps) < settings.plant_speed * leg) & (height <= low + settings.plant_height * leg)
-    return intervals(candidate, settings.frames(settings.plant_min_duration), settings.frames(settings.gap_duration))
+    rule = settings.detection
+    candidate = (_speeds(points, fps) < rule.plant_speed * leg) & (height <= low + rule.plant_height * leg)
+    return intervals(candidate, settings.frames(rule.plant_min_duration), settings.frames(rule.gap_duration))
 
 
 def box_distance(points, mins, maxs):
@@ -133,10 +148,11 @@ def detect_contacts(effector, points, ground, boxes, leg, settings=RetargetSetti
     points = np.asarray(points, dtype=np.float64)
     frames = len(points)
     foot = effector.startswith("foot")
-    still = _speeds(points, settings.fps) < settings.plant_speed * leg
+    rule = settings.detection
+    still = _speeds(points, settings.fps) < rule.plant_speed * leg
     lowest = points[..., 2].min(axis=1)
-    short = settings.frames(settings.plant_min_duration)
-    gap = settings.frames(settings.gap_duration)
+    short = settings.frames(rule.plant_min_duration)
+    gap = settings.frames(rule.gap_duration)
     taken = np.zeros(frames, dtype=bool)
     found = []
 
@@ -151,15 +167,15 @@ def detect_contacts(effector, points, ground, boxes, leg, settings=RetargetSetti
         distance = box_distance(points, *boxes).min(axis=1)  # (F,K)
         nearest = distance.argmin(axis=1)
         closest = distance[np.arange(frames), nearest]
-        touching = (closest <= settings.contact_distance * leg) & (still | (closest <= settings.touch_distance * leg))
+        touching = (closest <= rule.contact_distance * leg) & (still | (closest <= rule.touch_distance * leg))
         for k in range(len(boxes[0])):
             claim(touching & (nearest == k), short, lambda a, b, k=k: Contact(
                 effector, a, b, OBJECT, float(lowest[a:b].mean()) if foot else float("nan"), k))
     if foot and ground is not None:
-        claim(still & (lowest <= ground + settings.plant_height * leg), short,
+        claim(still & (lowest <= ground + rule.plant_height * leg), short,
               lambda a, b: Contact(effector, a, b, GROUND, float(ground)))
     if foot:
-        claim(still, settings.frames(settings.raised_min_duration),
+        claim(still, settings.frames(rule.raised_min_duration),
               lambda a, b: Contact(effector, a, b, RAISED, float(lowest[a:b].mean())))
     return sorted(found, key=lambda c: c.start)
 
@@ -178,15 +194,18 @@ def hold(free, holds, blend):
     """Trajectory (F,3): ``free`` (F,3), with each hold (start, stop, path[, (blend_in, blend_out)]) of
     ``holds`` following ``path`` (a point (3,) or one per frame (stop-start,3)) over [start, stop), blended in
     and out over ``blend`` frames either side (or the hold's own blend_in before and blend_out after;
-    smoothstep weights; before the hold its first point, after it its last), never into another hold's
-    frames; where the blends of two holds overlap, their paths are averaged by weight, so the result is
-    continuous wherever two holds are apart."""
+    smoothstep weights), never into another hold's frames. What is blended is the hold's offset from the free
+    trajectory where the hold begins (before it) or ends (after it), carried along the free trajectory: the
+    effector keeps the free motion and moves at most 1.5 |offset| / (blend + 1) further per frame, however
+    fast the free trajectory runs towards or away from the held point. Where the blends of two holds overlap,
+    their offsets are averaged by weight, so the result is continuous wherever two holds are apart."""
     free = np.asarray(free, dtype=np.float64)
     if not holds:
         return free.copy()
     f = np.arange(len(free))
     total = np.zeros(len(free))
     weighted = np.zeros(free.shape)
+    inside = []
     for h in holds:
         start, stop, path = h[:3]
         blend_in, blend_out = h[3] if len(h) > 3 else (blend, blend)
@@ -197,9 +216,12 @@ def hold(free, holds, blend):
         x = np.clip(1.0 - np.maximum(outside, 0.0), 0.0, 1.0)
         w = x * x * (3.0 - 2.0 * x)
         path = np.asarray(path, dtype=np.float64)
-        extended = path if path.ndim == 1 else path[np.clip(f - start, 0, len(path) - 1)]
+        within = np.clip(f, start, stop - 1)
+        extended = path if path.ndim == 1 else path[within - start]
         total += w
-        weighted += w[:, None] * extended
-    mix = weighted / np.maximum(total, 1e-300)[:, None]
-    amount = np.minimum(total, 1.0)[:, None]
-    return free + amount * (mix - free)
+        weighted += w[:, None] * (extended - free[within])
+        inside.append((start, stop, extended[start:stop] if path.ndim > 1 else path))
+    out = free + np.minimum(total, 1.0)[:, None] * (weighted / np.maximum(total, 1e-300)[:, None])
+    for start, stop, path in inside:
+        out[start:stop] = path  # exactly the held path (free + offset rounds)
+    return out

@@ -30,19 +30,22 @@ Rz @ Ry @ Rx), quaternions (w, x, y, z), axis-angle (angle, x, y, z).
    unmapped target bones keep their local transform. The root translates so that the hip centre (midpoint
    of the hip joints) goes where the source's does, scaled about the ground below the rest hips by the
    leg-length ratio (target/source, hip joint to ankle).
-2. Effector targets (``plan_retarget``): wrists and ankles follow the source's, scaled the same way about
-   the ground (= relative to the source's hips, scaled, re-anchored on the target's) and turned by the
-   heading of the target's object relative to the source's. Each effector's contacts come from what it
-   touches in the source (contacts.detect_contacts: its slowest point still, speeds per second and
-   distances in leg lengths, so any frame rate and size): a contact object's box (hands and feet), the floor
-   (feet; the source's lowest foot points, 2nd percentile), or something raised (a foot still off both).
-   Over a contact the target is held, blended in and out over frames enough to move there without a jump:
-     - a foot: it rolls about whichever of its points is on the ground on each frame (no sliding), its
-       lowest point exactly on the floor, or on the raised support at its world height;
+2. Effector targets (``plan_retarget``): free of contacts, wrists and ankles go where the transferred pose
+   of step 1 puts them, so the solve leaves the limbs at the source's angles. Each effector's contacts come
+   from what it touches in the source (contacts.detect_contacts: its slowest point still, speeds per second
+   and distances in leg lengths, so any frame rate and size): a contact object's box (hands and feet), the
+   floor (feet; the source's lowest foot points, 2nd percentile), or something raised (a foot still off
+   both). Over a contact the target is held, its offset from the free trajectory blended in and out over
+   frames enough to move there without a jump:
+     - a foot: it rolls about whichever of its points is on the ground on each frame (no sliding), centred
+       on its free trajectory, its lowest point exactly on the floor, or on the raised support at its world
+       height;
      - a hand on an object: still at the mean of the source's own world positions (exact) or its scaled
-       ones (exact=False).
-   No foot goes below the floor. Where a target lies out of its limb's reach, the whole body shifts
-   (smoothly) so that it need not stretch: see ``RetargetSettings.reach_margin``.
+       ones (exact=False; scaled about the ground below the hips, by the leg ratio, turned by the heading).
+   No foot goes below the floor. The whole body then shifts, smoothly, as its held hands and feet moved (on
+   average), and as far again as needed to bring every target within its limb's reach less a margin (see
+   ``RetargetSettings.reach_margin``); the free trajectories move with it, so only the held limbs are
+   solved.
 3. Back to channels (``basis_from_pose`` + ``rotation_channel``): inverse kinematics of the pose matrices,
    rotations in each bone's mode, continuous from frame to frame.
 Distances in settings are in source leg lengths (so they hold for any unit and size), durations in seconds.
@@ -63,8 +66,8 @@ from .body import BodyModel, HumanLimits, LimbLimits, default_limits
 from .geometry import apply_matrix, cross, dot, norm
 from .limits import HINGE
 # The retargeting API in one namespace (the bridge and tests use ``retarget.X``).
-from .contacts import (GROUND, OBJECT, RAISED, Contact, RetargetSettings, box_distance,  # noqa: F401
-                       detect_contacts, detect_plants, hold, intervals)
+from .contacts import (GROUND, OBJECT, RAISED, Contact, ContactDetection, RetargetSettings,  # noqa: F401
+                       box_distance, detect_contacts, detect_plants, hold, intervals)
 from .retarget_metrics import angular_roughness, contact_figures, roughness  # noqa: F401
 from .retarget_plan import RetargetPlan, body_shift, moving_average, plan_retarget  # noqa: F401
 from .retarget_rig import (EFFECTORS, Rig, affine_inverse, ankle_above_sole, basis_from_pose,  # noqa: F401

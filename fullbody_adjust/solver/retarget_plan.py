@@ -27,25 +27,39 @@ def moving_average(values, half_width):
     return (total[2 * w + 1:] - total[:-2 * w - 1]) / (2 * w + 1)
 
 
-def body_shift(bases, targets, reach, priorities, margin, settle_margin, half_width):
+def body_shift(bases, targets, reach, priorities, margin, settle_margin, half_width, max_step=None, preferred=None):
     """World shifts (F,3) of the whole body that bring each target (F,E,3) within its limb's ``reach`` (E,)
-    less ``margin`` from the limb's base (F,E,3): the smallest shift on each frame (nearest point of the
-    intersection of the reach balls, the paper's two-sphere construction; where they do not meet, the
-    higher ``priorities`` first), smoothed over ±half_width frames, then the smallest further shift that
-    puts every target within its reach less ``settle_margin`` again. Zero where every target is in reach.
-    Continuous from frame to frame, as the nearest point of a convex set is."""
+    less ``margin`` from the limb's base (F,E,3) (a knee or elbow stretched straighter swings about a barely
+    bent hinge, and a target just within reach or just beyond it moves the trunk or not). On each frame the
+    shift nearest ``preferred`` (F,3; None: no shift) that does so (nearest point of the intersection of
+    the reach balls, the paper's two-sphere construction; where they do not meet, the higher ``priorities``
+    first), smoothed over ±half_width frames, then the smallest further shift that puts every target within
+    its reach less ``settle_margin`` again. Continuous from frame to frame, as the nearest point of a convex
+    set is; where it still changes by more than ``max_step`` from one frame to the next (the
+    reach balls barely meet, or the shift must follow a target that moves fast), smoothed again over windows
+    twice as wide each time (the solve reaches what that leaves just out of reach)."""
     centres = targets - bases  # a shift d serves target k when |centres_k - d| <= radius_k
     frames = len(targets)
     active = np.ones(centres.shape[:2], dtype=bool)
-    zero = np.zeros((frames, 3))
+    wanted = np.zeros((frames, 3)) if preferred is None else np.asarray(preferred, dtype=np.float64)
+    reach = np.asarray(reach, dtype=np.float64)
 
     def nearest(start, fraction):
-        radii = np.broadcast_to((1.0 - fraction) * np.asarray(reach, dtype=np.float64), active.shape)
+        radii = np.broadcast_to((1.0 - fraction) * reach, active.shape)
         point, _ = sub_base_point(start, centres, radii, active, priorities, "priority")
         return point
 
-    first = nearest(zero, margin)
-    return nearest(moving_average(first, half_width), settle_margin)
+    first = nearest(wanted, margin)
+    shift = nearest(moving_average(first, half_width), settle_margin)
+    width = max(int(half_width), 1)
+    while max_step is not None and width <= frames and _largest_step(shift) > max_step:
+        shift = moving_average(shift, width)
+        width *= 2
+    return shift
+
+
+def _largest_step(points):
+    return float(norm(np.diff(points, axis=0)).max()) if len(points) > 1 else 0.0
 
 
 @dataclass
@@ -118,27 +132,39 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     frames = len(source_pose)
     blend = settings.frames(settings.blend_duration) if settings.blend_duration else 0
     contacts = np.zeros((frames, len(EFFECTORS)), dtype=bool)
-    found = {}
-    world_targets = np.empty((frames, len(EFFECTORS), 3))
+    found, s_points = {}, {}
     for k, e in enumerate(EFFECTORS):
-        s_points = effector_points(source, s_heads, s_tails, e)
-        free = scaled(s_points[:, 0])
-        found[e] = detect_contacts(e, s_points, floor if ground else None, boxes, leg_s, settings)
-        holds = []
+        s_points[e] = effector_points(source, s_heads, s_tails, e)
+        found[e] = detect_contacts(e, s_points[e], floor if ground else None, boxes, leg_s, settings)
         for c in found[e]:
-            a, b = c.start, c.stop
-            if e in FEET:
-                path = _foot_path(c, free[a:b], s_points[a:b], effector_points(target, t_heads[a:b], t_tails[a:b], e),
-                                  soles[a:b, FEET.index(e)], settings.exact or c.kind == GROUND, anchor_t[2], ratio)
-            else:  # a hand on an object: still, where the source's is (or its scaled place)
-                path = (s_points[a:b, 0] if settings.exact else free[a:b]).mean(axis=0)
-            step = settings.blend_speed * leg_t / settings.fps
-            holds.append((a, b, path, _blend_frames(path, free, a, b, blend, step)))
-            contacts[a:b, k] = True
-        world_targets[:, k] = hold(free, holds, blend)
-        if e in FEET and ground:  # never below the floor: the lowest point of the foot at least on it
-            world_targets[:, k, 2] = np.maximum(world_targets[:, k, 2], floor + soles[:, FEET.index(e)])
-    # Every target within its limb's reach (see reach_margin): shift the whole body, smoothly, where needed.
+            contacts[c.start:c.stop, k] = True
+    step = settings.blend_speed * leg_t / settings.fps
+
+    def held(paths):
+        """Targets (F,E,3): free trajectories ``paths`` (F,E,3) with the holds blended in; feet never below
+        the floor. A foot's hold is centred on its free trajectory; a hand's is where the source's is."""
+        out = np.empty_like(paths)
+        for k, e in enumerate(EFFECTORS):
+            holds = []
+            for c in found[e]:
+                a, b = c.start, c.stop
+                if e in FEET:
+                    foot = effector_points(target, t_heads[a:b], t_tails[a:b], e)
+                    path = _foot_path(c, paths[a:b, k], s_points[e][a:b], foot, soles[a:b, FEET.index(e)],
+                                      settings.exact or c.kind == GROUND, anchor_t[2], ratio)
+                else:  # a hand on an object: still, where the source's is (or its scaled place)
+                    path = (s_points[e][a:b, 0] if settings.exact else scaled(s_points[e][a:b, 0])).mean(axis=0)
+                holds.append((a, b, path, _blend_frames(path, paths[:, k], a, b, blend, step)))
+            out[:, k] = hold(paths[:, k], holds, blend)
+            if e in FEET and ground:  # never below the floor: the lowest point of the foot at least on it
+                out[:, k, 2] = np.maximum(out[:, k, 2], floor + soles[:, FEET.index(e)])
+        return out
+
+    # Free of contacts, each wrist and ankle goes where the transferred pose puts it (its limb keeps the
+    # source's angles); the holds are blended into that.
+    free = np.stack([t_heads[:, target.groups[e][0]] for e in EFFECTORS], axis=1)
+    # Every target within its limb's reach (see reach_margin): shift the whole body, smoothly, where needed;
+    # the free trajectories move with it, and the feet's holds (centred on them); hands stay on their objects.
     bases, reach = [], []
     rest_heads, rest_tails = rest_points(target)
     for e in EFFECTORS:
@@ -146,9 +172,15 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
         bases.append(target.to_world(start[:, target.groups[chain][-2], :3, 3]))  # shoulder, hip joint
         last_two = chain_joints(target, chain, rest_heads, rest_tails)[-3:]  # upper arm + forearm, thigh + shin
         reach.append(float(norm(np.diff(last_two, axis=0)).sum()))
+    bases = np.stack(bases, axis=1)
     feet_first = [2.0 if e.startswith("hand") else 3.0 for e in EFFECTORS]
-    shift = body_shift(np.stack(bases, axis=1), world_targets, reach, feet_first, settings.reach_margin,
-                       settings.settle_margin, blend)
+    # The body first moves as its held hands and feet moved. The free trajectories ride on the shift and the
+    # holds blend in on top of it, so the shift changes by at most half the blend speed a frame: together
+    # they stay within what retarget_metrics counts as a pop (POP_SPEED).
+    targets = held(free)
+    shift = body_shift(bases, targets, reach, feet_first, settings.reach_margin, settings.settle_margin, blend,
+                       max_step=0.5 * step, preferred=_held_offset(targets, free, contacts, blend))
+    world_targets = held(free + shift[:, None])
     translate_body(target, start, shift)
     heads = start[..., :3, 3]
     tails = heads + start[..., :3, 1] * target.lengths[:, None]
@@ -164,7 +196,7 @@ def _foot_path(contact, free, source_points, target_points, soles, on_surface, f
     transferred) rolls and turns as the source's (points (n,Q,3), ankle first) does, from each frame to the
     next about the ankle where the source's ankle is its stillest point (a foot turning on its heel), else
     about whichever of its points is lowest (heel, ball, toes: the one on the ground); the path is centred on
-    the source's scaled one. The lowest point of the foot on the surface (its world height with
+    ``free`` (n,3), the ankle's free trajectory. The lowest point of the foot on the surface (its world height with
     ``on_surface``, else its height scaled about the floor)."""
     rel = target_points[:, :1, :2] - target_points[..., :2]  # (n,P,2) ankle less each point
     on_ankle = norm(np.diff(source_points, axis=0)).argmin(axis=1) == 0
@@ -178,9 +210,18 @@ def _foot_path(contact, free, source_points, target_points, soles, on_surface, f
     return path
 
 
+def _held_offset(targets, free, contacts, half_width):
+    """(F,3) how far the held hands and feet are from their free trajectories (F,E,3), on average over the
+    effectors held on each frame (``contacts`` (F,E), eased in and out over ±half_width frames): the shift
+    that moves the body as its contacts moved, so that arms and legs share what is left to reach."""
+    weight = moving_average(contacts.astype(np.float64), half_width)
+    return np.einsum("fe,fei->fi", weight, targets - free) / np.maximum(weight.sum(axis=1), 1.0)[:, None]
+
+
 def _blend_frames(path, free, start, stop, shortest, step):
     """(in, out) blend frames of a hold: at least ``shortest``, and long enough that moving between the free
     trajectory (F,3) and the held path goes at most about ``step`` per frame (smoothstep's steepest slope)."""
     first, last = (path, path) if np.ndim(path) == 1 else (path[0], path[-1])
     return tuple(max(shortest, int(np.ceil(1.5 * float(norm(p - free[f])) / step)))
                  for p, f in ((first, start), (last, stop - 1)))
+

@@ -4,7 +4,8 @@ evaluation of the deform bones follows the plan (wrists and ankles on their targ
 import bpy
 import numpy as np
 
-from fullbody_adjust.bridge import retarget
+from fullbody_adjust.bridge import mapping, retarget
+from fullbody_adjust.bridge.retarget_read import rig_of
 from fullbody_adjust.solver import retarget as rt
 
 from .test_retarget import enable_addon, import_clip
@@ -31,7 +32,7 @@ def test_a_clip_onto_a_generated_rig_keys_its_controls():
     assert keyed == set(outcome.keyed_bones) and keyed
     assert not any(name.startswith(INTERNAL) for name in keyed), keyed
     assert {"torso", "hand_ik.L", "foot_ik.L"} <= keyed
-    size = rt.leg_length(retarget._rig(rig, retarget.mapping.load_map(rig)))
+    size = rt.leg_length(rig_of(rig, mapping.load_map(rig)))
     heads = np.empty((FRAMES[1] - FRAMES[0] + 1, len(rt.EFFECTORS), 3))
     feet = {e: np.empty((len(heads), 2, 3)) for e in ("foot.L", "foot.R")}  # ankle and ball: the mapped foot
     for row, frame in enumerate(range(FRAMES[0], FRAMES[1] + 1)):

@@ -416,7 +416,8 @@ def test_a_step_is_found_as_two_plants():
     assert a0 == 0 and b1 == frames
     # The plants end and start where the foot is still moving slower than the threshold.
     speed = np.linalg.norm(np.gradient(ankle, axis=0), axis=1) * FPS
-    assert np.all(speed[a0:b0] < settings.plant_speed * 0.9) and np.all(speed[a1:b1] < settings.plant_speed * 0.9)
+    limit = settings.detection.plant_speed * 0.9
+    assert np.all(speed[a0:b0] < limit) and np.all(speed[a1:b1] < limit)
     assert 38 <= b0 <= 41 and 79 <= a1 <= 82
 
 
@@ -428,12 +429,26 @@ def test_holds_are_still_inside_and_blend_without_a_jump():
     np.testing.assert_array_equal(out[30:50], np.broadcast_to(held_point, (20, 3)))
     np.testing.assert_array_equal(out[:30 - blend - 1], free[:30 - blend - 1])
     np.testing.assert_array_equal(out[50 + blend + 1:], free[50 + blend + 1:])
-    # Smoothstep over blend+1 frames: a step at most 1.5/(blend+1) of the largest gap between the held point
-    # and the free trajectory over the blends, plus the free step.
-    window = np.r_[30 - blend - 1:30, 50:50 + blend + 1]
-    jump = np.linalg.norm(held_point - free[window], axis=1).max()
+    # Smoothstep over blend+1 frames of the offset from the free trajectory where the hold begins or ends: a
+    # step at most 1.5/(blend+1) of that offset more than the free step, however far the free trajectory
+    # runs from the held point meanwhile.
+    jump = max(np.linalg.norm(held_point - free[30]), np.linalg.norm(held_point - free[49]))
     steps = np.linalg.norm(np.diff(out, axis=0), axis=1)
     assert steps.max() <= 1.5 * jump / (blend + 1) + np.linalg.norm(free[1] - free[0]) + 1e-12
+
+
+def test_a_hold_approached_fast_is_entered_no_faster_than_its_offset_allows():
+    """A hand swinging up fast onto a bar held a little aside: before the hold it keeps the free motion and
+    moves at most 1.5/(blend+1) of the offset at the hold's first frame faster than it."""
+    frames = 60
+    free = np.zeros((frames, 3))
+    free[:, 2] = np.minimum(np.arange(frames), 30) * 0.05  # 5 cm a frame up to the bar at frame 30
+    bar = free[30] + np.array([0.12, 0.0, 0.02])
+    blend = 6
+    out = rt.hold(free, [(30, 45, bar)], blend)
+    np.testing.assert_array_equal(out[30:45], np.broadcast_to(bar, (15, 3)))
+    extra = np.linalg.norm(np.diff(out - free, axis=0), axis=1)
+    assert extra.max() <= 1.5 * np.linalg.norm(bar - free[30]) / (blend + 1) + 1e-12
 
 
 def test_overlapping_holds_blend_continuously():
@@ -480,6 +495,30 @@ def test_body_shift_brings_every_target_within_reach_and_only_where_needed():
     assert steps.max() <= 2 * target_steps
 
 
+def test_body_shift_goes_where_it_is_asked_to_as_far_as_reach_allows_and_no_faster_than_told():
+    """A body whose held hands and feet all sit 0.2 aside of where its limbs hold them: asked to move that
+    far, the body does so exactly where every target stays within reach from there; where that would leave
+    the hands out of reach it stops short (within reach less the settle margin); and however suddenly
+    the asked-for shift changes, the shift changes by at most ``max_step`` a frame (the clip being long
+    enough to spread the change)."""
+    frames = 120
+    bases = np.broadcast_to(np.array([[0.2, 0, 0.5], [-0.2, 0, 0.5], [0.1, 0, 0], [-0.1, 0, 0]]), (frames, 4, 3))
+    reach = np.array([0.6, 0.6, 0.9, 0.9])
+    aside = np.array([0.2, 0.0, 0.0])
+    targets = bases + np.array([[0.0, 0.3, 0.0], [0.0, 0.3, 0.0], [0.0, 0.0, -0.5], [0.0, 0.0, -0.5]]) + aside
+    wanted = np.where((np.arange(frames) < 60)[:, None], aside, 6 * aside)  # then far beyond the hands' reach
+    margin, settle, half = 0.03, 0.015, 3
+    free = rt.body_shift(bases, targets, reach, [2, 2, 3, 3], margin, settle, half, preferred=wanted)
+    np.testing.assert_allclose(free[:60 - 2 * half], np.broadcast_to(aside, (60 - 2 * half, 3)), atol=1e-12)
+    distance = np.linalg.norm(targets - bases - free[:, None], axis=-1)
+    assert np.all(distance <= (1 - settle) * reach + 1e-9)
+    assert np.linalg.norm(free[-1] - wanted[-1]) > 0.1  # stopped short of the far shift
+    limited = rt.body_shift(bases, targets, reach, [2, 2, 3, 3], margin, settle, half, max_step=0.01,
+                            preferred=wanted)
+    assert np.linalg.norm(np.diff(limited, axis=0), axis=1).max() <= 0.01
+    assert np.linalg.norm(np.diff(free, axis=0), axis=1).max() > 0.01  # the asked-for shift jumps
+
+
 # ---------------------------------------------------------------------------------------------------------
 # The plan
 
@@ -508,18 +547,17 @@ def planned_foot_points(target, plan, effector):
     return points - heads[:, bone, None] + plan.world_targets[:, rt.EFFECTORS.index(effector), None]
 
 
-def test_planted_feet_are_held_still_and_free_effectors_follow_the_scaled_source():
+def test_planted_feet_are_held_still_and_free_effectors_follow_the_transferred_pose():
     """Walk onto other proportions: the point a planted foot turns about (heel, ball, toes) does not move;
     the lowest point of each foot is on the floor while planted and never below it; the hands (no contact
-    objects) follow the source's exactly, scaled about the floor below the hips."""
+    objects) are exactly where the start pose (the source's rotations carried over, the body shifted as the
+    plan shifts it) puts the wrists, so the solve leaves the arms as the source holds them."""
     target = cmu_rig(WALK, scale=0.85, group_scales={"leg.L": 1.1, "leg.R": 1.1}, rolls=0.1)
     source, pose, plan = plan_for(WALK, target, np.arange(1, 317))
-    s_heads = world_heads(source, pose)
-    a_s, a_t = anchors(source, target, plan.ground)
+    t_heads = world_heads(target, plan.start_pose)
     assert plan.leg_ratio == pytest.approx(rt.leg_length(target) / rt.leg_length(source))
     for k, effector in enumerate(("hand.L", "hand.R")):
-        scaled = scaled_about(s_heads[:, source.groups[effector][0]], a_s, a_t, plan.leg_ratio)
-        np.testing.assert_allclose(plan.world_targets[:, k], scaled, atol=1e-12)
+        np.testing.assert_allclose(plan.world_targets[:, k], t_heads[:, target.groups[effector][0]], atol=1e-12)
     planted = 0
     for effector in ("foot.L", "foot.R"):
         points = planned_foot_points(target, plan, effector)
@@ -639,6 +677,10 @@ def test_bad_plans_are_clear_errors():
         rt.plan_retarget(source, pose, target, identity)
     with pytest.raises(SolverInputError, match="fps"):
         rt.RetargetSettings(fps=0)
+    with pytest.raises(SolverInputError, match="plant_speed"):
+        rt.RetargetSettings(detection=rt.ContactDetection(plant_speed=-1.0))
+    with pytest.raises(SolverInputError, match="detection"):
+        rt.RetargetSettings(detection={"plant_speed": 0.3})
 
 
 def test_motion_limits_fix_each_hinge_in_its_upper_bone():
