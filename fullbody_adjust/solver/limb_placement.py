@@ -89,13 +89,7 @@ class LimbPlacement:
         for rigid, par, limb_bones in self.prepared.levels:
             # Rigid children of their parents (overridden below for solved chain bones); where the parent did
             # not move, a bone stays as initialised (its parent's rotation is then the identity).
-            if rigid.size:
-                mp = moved[:, par]
-                if mp.any():
-                    h = heads[:, par] + apply_matrix(rot[:, par], H0[:, rigid] - H0[:, par])
-                    heads[:, rigid] = np.where(mp[..., None], h, H0[:, rigid])
-                    rot[:, rigid] = rot[:, par]
-                    moved[:, rigid] = mp
+            _carry(heads, rot, moved, H0, rigid, par)
             for j, p, role, name, k in limb_bones:
                 if role == ROOT:
                     heads[:, j] = H0[:, j] + delta  # x + 0.0 == x: an unmoved root stays bit-exact
@@ -122,14 +116,7 @@ class LimbPlacement:
                         w = np.nonzero(np.isfinite(self.end_turns[name][:, 0, 0]))[0]
                         rot[w, j] = end_rotation(self.end_turns[name][w], rot[w, p], T0[w, j] - H0[w, j])
                         moved[w, j] = True
-        leaves, anchors = self.prepared.leaves
-        if leaves.size:
-            ma = moved[:, anchors]
-            if ma.any():
-                h = heads[:, anchors] + apply_matrix(rot[:, anchors], H0[:, leaves] - H0[:, anchors])
-                heads[:, leaves] = np.where(ma[..., None], h, H0[:, leaves])
-                rot[:, leaves] = rot[:, anchors]
-                moved[:, leaves] = ma
+        _carry(heads, rot, moved, H0, *self.prepared.leaves)  # fingers, face...: on their nearest placed ancestor
         tails = np.where(moved[..., None], heads + apply_matrix(rot, T0 - H0), T0) if np.any(moved) else T0.copy()
         return heads, tails, rot, solves
 
@@ -189,3 +176,15 @@ class LimbPlacement:
                 return np.zeros(rows.size, dtype=bool)
             keep &= self.prepared.start_keeps_limits(name, self.settings.chain)[self.start_frames[rows]]
         return keep
+
+
+def _carry(heads, rot, moved, H0, bones, carriers):
+    """Place `bones` (k,) rigidly on `carriers` (k,) already placed, in place: head carried by the carrier's
+    rotation about its head, the same rotation; where a carrier did not move, a bone stays as initialised."""
+    if bones.size:
+        mc = moved[:, carriers]
+        if mc.any():
+            h = heads[:, carriers] + apply_matrix(rot[:, carriers], H0[:, bones] - H0[:, carriers])
+            heads[:, bones] = np.where(mc[..., None], h, H0[:, bones])
+            rot[:, bones] = rot[:, carriers]
+            moved[:, bones] = mc
