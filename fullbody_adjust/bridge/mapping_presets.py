@@ -1,6 +1,7 @@
-"""Bone-name presets for the five-group body model (solver/vocabulary.py's groups).
+"""Bone-name presets for the five-group body model (solver/vocabulary.py's groups), read from
+mapping_presets.toml beside this file (data a rigger can extend without touching code).
 
-Pure data, no bpy. A preset names, per group, the chain's slots in parent → child order. A slot is a string:
+No bpy. A preset names, per group, the chain's slots in parent → child order. A slot is a string:
 
 - ``"spine.001"``: one bone name;
 - ``"abdomenLower|abdomen"``: alternatives, the first one the rig has is taken;
@@ -15,6 +16,8 @@ a preset are tried in order; see ``mapping.map_rig`` for how a match is accepted
 """
 
 from dataclasses import dataclass
+from pathlib import Path
+import tomllib
 
 SIDED_GROUPS = ("arm", "hand", "leg", "foot")
 
@@ -27,78 +30,12 @@ class Preset:
     variants: tuple  # ((label, prefix regex), ...), tried in order
 
 
-RIGIFY = Preset(
-    name="Rigify",
-    sides=("L", "R"),
-    table={
-        "root": ("spine",),
-        "trunk": ("spine.001", "spine.002", "spine.003"),
-        "arm": ("?shoulder.{side}", "upper_arm.{side}", "forearm.{side}"),
-        "hand": ("hand.{side}",),
-        "leg": ("thigh.{side}", "shin.{side}"),
-        "foot": ("foot.{side}",),
-        "head": ("spine.004", "?spine.005", "spine.006"),
-    },
-    # A generated rig keeps the metarig's names behind DEF- (deforming) and ORG- (original) prefixes; its
-    # plain-named bones are controls (hand_ik.L...), so the prefixed variants come first.
-    variants=(
-        ("Rigify generated rig (DEF- bones)", "DEF-"),
-        ("Rigify generated rig (ORG- bones)", "ORG-"),
-        ("Rigify metarig", ""),
-    ),
-)
+def _load(path):
+    """The presets of a TOML file laid out as mapping_presets.toml is, in its order."""
+    data = tomllib.loads(path.read_text(encoding="utf-8"))
+    return tuple(Preset(name=p["name"], sides=tuple(p["sides"]),
+                        table={group: tuple(slots) for group, slots in p["table"].items()},
+                        variants=tuple(tuple(v) for v in p["variants"])) for p in data["preset"])
 
-UNREAL = Preset(
-    name="Unreal mannequin",
-    sides=("l", "r"),
-    table={
-        "root": ("pelvis",),
-        # UE4 has spine_01..03, UE5 spine_01..05. Twist bones (upperarm_twist_01_l...) are not chain bones.
-        "trunk": ("spine_01", "spine_02", "?spine_03", "?spine_04", "?spine_05"),
-        "arm": ("?clavicle_{side}", "upperarm_{side}", "lowerarm_{side}"),
-        "hand": ("hand_{side}",),
-        "leg": ("thigh_{side}", "calf_{side}"),
-        "foot": ("foot_{side}",),
-        "head": ("neck_01", "?neck_02", "head"),
-    },
-    variants=(("Unreal mannequin", ""),),
-)
 
-DAZ = Preset(
-    name="Daz",
-    sides=("l", "r"),
-    table={
-        "root": ("hip",),
-        # Genesis 3/8 (abdomenLower...chestUpper), Genesis 2 (abdomen, abdomen2, chest), the Daz BVH (abdomen, chest).
-        "trunk": ("abdomenLower|abdomen", "?abdomenUpper|abdomen2", "chestLower|chest", "?chestUpper"),
-        # The ...Bend bones of Genesis 3/8 carry the joint; their ...Twist children are skipped.
-        "arm": ("?{side}Collar", "{side}ShldrBend|{side}Shldr", "{side}ForearmBend|{side}ForeArm"),
-        "hand": ("{side}Hand",),
-        "leg": ("{side}ThighBend|{side}Thigh", "{side}Shin"),
-        "foot": ("{side}Foot",),
-        "head": ("neckLower|neck", "?neckUpper", "head"),
-    },
-    variants=(("Daz", ""),),
-)
-
-MOTIONBUILDER = Preset(
-    name="MotionBuilder",
-    sides=("Left", "Right"),
-    table={
-        "root": ("Hips",),
-        # CMU: LowerBack, Spine, Spine1. Mixamo: Spine, Spine1, Spine2. HumanIK allows Spine..Spine9.
-        "trunk": ("?LowerBack", "Spine", "?Spine1", "?Spine2", "?Spine3"),
-        "arm": ("?{side}Shoulder", "{side}Arm", "{side}ForeArm"),
-        "hand": ("{side}Hand",),
-        "leg": ("{side}UpLeg", "{side}Leg"),
-        "foot": ("{side}Foot",),
-        "head": ("Neck", "?Neck1", "?Neck2", "Head"),
-    },
-    variants=(
-        ("Mixamo", r"mixamorig\d*[:_]"),
-        ("MotionBuilder/CMU", ""),
-        ("MotionBuilder/CMU with a namespace", r"[^:]+:"),
-    ),
-)
-
-PRESETS = (RIGIFY, UNREAL, DAZ, MOTIONBUILDER)
+PRESETS = _load(Path(__file__).with_suffix(".toml"))
