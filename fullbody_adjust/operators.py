@@ -24,8 +24,8 @@ def armature_poll_message(context):
 
 
 def report_outcome(operator, outcome):
-    """The run's summary: a WARNING naming what was missed when a target within reach was missed or a bone ends
-    inside an obstacle (as the command line's exit code 1), else INFO."""
+    """The run's summary: a WARNING naming what was missed when a target within reach was missed, a bone ends
+    inside an obstacle or a contact within reach was not held (as the command line's exit code 1), else INFO."""
     warning = outcome.warning()
     if warning:
         operator.report({'WARNING'}, f"{warning}; {outcome.summary()}")
@@ -289,7 +289,7 @@ to the source's trajectories and contacts)"""
             new_action=self.new_action or None, progress=progress))
         if outcome is None:
             return {'CANCELLED'}
-        self.report({'INFO'}, outcome.summary())
+        report_outcome(self, outcome)
         return {'FINISHED'}
 
     def draw(self, context):

@@ -28,6 +28,7 @@ import numpy as np
 
 from ..solver import SolverInputError
 from ..solver import retarget as rt
+from ..solver.adjust import UNCONSTRAINED
 from ..solver.adjust import adjust_frames as solve_frames
 from . import adjustment, ik_limits, mapping, targets
 from .errors import AdjustError
@@ -62,6 +63,22 @@ class RetargetOutcome:
     def contacts_not_held(self):
         """Frames (summed over effectors) where a contact within reach is not held on the result."""
         return sum(f["not_held_frames"] for f in (self.contact_report or {}).get("effectors", {}).values())
+
+    def warning(self):
+        """One line naming what went wrong although the retarget finished (the command line exits 1 for the
+        same): a target within reach that was missed (the first effector, its frames and largest residual), or
+        a contact within reach that was not held; None when neither happened."""
+        missed = ~np.isin(self.status, ("reached", "unreachable", UNCONSTRAINED))
+        if missed.any():
+            k = int(np.nonzero(missed.any(axis=0))[0][0])
+            rows = np.nonzero(missed[:, k])[0]
+            worst = rows[int(np.argmax(self.residuals[rows, k]))]
+            return (f"{self.effectors[k]} missed its target within reach on {len(rows)} frames by "
+                    f"{self.residuals[worst, k]:.4g} ({self.status[worst, k]})")
+        for effector, figures in (self.contact_report or {}).get("effectors", {}).items():
+            if figures["not_held_frames"]:
+                return f"{effector} does not hold its contact on {figures['not_held_frames']} frames within reach"
+        return None
 
     def summary(self):
         """One line for the operator's report and the command line."""

@@ -430,6 +430,32 @@ def test_operator_retargets_the_selected_armature_onto_the_active_one():
     assert_unchanged(source, before, action)
 
 
+def test_operator_warns_when_a_target_within_reach_is_missed(capfd):
+    """Onto a character 1.2x the source whose left hip and knee have every IK axis locked, the left foot cannot
+    follow the planted sole: the retarget still finishes, and reports a WARNING naming the foot, its frames and
+    its largest miss (as the command line exits 1 for the same result); unlocked, the report is INFO."""
+    source = import_clip()
+    target = add_metarig(1.2)
+    select_only(source, target, active=target)
+    capfd.readouterr()
+    assert bpy.ops.fullbody_adjust.retarget(frame_start=2, frame_end=61) == {'FINISHED'}
+    assert "Warning" not in capfd.readouterr().out
+
+    for name in ("thigh.L", "shin.L"):
+        bone = target.pose.bones[name]
+        bone.lock_ik_x = bone.lock_ik_y = bone.lock_ik_z = True
+    outcome = retarget.retarget(bpy.context, source, target, 2, 61, new_action="locked")
+    k = outcome.effectors.index("foot.L")
+    missed = ~np.isin(outcome.status[:, k], ("reached", "unreachable"))
+    assert missed.any()
+    select_only(source, target, active=target)
+    assert bpy.ops.fullbody_adjust.retarget(frame_start=2, frame_end=61) == {'FINISHED'}
+    out = capfd.readouterr().out
+    assert f"Warning: foot.L missed its target within reach on {int(missed.sum())} frames by" in out, out
+    reported = float(out.split("within reach on ")[1].split(" by ")[1].split()[0])
+    assert reported == pytest.approx(float(outcome.residuals[missed, k].max()), rel=1e-3)
+
+
 def test_operator_options_are_not_remembered_from_the_last_run():
     # Blender would otherwise start each run with the last run's source, frames and action name, marked as set.
     properties = bpy.ops.fullbody_adjust.retarget.get_rna_type().properties
