@@ -19,9 +19,9 @@ within tolerance. An evaluation of the rig costs about as much as Blender's own 
 evaluated only when the moves since the last evaluation leave its pairs' matrices unknown: a rigid pair whose
 control hangs (in the pose hierarchy) below a control moved since, or below the bone that control drives, is
 carried by that move, control and bone alike, and is placed from the carried matrices; pairs of other limbs
-are unaffected (limbs are independent given the trunk); anything else (a bend or scale pair after a move of
-its limb, a move of the trunk, a limb between IK and FK) is evaluated first. Nothing here knows a rig's names:
-the rig module (``control_rig``) says which control drives which bone.
+are unaffected (limbs are independent given the trunk, which carries them all); anything else (a bend or
+scale pair after a move of its limb, a control not below what moved, a limb between IK and FK) is evaluated
+first. Nothing here knows a rig's names: the rig module (``control_rig``) says which control drives which bone.
 """
 
 from dataclasses import dataclass
@@ -177,15 +177,14 @@ def _carried_or_apart(pair, pending, above):
     """How the moves ``pending`` (pair, step) since the last evaluation move ``pair``'s control and bone: the
     armature-space motion of the nearest moved control above it (the last one: levels are placed parents
     first, and a recorded step is the control's whole motion since the evaluation), the identity when only
-    other limbs moved, or None when a move may move it in a way not known without evaluating the rig (the
-    trunk's controls blend into each other, so a trunk move is always evaluated)."""
+    other limbs moved, or None when a move may move it in a way not known without evaluating the rig (a move
+    of its own limb, or of the trunk, by a control it does not hang below)."""
     carry = np.eye(4)
     for moved, step in pending:
         groups = (moved.group, pair.group)
         if None not in groups and TRUNK_GROUP not in groups and moved.group != pair.group:
             continue  # another limb
-        if None in groups or TRUNK_GROUP in groups or pair.kind != "rigid" \
-                or not ({moved.control, moved.bone} & above[pair.control]):
+        if None in groups or pair.kind != "rigid" or not ({moved.control, moved.bone} & above[pair.control]):
             return None
         carry = step
     return carry
