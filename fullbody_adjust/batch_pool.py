@@ -5,7 +5,8 @@ Each worker is a Python with bpy or a `blender -b` started with ``command``; it 
 stdin, then one task (a JSON line) at a time, and answers on stdout with JSON lines: ``{"progress": f}`` while
 it works and ``{"row": {...}}`` when the task is done (its chatter goes to stderr, kept in a log file). A worker
 takes the next task as soon as it is free, so long and short clips even out. A worker that dies fails only the
-task it had, with the last line it wrote as the reason, and a fresh worker takes the rest.
+task it had, with the last line it wrote as the reason, and a fresh worker takes the rest; so does a worker
+stopped because its task ran longer than the pool's timeout.
 """
 
 from collections import deque
@@ -22,13 +23,15 @@ from .reporting.batch_report import FAILED
 class WorkerPool:
     """``jobs`` workers started with ``command`` (argv list) and ``env``; ``job`` is sent to each first.
     ``on_progress(done, failed, fraction)`` is called (from worker threads, one at a time) as tasks go on; it
-    must not touch Blender data (on_row of ``run`` may)."""
+    must not touch Blender data (on_row of ``run`` may). ``timeout``: seconds a task may run before its worker
+    is stopped and the task fails (None: no limit)."""
 
-    def __init__(self, command, job, jobs, *, env=None, on_progress=None):
+    def __init__(self, command, job, jobs, *, env=None, on_progress=None, timeout=None):
         self.command = list(command)
         self.job = job
         self.jobs = max(1, int(jobs))
         self.env = env
+        self.timeout = timeout
         self.on_progress = on_progress or (lambda done, failed, fraction: None)
         self._lock = threading.Lock()
 
@@ -78,9 +81,18 @@ class WorkerPool:
                         self._finish(index, {"clip": task["clip"], "status": FAILED,
                                              "reason": f"cannot start a worker process: {ex}"})
                         continue
+                watchdog = None
+                if self.timeout is not None:
+                    watchdog = threading.Timer(self.timeout, worker.stop)
+                    watchdog.start()
                 row = worker.do(task, lambda fraction, i=index: self._progress(i, fraction))
+                if watchdog is not None:
+                    watchdog.cancel()
                 if row is None:  # the worker died: this task failed, a new worker takes the next one
-                    row = {"clip": task["clip"], "status": FAILED, "reason": worker.death()}
+                    reason = (f"stopped after {self.timeout:g} s (the clip time limit)" if worker.stopped
+                              else worker.death())
+                    worker.close()
+                    row = {"clip": task["clip"], "status": FAILED, "reason": reason}
                     worker = None
                 self._finish(index, row)
         finally:
@@ -111,7 +123,14 @@ class _Worker:
         self.log = open(log_path, "ab")
         self.process = subprocess.Popen(command, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self.log,
                                         env=env, text=True, bufsize=1)
+        self.stopped = False
+        self._closed = False
         self._send(job)
+
+    def stop(self):
+        """Kill the process (from the pool's watchdog thread): its task then ends without a row."""
+        self.stopped = True
+        self.process.kill()
 
     def do(self, task, progress):
         """The task's row, or None when the worker died before it answered."""
@@ -141,6 +160,9 @@ class _Worker:
         return f"worker process stopped (exit code {code}){last}"
 
     def close(self):
+        if self._closed:
+            return
+        self._closed = True
         try:
             self.process.stdin.close()
         except OSError:

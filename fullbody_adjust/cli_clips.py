@@ -145,7 +145,7 @@ def _run_tasks(args, tasks, jobs, blend_in, target_name, saved):
             if task["out"] is None:
                 task["part"] = os.path.join(parts, f"{index}.blend")
         pool = WorkerPool(worker_command(), _job(args, blend_in, target_name), jobs, env=worker_env(),
-                          on_progress=show)
+                          on_progress=show, timeout=args.clip_timeout)
         try:
             pool.run(tasks, on_row=merge)
         except KeyboardInterrupt:

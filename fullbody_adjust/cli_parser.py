@@ -140,6 +140,9 @@ def build_parser(prog=f"blender -b FILE.blend -c {COMMAND}"):
     clips.add_argument("--jobs", type=_positive_int, metavar="N",
                        help="clips retargeted at once, each in its own worker process (default: the number of "
                             "cores)")
+    clips.add_argument("--clip-timeout", type=_positive, metavar="SECONDS",
+                       help="a clip still running after this many seconds is stopped and reported failed, and the "
+                            "batch goes on (default: no limit)")
     clips.add_argument("--output-dir", metavar="DIR",
                        help="write one .blend per clip, DIR/<clip>.blend (the target file with that clip's "
                             "action), instead of all actions into --output")

@@ -6,6 +6,7 @@ import io
 import json
 import sys
 import threading
+import time
 
 import pytest
 
@@ -46,6 +47,27 @@ def test_a_dying_worker_fails_only_its_task_and_a_new_one_takes_the_rest():
     assert seen[-1] == (6, 2, 1.0)
     assert [s[0] for s in seen] == sorted(s[0] for s in seen)  # done only grows
     assert all(0.0 <= s[2] <= 1.0 for s in seen)
+
+
+# A worker whose task 'hang' never ends.
+HANGING_WORKER = FAKE_WORKER.replace('    if task["clip"] == "crash":',
+                                     '    if task["clip"] == "hang":\n        import time\n        time.sleep(3600)\n'
+                                     '    if task["clip"] == "crash":')
+
+
+def test_a_clip_over_the_time_limit_fails_and_the_batch_goes_on():
+    pool = WorkerPool([sys.executable, "-c", HANGING_WORKER], {"tag": "t"}, 2, timeout=1.5)
+    start = time.monotonic()
+    rows = pool.run({"clip": clip} for clip in ["a", "hang", "b", "c", "hang", "d"])
+    assert time.monotonic() - start < 30.0  # not an hour
+    for row in rows:
+        if row["clip"] == "hang":
+            assert row["status"] == "failed" and row["reason"] == "stopped after 1.5 s (the clip time limit)"
+        else:
+            assert row["status"] == "done"
+    # Without a limit the same workers answer every other clip as before.
+    rows = WorkerPool([sys.executable, "-c", HANGING_WORKER], {"tag": "t"}, 2).run({"clip": c} for c in "ab")
+    assert [row["status"] for row in rows] == ["done", "done"]
 
 
 def test_rows_reach_the_caller_in_its_thread_and_an_interrupt_starts_no_more_tasks():

@@ -312,3 +312,19 @@ def test_floor_with_a_source_in_the_file_raises_the_retargeted_motion(cli, capsy
         hips[floor] = np.array(small.matrix_world @ small.pose.bones["LeftUpLeg"].head)
     low, high = hips.values()
     assert high - low == pytest.approx([0.0, 0.0, 0.3], abs=1e-4)
+
+
+def test_clips_over_the_time_limit_are_reported_failed(cli, capsys, tmp_path, clips, character):
+    """--clip-timeout shorter than any clip's work: every clip's worker is stopped, each clip is reported failed
+    with the limit as its reason, the batch exits 1 and writes nothing into the input file."""
+    before = Untouched(character)
+    report_path = tmp_path / "timed.json"
+    code, _stdout, err = run(cli, capsys, "retarget", character, "--target", "Hero", "--source-file", clips,
+                             "--jobs", 2, "--clip-timeout", 0.01, "--output", tmp_path / "timed.blend",
+                             "--report", report_path)
+    before.check()
+    assert code == 1, err
+    rows = json.loads(report_path.read_text())["rows"]
+    assert len(rows) == len(CUTS) + 1
+    assert all(row["status"] == "failed" and row["reason"] == "stopped after 0.01 s (the clip time limit)"
+               for row in rows), rows
