@@ -195,7 +195,8 @@ def _error(bone, pair, pose_bones, desired, lengths):
     if pair.kind == "scale":
         return float(np.max(np.abs(_axis_scales(bone) - _axis_scales(desired[pair.bone])))) * lengths[pair.bone]
     if pair.bends:
-        return float(np.linalg.norm(_middle(bone, lengths[pair.bone]) - _middle(desired[pair.bone], lengths[pair.bone])))
+        length = lengths[pair.bone]
+        return float(np.linalg.norm(_middle(bone, length) - _middle(desired[pair.bone], length)))
     return _bone_error(bone, desired[pair.bone], lengths[pair.bone])
 
 

@@ -278,17 +278,24 @@ class _Problem(SubBasePlacement, LimbPlacement):
         # SC again (within tolerance): it stops there (a target out of reach converges to such a fixed point).
         tol = self.settings.chain.tolerance
         placed_with = dict(offsets0)
+        fixable = None
         for _ in range(self.settings.sub_base_passes - 1):
             chest_r = chest_rotation(trunk0, trunk_joints)
             turned = {n: apply_matrix(chest_r, offsets0[n]) for n in upper}
-            retry = np.zeros(F, dtype=bool)
             changed = np.zeros(F, dtype=bool)
-            fixable = self._fixable(upper, offsets0)
+            far = {}
             for n in upper:
                 base = trunk_joints[:, -1] + turned[n]
-                far = norm(self.limb_target[n] - base) > self.reach_eff[n] + tol
-                retry |= trunk_solved & self.limb_active[n] & far & fixable[n]
+                out_of_reach = norm(self.limb_target[n] - base) > self.reach_eff[n] + tol
+                far[n] = trunk_solved & self.limb_active[n] & out_of_reach
                 changed |= norm(turned[n] - placed_with[n]) > tol
+            if not any((far[n] & changed).any() for n in upper):
+                break
+            if fixable is None:  # the same on every pass: it depends on the start offsets only
+                fixable = self._fixable(upper, offsets0)
+            retry = np.zeros(F, dtype=bool)
+            for n in upper:
+                retry |= far[n] & fixable[n]
             retry &= changed
             if not np.any(retry):
                 break

@@ -179,7 +179,8 @@ class SubBasePlacement:
         for n in upper:
             reach = self.reach["trunk"] + norm(offsets[n]) + self.reach_eff[n] + tol
             _, alone[n] = nearest_in_balls(base0, np.stack(centres + [self.limb_target[n]], axis=1),
-                                           np.stack(radii + [reach], axis=1), np.stack(active + [self.limb_active[n]], axis=1))
+                                           np.stack(radii + [reach], axis=1),
+                                           np.stack(active + [self.limb_active[n]], axis=1))
         out = dict(alone)
         for i, a in enumerate(upper):
             for b in upper[i + 1:]:
