@@ -348,11 +348,11 @@ class _Problem(SubBasePlacement, LimbPlacement):
             status[rows, k] = st
             reasons[rows, k] = why
         moved = np.zeros((F, len(GROUPS)), dtype=bool)
+        bone_moved = ((heads != self.H0) | (tails != self.T0)).any(axis=2)  # (F,J)
         for g, name in enumerate(GROUPS):
             bones = list(model.groups.get(name, ()))
             if bones:
-                moved[:, g] = np.any(heads[:, bones] != self.H0[:, bones], axis=(1, 2)) | \
-                    np.any(tails[:, bones] != self.T0[:, bones], axis=(1, 2))
+                moved[:, g] = bone_moved[:, bones].any(axis=1)
         chest = model.groups["trunk"][-1]
         sc_disp = norm(tails[:, chest] - self.T0[:, chest])
         root_disp = norm(heads[:, model.root] - self.H0[:, model.root])
