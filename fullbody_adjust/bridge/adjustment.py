@@ -202,7 +202,8 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
     boxes = _armature_boxes(corners, to_arm)
     end_turns, poles = _end_goals(model, snapshot, goals, to_arm)
     try:
-        limits = ik_limits.joint_limits(obj, model, heads, tails, snapshot.pose_matrices, settings)
+        limits = ik_limits.joint_limits(obj, model, heads, tails, snapshot.pose_matrices, settings,
+                                        controls=rig.fk_controls)
         result = solve_frames(model, heads, tails, arm_targets, targets.EFFECTORS, priorities, obstacles=boxes,
                               settings=_in_armature_units(settings, snapshot.matrix_world),
                               bone_x_axes=snapshot.pose_matrices[..., :3, 0], limits=limits,

@@ -130,6 +130,15 @@ def fk_control(obj, bone):
     return control if np.allclose(relation[0][:3, :3], relation[1][:3, :3], atol=1e-4) else None
 
 
+def fk_controls(obj, bones):
+    """{bone: fk_control(obj, bone)'s name or None} for ``bones`` (names): a function of the rig's rest data."""
+    out = {}
+    for bone in bones:
+        control = fk_control(obj, bone)
+        out[bone] = None if control is None else control.name
+    return out
+
+
 def control_pairs(obj, bone_map):
     """The ControlPairs that place the ORG- bones of ``bone_map`` through the rig's controls."""
     bones = obj.pose.bones

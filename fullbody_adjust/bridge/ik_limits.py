@@ -49,27 +49,32 @@ def bone_limits(pose_bone):
     return BoneLimitSpec(locked, tuple(ranges), np.array(rest, dtype=np.float64))
 
 
-def _limits_of(obj, pose_bone):
-    """A bone's own limits; on a control rig, where it sets none, those of the control that poses it."""
+def _limits_of(obj, pose_bone, controls):
+    """A bone's own limits; on a control rig (``controls``: control_rig.fk_controls of its chain bones), where
+    it sets none, those of the control that poses it."""
     spec = bone_limits(pose_bone)
-    if not spec.limits_direction and control_rig.is_generated_rigify(obj):
-        control = control_rig.fk_control(obj, pose_bone.name)
+    if not spec.limits_direction and controls is not None:
+        control = controls.get(pose_bone.name)
         if control is not None:
-            return bone_limits(control)
+            return bone_limits(obj.pose.bones[control])
     return spec
 
 
-def joint_limits(obj, model, heads, tails, pose_matrices, settings, defaults=None):
+def joint_limits(obj, model, heads, tails, pose_matrices, settings, defaults=None, controls=None):
     """The limits a solve of armature ``obj`` should use: ``defaults`` ({limb: LimbLimits}; None: the default
     human limits, which the solver computes itself) with the rig's own limits of the limbs' chain bones in
     place (solver.rig_limits). heads, tails (F,J,3) and pose_matrices (F,J,4,4) are the start poses of
-    ``model``'s bones in the solve's space. Returns ``defaults`` as given when joint limits are off or no
-    chain bone limits its direction, so such a rig is solved exactly as without this reading."""
+    ``model``'s bones in the solve's space; ``controls``: on a generated control rig, its chain bones' FK
+    controls as rig_cache keeps them (found here when not given). Returns ``defaults`` as given when joint
+    limits are off or no chain bone limits its direction, so such a rig is solved exactly as without this
+    reading."""
     if not settings.use_limits:
         return defaults
     bones = obj.pose.bones
-    chain = {model.names[b] for limb in model.limbs.values() for b in limb.bones}
-    specs = {name: spec for name in chain if (spec := _limits_of(obj, bones[name])).limits_direction}
+    chain = [model.names[b] for limb in model.limbs.values() for b in limb.bones]
+    if controls is None and control_rig.is_generated_rigify(obj):
+        controls = control_rig.fk_controls(obj, chain)
+    specs = {name: spec for name in chain if (spec := _limits_of(obj, bones[name], controls)).limits_direction}
     if not specs:
         return defaults
     rotations = pose_matrices[..., :3, :3]

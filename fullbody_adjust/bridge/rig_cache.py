@@ -5,7 +5,8 @@ An entry is found again only while the armature's fingerprint is unchanged: bone
 flags, rest heads, tails and matrices (read in bulk), the stored map's items, and whether it is a generated
 control rig (solved on its skeleton's hierarchy, control_rig). The cached values are a
 function of exactly these (a stored map that fits the rig is used as it is, the model is built from the
-names, parents and map, the rest data from the bones), so a hit is never stale. Rotation modes belong to the
+names, parents and map, the rest data and a control rig's FK controls from the bones), so a hit is never
+stale. Rotation modes belong to the
 pose, not the rig: ``Rig.static`` reads them on every call. No setting of ``obj.fullbody_adjust`` other than
 the map enters the cached values. Entries are keyed by object name; a renamed or replaced object simply misses once.
 """
@@ -33,6 +34,8 @@ class Rig:
     bone_map: mapping.BoneMap
     model: BodyModel
     rest: dict  # pose.read_static's fields but the rotation modes
+    # On a generated control rig: each limb chain bone's FK control (control_rig.fk_control), or None.
+    fk_controls: dict = None
 
     def static(self, obj):
         """pose.read_static(obj) of this rig, the rotation modes read now."""
@@ -60,7 +63,12 @@ def rig_of(obj):
     parents = rest["parents"]
     if control_rig.is_generated_rigify(obj):  # a control rig is solved on its skeleton (control_rig)
         parents = control_rig.skeleton_parents(rest["names"], parents)
-    rig = Rig(bone_map=bone_map, model=body_model(rest["names"], parents, bone_map), rest=rest)
+    model = body_model(rest["names"], parents, bone_map)
+    fk_controls = None
+    if control_rig.is_generated_rigify(obj):
+        fk_controls = control_rig.fk_controls(obj, [model.names[b] for limb in model.limbs.values()
+                                                    for b in limb.bones])
+    rig = Rig(bone_map=bone_map, model=model, rest=rest, fk_controls=fk_controls)
     _entries[obj.name] = _Entry(_fingerprint(obj), rig)
     _entries.move_to_end(obj.name)
     while len(_entries) > _CAPACITY:
