@@ -15,8 +15,10 @@ import numpy as np
 from .geometry import any_perpendicular, cross, dot, norm, rotate_about_axis, swing_rotation
 
 # Secant steps on the bend angle (the end's direction, then the chord): both are smooth in the angle and the
-# first guess is close, so a few steps leave far less than the chain tolerance.
+# first guess is close, so a few steps leave far less than the chain tolerance; they stop once every row is
+# within _SETTLED (radians, or that fraction of the distance).
 _STEPS = 8
+_SETTLED = 1e-12
 
 
 def _segment_turns(shares, segments):
@@ -42,14 +44,18 @@ def _bend_axis(chains, targets):
     return axis / norm(axis)[:, None]
 
 
-def _secant(f, goal, a0, a1):
-    """Secant steps on f(alpha) = goal from a0, a1 (b,); f returns (b,). Returns the last alpha."""
+def _secant(f, goal, a0, a1, settled):
+    """Secant steps on f(alpha) = goal from a0, a1 (b,); f returns (b,). A row stops once it is within `settled`
+    (so its result does not depend on the other rows). Returns the last alpha."""
     f0, f1 = f(a0), f(a1)
     for _ in range(_STEPS):
+        moving = np.abs(f1 - goal) > settled
+        if not moving.any():
+            break
         slope = f1 - f0
-        ok = np.abs(slope) > 1e-15
+        ok = moving & (np.abs(slope) > 1e-15)
         a2 = np.where(ok, a1 - (f1 - goal) * (a1 - a0) / np.where(ok, slope, 1.0), a1)
-        a0, f0, a1 = a1, f1, a2
+        a0, f0, a1 = np.where(ok, a1, a0), np.where(ok, f1, f0), a2
         f1 = f(a1)
     return a1
 
@@ -66,7 +72,8 @@ def _pointing_alpha(chains, targets, axis, shares):
         return np.arctan2(dot(axis, cross(end0, end)), dot(end0, end))
 
     # The end turns by about the mean of the segments' turns: start from that and from no bend.
-    return _secant(turned, phi, np.zeros_like(phi), phi / np.mean(_segment_turns(shares, segments), axis=1))
+    return _secant(turned, phi, np.zeros_like(phi), phi / np.mean(_segment_turns(shares, segments), axis=1),
+                   _SETTLED)
 
 
 def curl_chord(chains, targets, shares):
@@ -87,7 +94,7 @@ def curl_start(chains, targets, shares):
     pointing = _pointing_alpha(chains, targets, axis, shares)
     distance = norm(targets - base)
     chord = (lambda alpha: norm(_segments_bent(segments, axis, alpha, shares).sum(axis=1)))
-    alpha = _secant(chord, distance, pointing, pointing * (1.0 + 1e-3) + 1e-6)
+    alpha = _secant(chord, distance, pointing, pointing * (1.0 + 1e-3) + 1e-6, _SETTLED * distance)
     # Beyond every chord the secant wanders off: the pointing curl is then as close as it gets.
     better = np.isfinite(alpha) & (np.abs(chord(np.where(np.isfinite(alpha), alpha, 0.0)) - distance)
                                    < np.abs(chord(pointing) - distance))
