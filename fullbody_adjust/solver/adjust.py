@@ -9,7 +9,7 @@
        - the pelvis translates when the trunk cannot bring the SC there (and by the trunk's remaining error
          when its joint limits hold it), but only where every constrained foot can still reach its ankle
          target: ankle tasks outrank the others by default (variant 2 at the root);
-    2. trunk: FABRIK from the (translated) root to the new SC, started from the spine curled onto it;
+    2. trunk: FABRIK from the (translated) root to the new SC, started from the spine curled onto it where it leans;
     3. arms (and head) from their bases riding on the new chest; 4. legs from the hips riding on the root.
 Obstacles and joint limits apply to every chain solve (solve_chain_batch). Bones outside the solved chains keep
 their local transforms (rigid children), so head and neck ride on the chest, fingers on the hands. A limb whose

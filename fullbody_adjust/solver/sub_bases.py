@@ -57,7 +57,8 @@ class SubBasePlacement:
              starts at the SC's own distance, so the SC's target moves continuously from where it was);
           2. the trunk bends: nearest `pref` within the trunk's reach from `trunk_base`;
           3. from the arms' balls alone (the root will have to move), the variant deciding if they are
-             disjoint. The root stays in cases 1-2."""
+             disjoint. The root stays in cases 1-2.
+        Returns (points (b,3), leaned (b,) bool: case 1)."""
         upper = self._upper()
         centres, radii, active, prio = self._balls(upper, rows, offsets)
         trunk_r = self.reach["trunk"][rows] * (1.0 - self.settings.reach_margin)
@@ -70,16 +71,16 @@ class SubBasePlacement:
             lean_r = curl_chord(spine, lean, shares)
         lean, ok_lean = nearest_on_sphere_in_balls(pref, trunk_base, lean_r, centres, radii, active)
         if np.all(ok_lean):
-            return lean
+            return lean, ok_lean
         bend, ok_bend = nearest_in_balls(
             pref, np.concatenate([centres, trunk_base[:, None]], axis=1),
             np.concatenate([radii, trunk_r[:, None]], axis=1),
             np.concatenate([active, np.ones((len(rows), 1), dtype=bool)], axis=1))
         if np.all(ok_lean | ok_bend):
-            return np.where(ok_lean[:, None], lean, bend)
+            return np.where(ok_lean[:, None], lean, bend), ok_lean
         arms_only, _ = sub_base_point(pref, centres, radii, active, prio, self.settings.variant)
         out = np.where(ok_bend[:, None], bend, arms_only)
-        return np.where(ok_lean[:, None], lean, out)
+        return np.where(ok_lean[:, None], lean, out), ok_lean
 
     def _root_delta(self, rows, pref, trunk_centre, trunk_active):
         """Root translation for frames `rows`: nearest to `pref` (b,3) where every constrained foot reaches its
@@ -118,8 +119,10 @@ class SubBasePlacement:
         if force_sc is not None:
             need_sc |= force_sc
         sc_star = sc0.copy()
+        leaned = np.zeros(b, dtype=bool)
         if np.any(need_sc):
-            sc_star = np.where(need_sc[:, None], self._place_sc(rows, sc0, base0, offsets), sc0)
+            point, leaned = self._place_sc(rows, sc0, base0, offsets)
+            sc_star = np.where(need_sc[:, None], point, sc0)
 
         # Root: stays exactly while every constrained foot reaches from its hip and the trunk reaches sc*.
         legs = self._legs()
@@ -138,8 +141,9 @@ class SubBasePlacement:
             sc_c = sc0 + delta
             need_c = carried & ~self._in_reach(upper, rows, {n: sc_c + offsets[n] for n in upper})
             if np.any(need_c):
-                point = self._place_sc(rows, sc_c, base0 + delta, offsets)
+                point, leaned_c = self._place_sc(rows, sc_c, base0 + delta, offsets)
                 sc_star = np.where(need_c[:, None], point, sc_star)
+                leaned = np.where(need_c, leaned_c, leaned)
                 need_sc = need_sc | need_c
 
         # Trunk: FABRIK from the translated root to sc* where the SC moves relative to the root; else it rides.
@@ -148,8 +152,14 @@ class SubBasePlacement:
         reason = np.full(b, "", dtype=object)
         solve = np.nonzero(need_sc)[0]
         if solve.size:
-            # From the curl that meets sc*: the chain solve has only the limits and obstacles left to settle.
-            start = curl_start(joints[solve], sc_star[solve], self._curl_shares(joints[solve]))
+            # Where the trunk leans, from the curl that meets sc*: the chain solve has only the limits and the
+            # obstacles left to settle. Where it must do more (sc* nearer its base, or the root moves), from the
+            # start pose: curling there too left the hand farthest from a target out of reach farther still
+            # (bench/fullbody.py, held-out dance clip).
+            start = joints[solve].copy()
+            lean = np.nonzero(leaned[solve])[0]
+            if lean.size:
+                start[lean] = curl_start(start[lean], sc_star[solve[lean]], self._curl_shares(start[lean]))
             res = self._solve("trunk", rows[solve], start, sc_star[solve])
             joints[solve] = res.positions
             status[solve] = res.status

@@ -1,6 +1,6 @@
 """The trunk's curl: the spine bent about one axis, each joint by its share of one angle (SubBasePlacement.
-_curl_shares), the shape the trunk's chain solve starts from (SubBasePlacement._sub_bases) and whose chord sets
-how far from the trunk's base the SC goes when the trunk leans (SubBasePlacement._place_sc).
+_curl_shares), whose chord sets how far from the trunk's base the SC goes when the trunk leans
+(SubBasePlacement._place_sc), and the shape the trunk's chain solve then starts from (SubBasePlacement._sub_bases).
 
 FABRIK from the start pose settles a small SC move by whichever spine joints its passes reach first, and where
 a joint's limit binds it hands its share to the next one: from one frame to the next the bend then jumps
