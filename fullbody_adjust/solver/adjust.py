@@ -9,7 +9,7 @@
        - the pelvis translates when the trunk cannot bring the SC there (and by the trunk's remaining error
          when its joint limits hold it), but only where every constrained foot can still reach its ankle
          target: ankle tasks outrank the others by default (variant 2 at the root);
-    2. trunk: FABRIK from the (translated) root to the new SC;
+    2. trunk: FABRIK from the (translated) root to the new SC, started from the spine curled onto it where it leans;
     3. arms (and head) from their bases riding on the new chest; 4. legs from the hips riding on the root.
 Obstacles and joint limits apply to every chain solve (solve_chain_batch). Bones outside the solved chains keep
 their local transforms (rigid children), so head and neck ride on the chest, fingers on the hands. A limb whose
@@ -22,6 +22,7 @@ Everything is vectorised over frames; a frame's result depends only on its own d
 converged problems and every other step is row-wise), so adjust_pose equals a row of adjust_frames.
 
 Modules: adjust_types.py (settings, results), reach_balls.py (sub-base geometry), sub_bases.py (step 1),
+trunk_curl.py (the spine's curl: the lean's radius and the trunk solve's start),
 limb_placement.py (steps 2-4: the chain solves and the top-down pass that places the bones),
 two_bone_start.py (a hinged limb's warm start), limb_rotations.py (bone rotations), prepared.py (the work that
 depends only on the start pose, kept while it is the same: Live's updates share it).

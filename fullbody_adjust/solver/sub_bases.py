@@ -7,6 +7,11 @@ import numpy as np
 from .geometry import norm
 from .obstacles import penetrations
 from .reach_balls import nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point
+from .trunk_curl import curl_chord, curl_start
+
+# The lean's radius is the chord of the curl toward the lean point, which moves a little with the radius: a few
+# rounds settle both (the chord changes with the square of the bend, so each round shrinks the change).
+_LEAN_ROUNDS = 3
 
 
 class SubBasePlacement:
@@ -17,6 +22,14 @@ class SubBasePlacement:
 
     def _legs(self):
         return [n for n in ("leg.L", "leg.R")]
+
+    @staticmethod
+    def _curl_shares(spine):
+        """(b,m) how the trunk's curl shares a bend among the spine joints (b,n,3): in proportion to the square
+        of each joint's lever to the SC. The lower joints move the SC farthest per degree, so they take most of
+        a lean (the pelvis does not turn, and the lowest spine joint stands in for the hips); the upper ones
+        keep the chest from pitching more than the lean needs."""
+        return norm(spine[:, -1:] - spine[:, :-1]) ** 2
 
     def _balls(self, names, rows, offsets_from):
         """Reach balls for the sub-base `anchor`: a limb with base b (rigidly offset from the anchor by
@@ -38,28 +51,36 @@ class SubBasePlacement:
     def _place_sc(self, rows, pref, trunk_base, offsets):
         """New SC for frames `rows`, from which every constrained upper limb reaches, in this order of
         preference (the first that exists wins):
-          1. the trunk leans: the point nearest `pref` (b,3) at the SC's current distance from the trunk base
-             (the spine hardly shortens: its joints bend a few tens of degrees each, so pulling the SC
-             straight toward the target would ask for a fold the joint limits refuse);
+          1. the trunk leans: the point nearest `pref` (b,3) at the chord of the trunk's curl toward it
+             (trunk_curl.py: the spine hardly shortens, its joints bend a few tens of degrees each, so pulling
+             the SC straight toward the target would ask for a fold the joint limits refuse; and the chord
+             starts at the SC's own distance, so the SC's target moves continuously from where it was);
           2. the trunk bends: nearest `pref` within the trunk's reach from `trunk_base`;
           3. from the arms' balls alone (the root will have to move), the variant deciding if they are
-             disjoint. The root stays in cases 1-2."""
+             disjoint. The root stays in cases 1-2.
+        Returns (points (b,3), leaned (b,) bool: case 1)."""
         upper = self._upper()
         centres, radii, active, prio = self._balls(upper, rows, offsets)
         trunk_r = self.reach["trunk"][rows] * (1.0 - self.settings.reach_margin)
-        lean_r = np.minimum(norm(pref - trunk_base), trunk_r)  # a straight spine: keep FABRIK off full stretch
+        spine = self.chain0["trunk"][rows]
+        spine = spine + (trunk_base - spine[:, 0])[:, None, :]
+        shares = self._curl_shares(spine)
+        lean_r = norm(pref - trunk_base)
+        for _ in range(_LEAN_ROUNDS):
+            lean, _ = nearest_on_sphere_in_balls(pref, trunk_base, lean_r, centres, radii, active)
+            lean_r = curl_chord(spine, lean, shares)
         lean, ok_lean = nearest_on_sphere_in_balls(pref, trunk_base, lean_r, centres, radii, active)
         if np.all(ok_lean):
-            return lean
+            return lean, ok_lean
         bend, ok_bend = nearest_in_balls(
             pref, np.concatenate([centres, trunk_base[:, None]], axis=1),
             np.concatenate([radii, trunk_r[:, None]], axis=1),
             np.concatenate([active, np.ones((len(rows), 1), dtype=bool)], axis=1))
         if np.all(ok_lean | ok_bend):
-            return np.where(ok_lean[:, None], lean, bend)
+            return np.where(ok_lean[:, None], lean, bend), ok_lean
         arms_only, _ = sub_base_point(pref, centres, radii, active, prio, self.settings.variant)
         out = np.where(ok_bend[:, None], bend, arms_only)
-        return np.where(ok_lean[:, None], lean, out)
+        return np.where(ok_lean[:, None], lean, out), ok_lean
 
     def _root_delta(self, rows, pref, trunk_centre, trunk_active):
         """Root translation for frames `rows`: nearest to `pref` (b,3) where every constrained foot reaches its
@@ -98,8 +119,10 @@ class SubBasePlacement:
         if force_sc is not None:
             need_sc |= force_sc
         sc_star = sc0.copy()
+        leaned = np.zeros(b, dtype=bool)
         if np.any(need_sc):
-            sc_star = np.where(need_sc[:, None], self._place_sc(rows, sc0, base0, offsets), sc0)
+            point, leaned = self._place_sc(rows, sc0, base0, offsets)
+            sc_star = np.where(need_sc[:, None], point, sc0)
 
         # Root: stays exactly while every constrained foot reaches from its hip and the trunk reaches sc*.
         legs = self._legs()
@@ -118,8 +141,9 @@ class SubBasePlacement:
             sc_c = sc0 + delta
             need_c = carried & ~self._in_reach(upper, rows, {n: sc_c + offsets[n] for n in upper})
             if np.any(need_c):
-                point = self._place_sc(rows, sc_c, base0 + delta, offsets)
+                point, leaned_c = self._place_sc(rows, sc_c, base0 + delta, offsets)
                 sc_star = np.where(need_c[:, None], point, sc_star)
+                leaned = np.where(need_c, leaned_c, leaned)
                 need_sc = need_sc | need_c
 
         # Trunk: FABRIK from the translated root to sc* where the SC moves relative to the root; else it rides.
@@ -128,7 +152,15 @@ class SubBasePlacement:
         reason = np.full(b, "", dtype=object)
         solve = np.nonzero(need_sc)[0]
         if solve.size:
-            res = self._solve("trunk", rows[solve], joints[solve], sc_star[solve])
+            # Where the trunk leans, from the curl that meets sc*: the chain solve has only the limits and the
+            # obstacles left to settle. Where it must do more (sc* nearer its base, or the root moves), from the
+            # start pose: curling there too left the hand farthest from a target out of reach farther still
+            # (bench/fullbody.py, held-out dance clip).
+            start = joints[solve].copy()
+            lean = np.nonzero(leaned[solve])[0]
+            if lean.size:
+                start[lean] = curl_start(start[lean], sc_star[solve[lean]], self._curl_shares(start[lean]))
+            res = self._solve("trunk", rows[solve], start, sc_star[solve])
             joints[solve] = res.positions
             status[solve] = res.status
             reason[solve] = res.reason
