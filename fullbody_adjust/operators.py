@@ -50,15 +50,20 @@ class ArmatureOperator:
             self.report({'ERROR'}, str(ex))
             return None
 
-    def run_with_progress(self, context, action):
+    def run_and_report(self, context, action):
         """run(), with the window's progress bar following the ``progress(stage, fraction)`` callback that
-        ``action`` is given."""
+        ``action`` is given, then the outcome reported (report_outcome): {'FINISHED'}, or {'CANCELLED'} when the
+        run failed (its one line reported by run())."""
         wm = context.window_manager
         wm.progress_begin(0, 100)
         try:
-            return self.run(context, lambda: action(lambda stage, fraction: wm.progress_update(int(100 * fraction))))
+            outcome = self.run(context, lambda: action(lambda stage, fraction: wm.progress_update(int(100 * fraction))))
         finally:
             wm.progress_end()
+        if outcome is None:
+            return {'CANCELLED'}
+        report_outcome(self, outcome)
+        return {'FINISHED'}
 
 
 # The solver settings an adjust operator shows in its redo panel (same names as the stored settings).
@@ -173,13 +178,9 @@ class FULLBODY_ADJUST_OT_adjust_frames(_SolverOptions, ArmatureOperator, bpy.typ
         scene = context.scene
         start = self.frame_start if self.properties.is_property_set("frame_start") else scene.frame_start
         end = self.frame_end if self.properties.is_property_set("frame_end") else scene.frame_end
-        outcome = self.run_with_progress(context, lambda progress: adjustment.adjust_frames(
+        return self.run_and_report(context, lambda progress: adjustment.adjust_frames(
             context, context.active_object, start, end, self.solver_options(new_action=self.new_action or None),
             progress=progress))
-        if outcome is None:
-            return {'CANCELLED'}
-        report_outcome(self, outcome)
-        return {'FINISHED'}
 
     def draw(self, context):
         layout = self.layout
@@ -281,16 +282,12 @@ to the source's trajectories and contacts)"""
 
     def execute(self, context):
         props = self.properties
-        outcome = self.run_with_progress(context, lambda progress: retarget.retarget(
+        return self.run_and_report(context, lambda progress: retarget.retarget(
             context, source_armature(context, self.source), context.active_object,
             self.frame_start if props.is_property_set("frame_start") else None,
             self.frame_end if props.is_property_set("frame_end") else None,
             contacts=contact_list(self.contacts, self.contact_object), exact=self.exact,
             new_action=self.new_action or None, progress=progress))
-        if outcome is None:
-            return {'CANCELLED'}
-        report_outcome(self, outcome)
-        return {'FINISHED'}
 
     def draw(self, context):
         layout = self.layout

@@ -65,12 +65,7 @@ class LimbPlacement:
             start[pending] = two_bone_start(start[pending], targets[pending], np.zeros((pending.size, 3)),
                                             pole[pending])
         if self.obstacles is not None:
-            # Every joint of a chain solve stays within the chain's reach of its base (backward passes) or of
-            # its target (forward passes): boxes farther than that (and the clearance) cannot take part.
-            radius = self.reach[name][rows] + self.settings.chain.margin + self.settings.chain.tolerance
-            boxes = self.obstacles.select(rows).near(np.stack([start[:, 0], targets], axis=1), radius)
-            if boxes is not None:
-                kwargs["obstacles"] = boxes
+            kwargs["obstacles"] = self.obstacles.select(rows)
         res = solve_chain_batch(start, targets, settings=self.settings.chain, **kwargs)
         self.iterations[rows] += res.iterations
         return res

@@ -9,7 +9,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import SolverInputError
-from .geometry import norm
 
 
 @dataclass(frozen=True)
@@ -104,21 +103,6 @@ class Boxes:
         if self.axes is None:
             return local
         return np.einsum("...ij,...cj->...ci", self.axes, local)
-
-    def near(self, centres, radius):
-        """The boxes that come within `radius` (B,) of one of the points `centres` (B,C,3) on some problem
-        (Boxes of those columns, or None when none does): a chain all of whose joints stay within those balls
-        can touch no other box."""
-        mins, maxs, axes = _box_arrays(self, 2)
-        q = _in_box_frames(centres, axes)  # (B,C,K,3)
-        gap = norm(np.maximum(np.maximum(mins - q, q - maxs), 0.0))  # (B,C,K) distance to each box
-        keep = np.any(gap <= radius[:, None, None], axis=(0, 1))
-        if keep.all():
-            return self
-        if not keep.any():
-            return None
-        return Boxes(self.mins[..., keep, :], self.maxs[..., keep, :],
-                     None if self.axes is None else self.axes[..., keep, :, :])
 
     def select(self, rows):
         """Per-problem boxes of the problems `rows` (index array); shared boxes are returned unchanged."""

@@ -169,7 +169,7 @@ def _one_chain(start, target, axis, pole):
     out = [list(p) for p in start]
     a = _norm(_sub(out[m - 1], out[m - 2]))
     c = _norm(_sub(out[m], out[m - 1]))
-    if m >= 3:
+    if m >= 3 and _norm(_sub(out[m - 2], out[0])) > 0.0:  # a chain folded onto its base has no arm to turn
         base = out[0]
         arm = _sub(out[m - 2], base)
         length = _norm(arm)
