@@ -284,20 +284,23 @@ class _Problem(SubBasePlacement, LimbPlacement):
             chest_r = chest_rotation(trunk0, trunk_joints)
             turned = {n: apply_matrix(chest_r, offsets0[n]) for n in upper}
             changed = np.zeros(F, dtype=bool)
-            far = {}
+            far, turn = {}, {}
             for n in upper:
                 base = trunk_joints[:, -1] + turned[n]
                 out_of_reach = norm(self.limb_target[n] - base) > self.reach_eff[n] + tol
                 far[n] = trunk_solved & self.limb_active[n] & out_of_reach
-                changed |= norm(turned[n] - placed_with[n]) > tol
+                turn[n] = norm(turned[n] - placed_with[n])
+                changed |= turn[n] > tol
             if not any((far[n] & changed).any() for n in upper):
                 break
             if fixable is None:  # the same on every pass: it depends on the start offsets only
                 fixable = self._fixable(upper, offsets0)
             retry = np.zeros(F, dtype=bool)
             for n in upper:
-                retry |= far[n] & fixable[n]
-            retry &= changed
+                # A limb that may still reach is re-placed while its base moves at all; one that cannot, only
+                # while its base moves by more than the reach margin: its best effort cannot gain more.
+                worth = np.where(fixable[n], changed, turn[n] > self.settings.reach_margin * self.reach_eff[n])
+                retry |= far[n] & worth
             if not np.any(retry):
                 break
             r = np.nonzero(retry)[0]

@@ -198,8 +198,8 @@ class SubBasePlacement:
         three is out of reach however the chest turns. Two limbs whose targets are farther apart than their
         reaches and the (turn-invariant) distance between their bases cannot both reach: when the one the
         priorities keep (the higher, or the earlier on a tie) is out of reach itself, the one they drop cannot
-        be helped either (while the kept one can reach, the passes still refine its placement). Such a frame
-        has its best-effort answer after one placement."""
+        be helped either (while the kept one can reach, the passes still refine its placement). Such a limb
+        is re-placed only while that can still gain more than the reach margin (adjust._Problem._solve_once)."""
         tol = self.settings.chain.tolerance
         base0 = self.chain0["trunk"][:, 0]
         legs = self._legs()

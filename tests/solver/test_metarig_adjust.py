@@ -71,8 +71,9 @@ def test_a_target_beyond_reach_ends_at_the_stretched_arm(rig):
 
 
 def test_sub_base_passes_stop_at_their_fixed_point(rig):
-    """With a target beyond reach no further pass runs once a pass cannot bring it closer, so a higher pass
-    cap gives exactly the same pose."""
+    """With a target beyond reach (however the chest turns) the SC is re-placed only while a pass still moves
+    the arm base by more than the reach margin (the most its best effort can gain), so a higher pass cap gives
+    exactly the same pose; and the first pass alone is not that pose."""
     model, h, t, x = rig
     targets, _ = metarig.case(model, h, t, "far")
     few = _frames(rig, targets[None], None, settings=replace(AdjustSettings(), sub_base_passes=4))
@@ -80,16 +81,11 @@ def test_sub_base_passes_stop_at_their_fixed_point(rig):
     np.testing.assert_array_equal(few.heads, many.heads)
     np.testing.assert_array_equal(few.rotations, many.rotations)
     assert few.iterations[0] == many.iterations[0]
-    # This target is out of reach however the chest turns (farther from every trunk base the planted feet
-    # allow than trunk, shoulder offset and arm reach together), so the first placement is already the
-    # answer: one pass gives the same pose, with no more chain iterations.
     one = _frames(rig, targets[None], None, settings=replace(AdjustSettings(), sub_base_passes=1))
-    trunk, arm = model.limbs["trunk"].joints(h, t), model.limbs["arm.L"].joints(h, t)
-    lengths = [float(np.sum(np.linalg.norm(np.diff(c, axis=0), axis=1))) for c in (trunk, arm)]
-    base = few.heads[0, model.limbs["trunk"].bones[0]]
-    assert np.linalg.norm(targets[0] - base) > lengths[0] + np.linalg.norm(arm[0] - trunk[-1]) + lengths[1]
-    np.testing.assert_array_equal(one.heads, few.heads)
-    assert one.iterations[0] == few.iterations[0]
+    assert not np.array_equal(one.heads, few.heads)
+    arm = model.limbs["arm.L"].joints(h, t)
+    reach = float(np.sum(np.linalg.norm(np.diff(arm, axis=0), axis=1)))
+    assert few.residuals[0, 0] <= one.residuals[0, 0] + AdjustSettings().reach_margin * reach
 
 
 def test_a_box_where_the_forearm_would_go_is_avoided(rig):
