@@ -75,6 +75,21 @@ def place(target, position):
 # --- the evaluated pose ---------------------------------------------------------------------------------------
 
 
+def add_box(obj, location, size):
+    """A cube mesh of edge ``size`` centred at ``location`` (world), ``obj`` active again (an obstacle)."""
+    bpy.ops.mesh.primitive_cube_add(size=size, location=tuple(location))
+    box = bpy.context.active_object
+    bpy.context.view_layer.objects.active = obj
+    return box
+
+
+def inside_box(box, points):
+    """(n,) bool: which world ``points`` (n,3) lie in the box mesh's world bounds."""
+    corners = np.array([box.matrix_world @ v.co for v in box.data.vertices])
+    lo, hi = corners.min(axis=0), corners.max(axis=0)
+    return np.all((points >= lo) & (points <= hi), axis=1)
+
+
 def evaluated(obj):
     bpy.context.view_layer.update()
     return obj.evaluated_get(bpy.context.evaluated_depsgraph_get())

@@ -13,8 +13,8 @@ import bpy
 import numpy as np
 import pytest
 
-from .scene_tools import (LAYERED_ACTIONS, RIG_KINDS, Pose, add_rig, animating_fcurves, body_axes, body_joints,
-                          bone_map, chain_joints, chain_length, drop_frame, file_state, keys_at, keys_state,
+from .scene_tools import (LAYERED_ACTIONS, RIG_KINDS, Pose, add_box, add_rig, animating_fcurves, body_axes, body_joints,
+                          bone_map, chain_joints, chain_length, drop_frame, file_state, inside_box, keys_at, keys_state,
                           parse_report, place, pose_channels, residuals, slot, without_derived_handles)
 
 # A met target is within this fraction of the rig's height.
@@ -155,17 +155,13 @@ def test_obstacle_on_the_elbows_way(extension_module_name):
     for name, (_mode, location, quaternion, euler, _axis_angle, _scale) in rest.items():  # back to the start
         pb = obj.pose.bones[name]
         pb.location, pb.rotation_quaternion, pb.rotation_euler = location, quaternion, euler
-    bpy.ops.mesh.primitive_cube_add(size=0.08, location=tuple(elbow))
-    box = bpy.context.active_object
-    bpy.context.view_layer.objects.active = obj
+    box = add_box(obj, elbow, 0.08)
 
     outcome = adjustment.adjust_pose(bpy.context, obj)
 
     after = Pose(obj)
-    corners = np.array([box.matrix_world @ v.co for v in box.data.vertices])
-    lo, hi = corners.min(axis=0), corners.max(axis=0)
     joints = after.to_world(body_joints(obj, after))
-    assert not np.any(np.all((joints >= lo) & (joints <= hi), axis=1)), "a joint is inside the obstacle"
+    assert not inside_box(box, joints).any(), "a joint is inside the obstacle"
     assert int(outcome.joints_inside.sum()) == 0 and int(outcome.segments_crossing.sum()) == 0
     assert_met(obj, (int(outcome.met[outcome.constrained].sum()), int(outcome.constrained.sum()),
                      float(np.nanmax(outcome.residuals))), enabled, before.height())

@@ -44,6 +44,15 @@ def move_hand_target(obj, pose=None):
     return np.array(slot(obj, "hand.L").target.matrix_world.translation)
 
 
+def live_after_a_target_move(keyed=False):
+    """live_rig with Live on and the left hand's target moved (move_hand_target), the view layer updated."""
+    obj = live_rig(keyed)
+    obj.fullbody_adjust.live = True
+    move_hand_target(obj)
+    bpy.context.view_layer.update()
+    return obj
+
+
 def solves(live, obj):
     return live.state_of(obj).solves
 
@@ -332,10 +341,7 @@ def test_renamed_armature_stays_live(live):
 
 
 def test_adjust_frames_steps_frames_without_live_solving_each(live):
-    obj = live_rig(keyed=True)
-    obj.fullbody_adjust.live = True
-    move_hand_target(obj)
-    bpy.context.view_layer.update()
+    obj = live_after_a_target_move(keyed=True)
     count = solves(live, obj)
     assert bpy.ops.fullbody_adjust.adjust_frames(frame_start=1, frame_end=10) == {'FINISHED'}
     assert solves(live, obj) == count + 1  # once, back on the current frame
@@ -344,10 +350,7 @@ def test_adjust_frames_steps_frames_without_live_solving_each(live):
 
 
 def test_key_pose_is_undone_by_undo(live):
-    obj = live_rig(keyed=True)
-    obj.fullbody_adjust.live = True
-    move_hand_target(obj)
-    bpy.context.view_layer.update()
+    obj = live_after_a_target_move(keyed=True)
     keys = keys_state(obj)
     bpy.ops.ed.undo_push(message="before keying")
     assert bpy.ops.fullbody_adjust.key_pose('EXEC_DEFAULT', True) == {'FINISHED'}

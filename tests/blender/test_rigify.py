@@ -7,8 +7,8 @@ import bpy
 import numpy as np
 import pytest
 
-from .scene_tools import (Pose, animating_fcurves, bone_map, chain_joints, drop_frame, file_state, keys_state, place, slot,
-                          without_derived_handles)
+from .scene_tools import (Pose, add_box, animating_fcurves, bone_map, chain_joints, drop_frame, file_state,
+                          inside_box, keys_state, place, slot, without_derived_handles)
 from .test_adjust_pose import REACH, adjust, reach_left_hand
 
 SWITCHES = ("upper_arm_parent.L", "upper_arm_parent.R", "thigh_parent.L", "thigh_parent.R")
@@ -118,17 +118,13 @@ def test_moved_rotated_scaled_rig_with_an_obstacle(extension_module_name):
     assert np.linalg.norm(elbow - world_head(before, "DEF-forearm.L")) > 0.05
     for name, basis in start.items():
         rig.pose.bones[name].matrix_basis = basis
-    bpy.ops.mesh.primitive_cube_add(size=0.1, location=tuple(elbow))
-    box = bpy.context.active_object
-    bpy.context.view_layer.objects.active = rig
+    box = add_box(rig, elbow, 0.1)
 
     outcome = adjustment.adjust_pose(bpy.context, rig)
 
     after = Pose(rig)
-    corners = np.array([box.matrix_world @ v.co for v in box.data.vertices])
-    lo, hi = corners.min(axis=0), corners.max(axis=0)
     joints = np.array([world_head(after, b) for b in DEFORM])
-    assert not np.any(np.all((joints >= lo) & (joints <= hi), axis=1)), "a deform joint is inside the obstacle"
+    assert not inside_box(box, joints).any(), "a deform joint is inside the obstacle"
     assert int(outcome.joints_inside.sum()) == 0
     assert np.linalg.norm(world_head(after, "DEF-hand.L") - goal) <= REACH * before.height()
 

@@ -59,11 +59,11 @@ def solve(model, heads, tails, axes, targets, specs=None):
     return adjust_frames(model, heads, tails, targets, EFFECTORS, limits=limits)
 
 
-def hand_targets(model, heads, tails, goals):
+def hand_targets(goals):
     """(F,4,3): the left hand's target per frame, the other effectors free (NaN)."""
     out = np.full((len(goals), len(EFFECTORS), 3), np.nan)
     out[:, 0] = goals
-    return np.broadcast_to(out, out.shape).copy()
+    return out
 
 
 def frames(heads, tails, n):
@@ -103,12 +103,16 @@ def pulling_goals(model, heads, tails, n=6):
     return np.array(goals)
 
 
-def test_x_and_z_locked_hold_the_elbow(body):
-    model, h0, t0, a0 = body
+def pulled(model, h0, t0, a0):
+    """One frame per pulling goal: start heads, tails, bone axes (F,J,...) and the left hand's targets."""
     goals = pulling_goals(model, h0, t0)
     heads, tails = frames(h0, t0, len(goals))
-    axes = np.repeat(a0, len(goals), axis=0)
-    targets = hand_targets(model, heads, tails, goals)
+    return heads, tails, np.repeat(a0, len(goals), axis=0), hand_targets(goals)
+
+
+def test_x_and_z_locked_hold_the_elbow(body):
+    model, h0, t0, a0 = body
+    heads, tails, axes, targets = pulled(model, h0, t0, a0)
     start = elbow_angle(model, heads, tails)
     free = solve(model, heads, tails, axes, targets)
     assert np.max(np.abs(elbow_angle(model, free.heads, free.tails) - start)) > 0.3  # the targets need a bend
@@ -116,7 +120,7 @@ def test_x_and_z_locked_hold_the_elbow(body):
     np.testing.assert_allclose(elbow_angle(model, locked.heads, locked.tails), start, atol=1e-7)
     # Held relative to the upper arm too (not only the angle): the forearm keeps its rest direction.
     np.testing.assert_allclose(local_direction(model, axes, locked, "forearm.L"),
-                               np.broadcast_to([0.0, 1.0, 0.0], (len(goals), 3)), atol=1e-7)
+                               np.broadcast_to([0.0, 1.0, 0.0], (len(targets), 3)), atol=1e-7)
 
 
 def rolled(model, axes, bone, angle):
@@ -133,10 +137,7 @@ def rolled(model, axes, bone, angle):
 def test_x_range_holds_while_the_targets_pull_outside(body, roll):
     model, h0, t0, a0 = body
     a0 = rolled(model, a0, "forearm.L", roll)
-    goals = pulling_goals(model, h0, t0)
-    heads, tails = frames(h0, t0, len(goals))
-    axes = np.repeat(a0, len(goals), axis=0)
-    targets = hand_targets(model, heads, tails, goals)
+    heads, tails, axes, targets = pulled(model, h0, t0, a0)
     lo, hi = -0.1, 0.35
     free = solve(model, heads, tails, axes, targets)
     wanted = x_rotation(local_direction(model, axes, free, "forearm.L"))
@@ -152,10 +153,7 @@ def test_x_range_holds_while_the_targets_pull_outside(body, roll):
 
 def test_z_locked_leaves_a_free_hinge_about_x(body):
     model, h0, t0, a0 = body
-    goals = pulling_goals(model, h0, t0)
-    heads, tails = frames(h0, t0, len(goals))
-    axes = np.repeat(a0, len(goals), axis=0)
-    targets = hand_targets(model, heads, tails, goals)
+    heads, tails, axes, targets = pulled(model, h0, t0, a0)
     specs = spec(model, a0, "forearm.L", locked=(False, False, True))
     lim = rig_limits(default_limits(model, heads, tails, bone_x_axes=axes[..., 0]), model, heads, tails, axes,
                      specs)["arm.L"].limits
@@ -234,7 +232,7 @@ def test_neither_range_holding_the_rest_holds_the_corner(body):
     model, h0, t0, a0 = body
     heads, tails = frames(h0, t0, 3)
     axes = np.repeat(a0, 3, axis=0)
-    targets = hand_targets(model, heads, tails, pulling_goals(model, h0, t0)[:3])
+    targets = hand_targets(pulling_goals(model, h0, t0)[:3])
     res = solve(model, heads, tails, axes, targets,
                 spec(model, a0, "forearm.L", ranges=((0.2, 0.5), None, (-0.4, -0.1))))
     d = local_direction(model, axes, res, "forearm.L")
