@@ -31,7 +31,7 @@ import bpy
 import numpy as np
 from mathutils import Euler, Matrix, Vector
 
-from ..solver.geometry import cross
+from ..solver.geometry import affine_inverse
 from ..solver.vocabulary import ROTATION_PROPERTY
 from .errors import AdjustError
 from .frames import step_frames
@@ -411,20 +411,6 @@ def as_batch(snapshot):
                    pose_matrices=snapshot.pose_matrices[None], matrices=snapshot.matrices[None],
                    heads=snapshot.heads[None], tails=snapshot.tails[None], lengths=snapshot.lengths[None],
                    channels={key: value[None] for key, value in snapshot.channels.items()})
-
-
-def affine_inverse(matrices):
-    """Inverses of affine (...,4,4) matrices in closed form. np.linalg.inv goes through LAPACK, whose thread
-    pool wakes up for a single 4x4 and, right after Blender's own threads evaluated the scene, can take
-    milliseconds to get a core."""
-    a0, a1, a2 = (matrices[..., :3, k] for k in range(3))  # the linear part's columns
-    rows = np.stack([cross(a1, a2), cross(a2, a0), cross(a0, a1)], axis=-2)
-    linear = rows / np.sum(a0 * rows[..., 0, :], axis=-1)[..., None, None]
-    out = np.zeros(matrices.shape)
-    out[..., :3, :3] = linear
-    out[..., :3, 3] = -np.einsum("...ij,...j->...i", linear, matrices[..., :3, 3])
-    out[..., 3, 3] = 1.0
-    return out
 
 
 def _array(value, shape, name):

@@ -42,9 +42,7 @@ def write_pose(context, target_obj, target, pose_matrices, frames, action_name):
 def _channels(obj, rig, basis, written, modes):
     """{bone: {property: (F,n)}}: each written bone's rotation in its mode, continuous from its current value;
     the root's location too."""
-    linear = basis[..., :3, :3]
-    squares = linear * linear  # unit columns (scale removed); the sums written out, faster than np.sum here
-    rotation = linear / np.sqrt(squares[..., 0:1, :] + squares[..., 1:2, :] + squares[..., 2:3, :])
+    rotation = rt.unit_columns(basis[..., :3, :3])  # scale removed
     out = {rig.names[j]: {} for j in written}
     for mode in sorted({modes[j] for j in written}):  # one conversion per rotation mode
         columns = [k for k, j in enumerate(written) if modes[j] == mode]

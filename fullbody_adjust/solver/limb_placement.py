@@ -134,8 +134,8 @@ class LimbPlacement:
         untouched = self._untouched_start(name, rows, parent_moved)
         if untouched.any():
             # The chain solve's status of a start at its target within reach: reached in 0 iterations.
-            for f in rows[untouched].tolist():
-                status[f], reason[f] = _final_status(True, True, 0.0, 1.0, 0.0, False, 0, False, False)
+            done = rows[untouched]
+            status[done], reason[done] = _final_status(True, True, 0.0, 1.0, 0.0, False, 0, False, False)
             solved[rows[untouched]] = False
             rows = rows[~untouched]
         if rows.size:

@@ -21,6 +21,7 @@ import numpy as np
 
 from .body import CHAIN, END, FIXED, ROOT, default_limits
 from .chain_model import ChainModel
+from .chain_types import _reach_bounds
 from .errors import SolverInputError
 from .geometry import apply_matrix, norm
 
@@ -56,10 +57,7 @@ class PreparedStart:
                     i = int(np.nonzero(short.any(axis=0))[0][0])
                     what = self.model.names[limb.bones[i]]
                     raise SolverInputError(f"{name}: chain segment {i} (from bone {what!r}) has zero length")
-                total = lengths[:, 0].copy()
-                for i in range(1, lengths.shape[1]):
-                    total = total + lengths[:, i]
-                chain0[name], reach[name] = _read_only(joints), _read_only(total)
+                chain0[name], reach[name] = _read_only(joints), _read_only(_reach_bounds(lengths)[0])
             self._chains = chain0, reach
         return dict(self._chains[0]), dict(self._chains[1])  # the caller may add to its dicts
 
@@ -102,6 +100,8 @@ def prepare(model, heads, tails, settings, bone_x_axes=None) -> PreparedStart:
     """The PreparedStart of these start poses, from the cache when the same poses were prepared lately.
     heads, tails (F,J,3) float64; bone_x_axes None, (J,3) or (F,J,3)."""
     x = None if bone_x_axes is None else np.asarray(bone_x_axes, dtype=np.float64)
+    if heads.shape[0] > _MAX_CACHED_FRAMES:
+        return PreparedStart(model, heads, tails, settings, x)  # a long range is solved once: not remembered
     key = (id(model), heads.shape, heads.tobytes(), tails.tobytes(),
            None if x is None else (x.shape, x.tobytes()), settings.use_limits, settings.human_limits)
     entry = _cache.get(key)
@@ -109,8 +109,6 @@ def prepare(model, heads, tails, settings, bone_x_axes=None) -> PreparedStart:
         _cache.move_to_end(key)
         return entry
     entry = PreparedStart(model, heads, tails, settings, x)
-    if heads.shape[0] > _MAX_CACHED_FRAMES:
-        return entry  # a long frame range is solved once: remembering it would only hold its memory
     _cache[key] = entry
     while len(_cache) > _CAPACITY:
         _cache.popitem(last=False)

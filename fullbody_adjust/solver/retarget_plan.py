@@ -71,8 +71,7 @@ class RetargetPlan:
     contacts (F,4) bool: frames held at a contact; contact_list {effector: [Contact]} the source's contacts
     (contact_intervals the same as (start, stop) pairs); leg_ratio target/source; ground: world z of the floor
     (the source's lowest foot points), None when the floor is not a contact; boxes: the contact objects'
-    world boxes (mins, maxs) or None; heading (3,3): the turn about Z from the source's heading to the
-    target's, applied to the motion."""
+    world boxes (mins, maxs) or None."""
 
     start_pose: np.ndarray
     heads: np.ndarray
@@ -85,7 +84,6 @@ class RetargetPlan:
     ground: float
     contact_list: dict = None
     boxes: tuple = None
-    heading: np.ndarray = None
     effectors: tuple = EFFECTORS
 
 
@@ -187,8 +185,7 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     return RetargetPlan(start_pose=start, heads=heads, tails=tails, targets=target.to_armature(world_targets),
                         world_targets=world_targets, contacts=contacts,
                         contact_intervals={e: [(c.start, c.stop) for c in found[e]] for e in EFFECTORS},
-                        leg_ratio=ratio, ground=floor if ground else None, contact_list=found, boxes=boxes,
-                        heading=heading)
+                        leg_ratio=ratio, ground=floor if ground else None, contact_list=found, boxes=boxes)
 
 
 def _foot_path(contact, free, source_points, target_points, soles, on_surface, floor, ratio):

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import SolverInputError
-from .geometry import cross, dot, norm, normalize
+from .geometry import cross, cross_components, dot, norm, normalize
 from .vocabulary import LIMB_EFFECTORS
 
 EFFECTORS = LIMB_EFFECTORS
@@ -122,7 +122,7 @@ def basis_from_pose(rig, pose, bones):
          for i in range(3)]
     t = [p[4 * i] * rel[3] + p[4 * i + 1] * rel[7] + p[4 * i + 2] * rel[11] + p[4 * i + 3] for i in range(3)]
     col = [[a[0][j], a[1][j], a[2][j]] for j in range(3)]
-    adj = [_cross_of(col[1], col[2]), _cross_of(col[2], col[0]), _cross_of(col[0], col[1])]
+    adj = [cross_components(col[1], col[2]), cross_components(col[2], col[0]), cross_components(col[0], col[1])]
     det = col[0][0] * adj[0][0] + col[0][1] * adj[0][1] + col[0][2] * adj[0][2]
     inv = [[adj[i][j] / det for j in range(3)] for i in range(3)]
     out = np.zeros((16,) + b.shape[1:])
@@ -137,31 +137,6 @@ def basis_from_pose(rig, pose, bones):
                 row += shift
     out[15] = 1.0
     return out.transpose(1, 2, 0).reshape(frames, len(bones), 4, 4)  # a strided view, (F,k,4,4)
-
-
-def _cross_of(u, v):
-    """Cross product of two vectors given as lists of three component arrays."""
-    return [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]
-
-
-def affine_inverse(m):
-    """Inverses of affine matrices (…,4,4) (last row 0 0 0 1), in closed form: numpy's batched inv is
-    several times slower for many small matrices. Computed entry by entry on contiguous component arrays
-    (adjugate rows = cross products of the columns, over the determinant)."""
-    m = np.asarray(m, dtype=np.float64)
-    a = [[np.ascontiguousarray(m[..., i, j]) for j in range(3)] for i in range(3)]
-    col = [[a[0][j], a[1][j], a[2][j]] for j in range(3)]
-    rows = [_cross_of(col[1], col[2]), _cross_of(col[2], col[0]), _cross_of(col[0], col[1])]
-    det = col[0][0] * rows[0][0] + col[0][1] * rows[0][1] + col[0][2] * rows[0][2]
-    out = np.zeros(m.shape)
-    inv = [[rows[i][j] / det for j in range(3)] for i in range(3)]
-    t = [np.ascontiguousarray(m[..., i, 3]) for i in range(3)]
-    for i in range(3):
-        for j in range(3):
-            out[..., i, j] = inv[i][j]
-        out[..., i, 3] = -(inv[i][0] * t[0] + inv[i][1] * t[1] + inv[i][2] * t[2])
-    out[..., 3, 3] = 1.0
-    return out
 
 
 def unit_columns(m):

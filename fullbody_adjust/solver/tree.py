@@ -28,11 +28,11 @@ import numpy as np
 
 from .chain import ChainSettings, solve_chain
 from .chain_model import ChainModel
+from .chain_types import _STALL
 from .errors import SolverInputError
 from .obstacles import as_boxes, points_inside, segments_cross
 
 STRATEGIES = ("centroid", "weighted", "sequential")
-_STALL = 1e-3  # as in chain_types.py: an iteration moving every effector less than tolerance * _STALL has stalled
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,6 @@ from fullbody_adjust.bridge.errors import AdjustError
 from fullbody_adjust.bridge.keyframes import key_bones_frames
 from fullbody_adjust.solver.vocabulary import EULER_ORDERS
 from fullbody_adjust.bridge.pose import (
-    affine_inverse,
     apply_channels,
     read_pose,
     read_pose_frames,
@@ -511,15 +510,3 @@ def test_bad_input_is_rejected_before_anything_changes():
     with pytest.raises(ValueError, match="rotates in mode XYZ"):
         apply_channels(obj, {"spine": {"rotation_quaternion": (1, 0, 0, 0)}})
     assert {name: local_channels(obj, name) for name in snapshot.names} == before
-
-
-def test_affine_inverse_inverts_object_transforms():
-    rng = np.random.default_rng(3)
-    rotations = np.linalg.qr(rng.normal(size=(20, 3, 3)))[0]
-    matrices = np.zeros((20, 4, 4))
-    matrices[:, :3, :3] = rotations * rng.uniform(0.01, 100.0, (20, 1, 3))  # rotated, non-uniformly scaled
-    matrices[:, :3, 3] = rng.normal(size=(20, 3))
-    matrices[:, 3, 3] = 1.0
-    inverse = affine_inverse(matrices)
-    np.testing.assert_allclose(inverse @ matrices, np.broadcast_to(np.eye(4), matrices.shape), atol=1e-12)
-    np.testing.assert_allclose(inverse, np.linalg.inv(matrices), rtol=1e-10, atol=1e-12)

@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fullbody_adjust.solver import SolverInputError, normalize, rotate_about_axis, swing_rotation
-from fullbody_adjust.solver.geometry import any_perpendicular, cross
+from fullbody_adjust.solver.geometry import affine_inverse, any_perpendicular, cross
 
 from .strategies import unit_vectors
 
@@ -72,3 +72,15 @@ def test_cross_matches_numpy():
     rng = np.random.default_rng(0)
     a, b = rng.normal(size=(5, 3)), rng.normal(size=(5, 3))
     np.testing.assert_allclose(cross(a, b), np.cross(a, b), atol=1e-15)
+
+
+def test_affine_inverse_inverts_object_transforms():
+    rng = np.random.default_rng(3)
+    rotations = np.linalg.qr(rng.normal(size=(20, 3, 3)))[0]
+    matrices = np.zeros((20, 4, 4))
+    matrices[:, :3, :3] = rotations * rng.uniform(0.01, 100.0, (20, 1, 3))  # rotated, non-uniformly scaled
+    matrices[:, :3, 3] = rng.normal(size=(20, 3))
+    matrices[:, 3, 3] = 1.0
+    inverse = affine_inverse(matrices)
+    np.testing.assert_allclose(inverse @ matrices, np.broadcast_to(np.eye(4), matrices.shape), atol=1e-12)
+    np.testing.assert_allclose(inverse, np.linalg.inv(matrices), rtol=1e-10, atol=1e-12)

@@ -254,13 +254,6 @@ def test_basis_from_pose_inverts_forward_kinematics():
                                atol=1e-9)
 
 
-def test_affine_inverse_matches_numpy():
-    rng = np.random.default_rng(0)
-    m = np.tile(np.eye(4), (50, 1, 1))
-    m[:, :3, :] = rng.normal(size=(50, 3, 4))
-    np.testing.assert_allclose(rt.affine_inverse(m), np.linalg.inv(m), atol=1e-9)
-
-
 def test_non_uniform_object_scale_is_refused():
     rig, _ = random_rig(1)
     with pytest.raises(SolverInputError, match="uniform"):
