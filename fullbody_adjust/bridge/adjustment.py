@@ -201,26 +201,27 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
     arm_targets = _apply(to_arm, world_targets)
     boxes = _armature_boxes(corners, to_arm)
     end_turns, poles = _end_goals(model, snapshot, goals, to_arm)
+    solve_settings = _in_armature_units(settings, snapshot.matrix_world)
     try:
         limits = ik_limits.joint_limits(obj, model, heads, tails, snapshot.pose_matrices, settings,
                                         controls=rig.fk_controls)
         result = solve_frames(model, heads, tails, arm_targets, targets.EFFECTORS, priorities, obstacles=boxes,
-                              settings=_in_armature_units(settings, snapshot.matrix_world),
+                              settings=solve_settings,
                               bone_x_axes=snapshot.pose_matrices[..., :3, 0], limits=limits,
                               end_turns=end_turns, poles=poles)
     except SolverInputError as ex:
         raise AdjustError(f"Cannot adjust '{obj.name}': {ex}") from None
     progress("writing", 0.8)
 
-    written = _bones_to_write(model, snapshot, result, keep_hands, goals.oriented.any(axis=0))
+    oriented = goals.oriented.any(axis=0)  # (E,) effectors that take their target's orientation
+    written = _bones_to_write(model, snapshot, result, keep_hands, oriented)
     names = tuple(snapshot.names[j] for j in written)
     new_pose = _new_pose_matrices(snapshot, result, written)
     new_world = snapshot.matrix_world[:, None] @ new_pose
     action = None
     if controlled and names:
-        tolerance = _in_armature_units(settings, snapshot.matrix_world).chain.tolerance
-        channels = _control_channels(context, obj, frames, snapshot, result, bone_map, keep_hands, tolerance,
-                                     apply_pose)
+        channels = _control_channels(context, obj, frames, snapshot, result, bone_map, keep_hands, oriented,
+                                     solve_settings.chain.tolerance, apply_pose)
         names = tuple(channels)
         if options.insert_keys and names:
             action = keyframes.key_bones_frames(obj, None, frames, channels, action_name=options.new_action)
@@ -258,7 +259,8 @@ def _new_pose_matrices(snapshot, result, bones):
     return new_pose
 
 
-def _control_channels(context, obj, frames, snapshot, result, bone_map, keep_hands, tolerance, apply_pose):
+def _control_channels(context, obj, frames, snapshot, result, bone_map, keep_hands, oriented, tolerance,
+                      apply_pose):
     """A control rig's solved pose as its controls' channels {control: {property: (F,k)}}: on each frame the
     controls are placed so the mapped bones reach the solve (control_match), and the controls that moved on some
     frame are returned. With ``apply_pose`` (one frame, the current one) the controls are left placed; otherwise
@@ -266,10 +268,12 @@ def _control_channels(context, obj, frames, snapshot, result, bone_map, keep_han
     names = [bone for _group, bone in bone_map.items()]
     mapped = snapshot.indices(names)
     desired = _new_pose_matrices(snapshot, result, mapped)
-    if not keep_hands:  # the hands and feet keep their pose relative to the forearm and shin
+    if not keep_hands:  # the hands and feet keep their pose relative to the forearm and shin (as _bones_to_write)
         old = snapshot.pose_matrices[:, mapped]
         position = {name: k for k, name in enumerate(names)}
         for end, limb in (("hand.L", "arm.L"), ("hand.R", "arm.R"), ("foot.L", "leg.L"), ("foot.R", "leg.R")):
+            if oriented[targets.EFFECTORS.index(end)]:
+                continue  # ... but one that takes its target's orientation
             k, p = position[bone_map.bones(end)[0]], position[bone_map.bones(limb)[-1]]
             desired[:, k] = desired[:, p] @ pose.affine_inverse(old[:, p]) @ old[:, k]
     pairs = control_rig.control_pairs(obj, bone_map)

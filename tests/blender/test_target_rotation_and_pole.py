@@ -138,11 +138,13 @@ def test_a_pole_that_left_the_scene_is_one_line_error():
         bpy.ops.fullbody_adjust.adjust_pose()
 
 
-@pytest.mark.parametrize("limbs", ["IK", "FK"])
-def test_a_generated_rigify_hand_takes_its_targets_orientation_through_the_controls(limbs):
+@pytest.mark.parametrize("limbs,keep_hands", [("IK", True), ("FK", True), ("IK", False), ("FK", False)])
+def test_a_generated_rigify_hand_takes_its_targets_orientation_through_the_controls(limbs, keep_hands):
+    """Also with Keep Hand Orientation off: the other hands follow their forearms, this one its target."""
     from .test_rigify import generated_rig
 
     rig = generated_rig("basic", limbs)
+    rig.fullbody_adjust.keep_hand_orientation = keep_hands
     pose = Pose(rig)
     goal = _reach_point(rig, pose, "arm.L", 0.85, 0.3 * body_axes(rig, pose)[2])
     target = slot(rig, "hand.L").target
