@@ -26,7 +26,7 @@ from .reporting import batch_report
 from .reporting.progress import ConsoleProgress, NoProgress
 
 WORKER_FLAG = "--clip-worker"
-SAVE_EVERY = 10.0  # seconds: while a batch runs, the merged file is saved at least this often
+SAVE_EVERY = 10.0  # seconds: while a batch runs, the merged file is saved as clips end, at most this often
 
 
 def run(args):
@@ -63,7 +63,8 @@ def run(args):
     failed = [row for row in rows if row["status"] == batch_report.FAILED]
     for row in failed:
         print(f"{cli.COMMAND} retarget: {os.path.basename(row['clip'])} failed: {row['reason']}", file=sys.stderr)
-    return cli.EXIT_TARGETS_MISSED if failed or report["missed_within_reach"] else cli.EXIT_OK
+    missed = report["missed_within_reach"] or report["contacts_not_held"]  # as the single retarget's exit code
+    return cli.EXIT_TARGETS_MISSED if failed or missed else cli.EXIT_OK
 
 
 def _checked_outputs(args, input_path, clips):
@@ -112,8 +113,9 @@ def _tasks(args, clips):
 
 def _run_tasks(args, tasks, jobs, blend_in, target_name, saved):
     """The rows of ``tasks``, run by ``jobs`` workers. Without --output-dir each done clip's action is appended
-    to the open file as it ends, and the file saved as ``saved`` at least every SAVE_EVERY seconds. An interrupt
-    (Ctrl+C) keeps what was done: the clips not ended by then are failed rows ('interrupted')."""
+    to the open file as it ends, and the file saved as ``saved`` as clips end, at most once every SAVE_EVERY
+    seconds. An interrupt (Ctrl+C) keeps what was done: the clips not ended by then are failed rows
+    ('interrupted')."""
     if not tasks:
         return []
     progress = NoProgress() if args.quiet else ConsoleProgress(

@@ -88,12 +88,15 @@ def _retarget_clip(context, job, task, progress):
 
 
 def clip_row(outcome, solve_seconds):
-    """A clip's figures: frames, retarget time (read, plan, solve, write), reach error within reach, contacts
-    held and their error."""
+    """A clip's figures: frames, retarget time (read, plan, solve, write), reach error within reach, contact
+    frames held, their error as the result keeps the source's contacts (the retarget's contact report, as the
+    single command reports it), and the contact frames within reach not held."""
     report = summary.summarize_outcome(outcome, solve_seconds)
     reach = report["reach_error"]["all"]["reachable"]
     held = np.asarray(outcome.contacts, dtype=bool)
-    contact_errors = np.asarray(outcome.residuals, dtype=np.float64)[held]
+    measured = np.asarray(outcome.contact_error, dtype=np.float64) if outcome.contact_error is not None \
+        else np.full(held.shape, np.nan)
+    contact_errors = measured[np.isfinite(measured)]
     return {
         "action": outcome.action.name,
         "frames": report["frames"]["count"],
@@ -107,4 +110,5 @@ def clip_row(outcome, solve_seconds):
         "contact_frames": int(held.sum()),
         "contact_error_median": float(np.median(contact_errors)) if contact_errors.size else None,
         "contact_error_max": float(contact_errors.max()) if contact_errors.size else None,
+        "contacts_not_held": int(outcome.contacts_not_held()),
     }

@@ -95,11 +95,12 @@ def test_the_batch_report_counts_its_rows_and_the_csv_holds_them():
              "missed_within_reach": 2, "contact_error_max": 1e-7},
             {"clip": "/c/b.bvh", "name": "b", "status": "failed", "reason": "Cannot import b.bvh: bad, \"quoted\""},
             {"clip": "/c/c.bvh", "name": "c", "status": "skipped"},
-            {"clip": "/c/d.bvh", "name": "d", "status": "done", "frames": 120, "missed_within_reach": 0}]
+            {"clip": "/c/d.bvh", "name": "d", "status": "done", "frames": 120, "missed_within_reach": 0,
+             "contacts_not_held": 3}]
     report = batch_report.batch_report(rows, 30.0, target="Hero")
     assert report["target"] == "Hero"
     assert report["clips"] == {"total": 4, "done": 2, "failed": 1, "skipped": 1}
-    assert report["frames"] == 420 and report["missed_within_reach"] == 2
+    assert report["frames"] == 420 and report["missed_within_reach"] == 2 and report["contacts_not_held"] == 3
     assert report["clips_per_minute"] == pytest.approx(60.0 * 2 / 30.0)
     assert all(set(row) == set(batch_report.COLUMNS) for row in report["rows"])
     json.loads(batch_report.to_json(report))
@@ -108,4 +109,5 @@ def test_the_batch_report_counts_its_rows_and_the_csv_holds_them():
     assert listed[1]["reason"] == rows[1]["reason"] and listed[1]["frames"] == ""
     assert float(listed[0]["contact_error_max"]) == 1e-7
     line = batch_report.one_line(report)
-    assert "2 of 4 clips" in line and "1 skipped" in line and "1 failed" in line and "2 targets missed" in line
+    assert "2 of 4 clips" in line and "1 skipped" in line and "1 failed" in line and "2 targets missed" in line \
+        and "3 contact frames not held" in line

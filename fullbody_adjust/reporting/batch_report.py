@@ -13,7 +13,8 @@ SKIPPED = "skipped"
 
 COLUMNS = ("clip", "name", "status", "reason", "action", "output", "frames", "frame_start", "frame_end", "seconds",
            "import_seconds", "solve_seconds", "reach_error_median", "reach_error_p99", "reach_error_max",
-           "missed_within_reach", "contact_frames", "contact_error_median", "contact_error_max")
+           "missed_within_reach", "contact_frames", "contact_error_median", "contact_error_max",
+           "contacts_not_held")
 
 
 def batch_report(rows, seconds, **extra):
@@ -31,6 +32,7 @@ def batch_report(rows, seconds, **extra):
         "clips_per_minute": 60.0 * len(done) / seconds if seconds > 0 else None,
         "frames": frames,
         "missed_within_reach": sum(row["missed_within_reach"] or 0 for row in done),
+        "contacts_not_held": sum(row["contacts_not_held"] or 0 for row in done),
         "rows": rows,
     })
     return report
@@ -61,4 +63,6 @@ def one_line(report):
         line += f", {clips[FAILED]} failed"
     if report["missed_within_reach"]:
         line += f"; {report['missed_within_reach']} targets missed within reach"
+    if report["contacts_not_held"]:
+        line += f"; {report['contacts_not_held']} contact frames not held within reach"
     return line
