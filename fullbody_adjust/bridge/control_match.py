@@ -126,12 +126,13 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
     for _sweep in range(max_sweeps):
         pending = []  # (pair, armature-space step) of the controls moved since the last evaluation
         for level_pairs in by_level:
-            if pending and not all(_carried_or_apart(pair, pending, above) is not None for pair in level_pairs):
+            carries = [_carried_or_apart(pair, pending, above) if pending else None for pair in level_pairs]
+            if pending and any(carry is None for carry in carries):
                 view_layer.update()
                 pending = []
+                carries = [None] * len(level_pairs)
             moves, scales = [], []
-            for pair in level_pairs:
-                carry = _carried_or_apart(pair, pending, above) if pending else None
+            for pair, carry in zip(level_pairs, carries):
                 bone = _matrix(pose_bones[pair.bone])
                 if carry is not None:
                     bone = carry @ bone

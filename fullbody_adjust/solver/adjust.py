@@ -185,7 +185,6 @@ class _Problem(SubBasePlacement, LimbPlacement):
             if pd is None and ll.limits.kind[0] != FREE:
                 raise SolverInputError(f"limits for {name!r}: joint 0 is limited but has no parent_direction")
         self.limits = limits
-        self.start_frames = np.arange(F)  # each frame's row in self.prepared
         self.iterations = np.zeros(F, dtype=np.int64)
         self.end_turns, self.limb_pole = {}, {}
 
@@ -216,7 +215,6 @@ class _Problem(SubBasePlacement, LimbPlacement):
         for name in self._PER_FRAME:
             setattr(sub, name, getattr(self, name)[rows])
         sub.iterations = np.zeros(len(rows), dtype=np.int64)
-        sub.start_frames = self.start_frames[rows]
         sub.default_limits = False  # its limits are a restriction of the prepared ones
         for name in self._PER_FRAME_DICTS:
             setattr(sub, name, {k: v[rows] for k, v in getattr(self, name).items()})

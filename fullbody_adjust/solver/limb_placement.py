@@ -167,9 +167,9 @@ class LimbPlacement:
                 & ~segments_cross(c0[:, :-1], c0[:, 1:], boxes).any(axis=(1, 2))
         ll = self.limits.get(name)
         if keep.any() and ll is not None and ll.limits.any_active:
-            if not self.default_limits:  # the caller's limits: only a chain solve checks them
+            if not self.default_limits:  # the caller's limits, or a re-solve's subset: a chain solve checks them
                 return np.zeros(rows.size, dtype=bool)
-            keep &= self.prepared.start_keeps_limits(name, self.settings.chain)[self.start_frames[rows]]
+            keep &= self.prepared.start_keeps_limits(name, self.settings.chain)[rows]
         return keep
 
 
