@@ -42,6 +42,7 @@ class LiveState:
     error: str = ""  # why the last solve failed, one line ("" when it went well)
     warning: str = ""  # what the last solve left out (a deleted target), one line
     solves: int = 0  # live solves so far (for tests and the bench)
+    pointer: int = 0  # the armature's as_pointer(): its state follows it through a rename
 
 
 _states = {}  # armature object name -> LiveState, only for armatures with Live on
@@ -114,18 +115,21 @@ def _on_depsgraph_update(scene, depsgraph):
              if update.is_updated_transform and isinstance(update.id, bpy.types.Object)}
     if not moved:
         return
+    gone = False
     for name in list(_states):
         obj = _live_object(name)
         if obj is None:
-            _resync()  # renamed, or Live switched off some other way: follow what the file says
+            gone = True
             continue
-        state = _states[name]
+        state = _states[obj.name]
         target_names = {slot.target.name for slot in obj.fullbody_adjust.targets if slot.target is not None}
-        if name in moved and _object_moved(obj, state):
+        if obj.name in moved and _object_moved(obj, state):
             state.stale = True  # the base pose's world matrices moved with the object
             _solve(obj, state, bpy.context)
         elif moved & target_names:
             _solve(obj, state, bpy.context)
+    if gone:
+        _resync()  # Live switched off some other way (or the armature deleted): follow what the file says
 
 
 @persistent
@@ -136,7 +140,7 @@ def _on_frame_change_pre(scene, depsgraph=None):
     for name in list(_states):
         obj = _live_object(name)
         if obj is not None:
-            state = _states[name]
+            state = _states[obj.name]
             _guarded(_restore, obj, state, None)
             state.written, state.stale = (), True
 
@@ -148,7 +152,7 @@ def _on_frame_change_post(scene, depsgraph=None):
     for name in list(_states):
         obj = _live_object(name)
         if obj is not None and scene in obj.users_scene:
-            _solve(obj, _states[name], bpy.context)
+            _solve(obj, _states[obj.name], bpy.context)
 
 
 @persistent
@@ -261,7 +265,7 @@ def _guarded(function, *args):
 
 
 def _new_state(obj):
-    state = LiveState(base={}, bone_names=())
+    state = LiveState(base={}, bone_names=(), pointer=obj.as_pointer())
     _capture_base(obj, state)
     return state
 
@@ -298,8 +302,15 @@ def _resync():
 
 
 def _live_object(name):
-    """The armature named ``name`` while Live is on for it; forgets its state otherwise."""
+    """The armature whose Live state is kept under ``name`` (under its new name, when it was renamed) while Live
+    is on for it; forgets its state otherwise."""
     obj = bpy.data.objects.get(name)
+    if obj is None and name in _states:  # renamed: the state (its base pose) follows the object
+        pointer = _states[name].pointer
+        obj = next((o for o in bpy.data.objects if o.as_pointer() == pointer), None)
+        if obj is not None and obj.name not in _states:
+            _states[obj.name] = _states.pop(name)
+            name = obj.name
     if obj is None or obj.type != 'ARMATURE' or not obj.fullbody_adjust.live:
         _states.pop(name, None)
         return None

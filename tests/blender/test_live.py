@@ -330,14 +330,20 @@ def test_key_pose_with_a_deleted_target_keys_the_rest(live):
     assert bone_map(obj)["arm.L"][-1] in keyed
 
 
-def test_renamed_armature_stays_live(live):
+def test_renamed_armature_stays_live_and_keeps_its_base_pose(live):
     obj = live_rig()
+    before = pose_channels(obj)
     obj.fullbody_adjust.live = True
-    obj.name = "Hero"
     move_hand_target(obj)
+    bpy.context.view_layer.update()  # Live shows a solved pose...
+    obj.name = "Hero"  # ... when the armature is renamed
+    slot(obj, "hand.L").target.location.z += 0.01
     bpy.context.view_layer.update()
     assert live.state_of(obj) is not None
     assert hand_distance(obj) < REACH * Pose(obj).height()
+    assert pose_channels(obj) != before
+    obj.fullbody_adjust.live = False  # back to the pose from before Live, not the one it showed
+    assert pose_channels(obj) == before
 
 
 def test_adjust_frames_steps_frames_without_live_solving_each(live):
