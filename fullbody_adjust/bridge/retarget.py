@@ -237,12 +237,13 @@ def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *
         target_basis = pose_property(target_obj.pose.bones, "matrix_basis", (4, 4)).transpose(0, 2, 1)
         if len(target.names) != len(target_basis):  # a control rig's skeleton: its bones' own bases
             target_basis = target_basis[[target_obj.pose.bones.find(name) for name in target.names]]
+        if floor is not None and ground:  # the source raised so its floor is the one given
+            below = rt.source_floor(source, *source.world_points(source_pose))
+            if below != float(floor):
+                raised = source.matrix_world.copy()
+                raised[2, 3] += float(floor) - below
+                source = with_world(source, raised)
         plan = rt.plan_retarget(source, source_pose, target, target_basis, settings, boxes, ground=ground)
-        if floor is not None and plan.ground is not None and plan.ground != float(floor):
-            raised = source.matrix_world.copy()  # the plan is the source's, raised onto the floor
-            raised[2, 3] += float(floor) - plan.ground
-            source = with_world(source, raised)
-            plan = rt.plan_retarget(source, source_pose, target, target_basis, settings, boxes, ground=ground)
     except SolverInputError as ex:
         raise AdjustError(f"Cannot retarget '{source_obj.name}' onto '{target_obj.name}': {ex}") from None
     names = (("ground",) if ground else ()) + tuple(f"object {obj.name}" for obj in objects)

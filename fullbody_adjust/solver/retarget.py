@@ -69,7 +69,7 @@ from .limits import HINGE
 from .contacts import (GROUND, OBJECT, RAISED, Contact, ContactDetection, RetargetSettings,  # noqa: F401
                        box_distance, detect_contacts, detect_plants, hold, intervals)
 from .retarget_metrics import angular_roughness, contact_figures, roughness  # noqa: F401
-from .retarget_plan import RetargetPlan, body_shift, moving_average, plan_retarget  # noqa: F401
+from .retarget_plan import RetargetPlan, body_shift, moving_average, plan_retarget, source_floor  # noqa: F401
 from .retarget_rig import (EFFECTORS, Rig, ankle_above_sole, basis_from_pose,  # noqa: F401
                            body_frame, chain_joints, effector_points, forward_kinematics, heading_rotation,
                            hip_centres, leg_length, leg_lengths,

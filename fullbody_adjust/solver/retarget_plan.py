@@ -115,7 +115,7 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     turn[:3, :3] = heading
     turned = replace(source, matrix_world=turn @ source.matrix_world)
     s_heads, s_tails = source.world_points(source_pose)  # where the source touches things
-    floor = float(np.percentile(sole_heights(source, s_heads, s_tails), 2))
+    floor = source_floor(source, s_heads, s_tails)
     # Scale about the floor below each rig's rest hips: the source's motion, re-anchored on the target.
     anchor_s = hip_centres(turned, rest_points(turned)[0])
     anchor_t = hip_centres(target, rest_points(target)[0])
@@ -186,6 +186,12 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
                         world_targets=world_targets, contacts=contacts,
                         contact_intervals={e: [(c.start, c.stop) for c in found[e]] for e in EFFECTORS},
                         leg_ratio=ratio, ground=floor if ground else None, contact_list=found, boxes=boxes)
+
+
+def source_floor(source, heads, tails):
+    """World z of the floor under the source's motion (world heads, tails (F,J,3)): its feet's lowest points,
+    the 2nd percentile over frames (a stumble below the floor is not the floor)."""
+    return float(np.percentile(sole_heights(source, heads, tails), 2))
 
 
 def _foot_path(contact, free, source_points, target_points, soles, on_surface, floor, ratio):
