@@ -43,8 +43,8 @@ class RetargetOutcome:
     targets, residuals (effector -> target distance after the solve), status, contacts (held frames).
     contact_report: how the result keeps the source's contacts, measured on its own bones
     (solver.retarget_metrics.contact_figures: per effector contact error, sliding, frames below the floor,
-    pops; 'before' the same of the transferred motion before the adjustment, 'source' of the source);
-    contact_error (F,E): the result's contact error on contact frames, NaN elsewhere."""
+    pops); contact_error (F,E): the result's contact error on contact frames, NaN elsewhere;
+    contact_error_before: the same of the transferred motion before the adjustment."""
 
     action: object
     frames: np.ndarray  # (F,)
@@ -136,36 +136,45 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
     ends = [model.groups[e][0] for e in rt.EFFECTORS]
     residuals = np.linalg.norm(target.to_world(result.heads[:, ends]) - plan.world_targets, axis=-1)
     reachable = {e: result.status[:, k] != "unreachable" for k, e in enumerate(rt.EFFECTORS)}
-    report, after = _contact_report(prepared, solved, bones, reachable, context.scene)
-    _, before = _contact_report(prepared, plan.start_pose, bones, None, context.scene)
+    # How the result keeps the source's contacts, and how the transferred motion did before the solve.
+    fps = context.scene.render.fps / context.scene.render.fps_base
+    source_points = _effector_points(prepared.source, prepared.source_pose)
+    posed = rt.carry_unsolved(target, solved, bones, prepared.target_basis)  # the unsolved bones follow
+    figures, after = _contact_figures(prepared, _effector_points(target, posed), source_points, reachable, fps)
+    _, before = _contact_figures(prepared, _effector_points(target, plan.start_pose), source_points, None, fps)
     return RetargetOutcome(action=action, frames=prepared.frames, effectors=rt.EFFECTORS,
                            targets=plan.world_targets, residuals=residuals, status=result.status,
                            contacts=plan.contacts, leg_ratio=plan.leg_ratio, read_from=prepared.read_from,
-                           keyed_bones=keyed, contact_report=report["report"], contact_error=after,
-                           contact_error_before=before)
+                           keyed_bones=keyed, contact_report=_contact_report(prepared, figures),
+                           contact_error=after, contact_error_before=before)
 
 
-def _contact_report(prepared, pose, bones, reachable, scene):
-    """The contact figures of a pose (F,J,4,4) of the target whose ``bones`` were solved (the others follow
-    them as their channels say), against the source's contacts: ({'report': {...}}, (F,E) contact error)."""
-    target, source, plan = prepared.target, prepared.source, prepared.plan
-    posed = rt.carry_unsolved(target, pose, bones, prepared.target_basis)
-    t_heads, t_tails = target.world_points(posed)
-    s_heads, s_tails = source.world_points(prepared.source_pose)
-    fps = scene.render.fps / scene.render.fps_base
-    figures, curves = rt.contact_figures(
-        plan.contact_list,
-        {e: rt.effector_points(target, t_heads, t_tails, e) for e in rt.EFFECTORS},
-        {e: rt.effector_points(source, s_heads, s_tails, e) for e in rt.EFFECTORS},
-        plan.boxes, plan.ground, rt.leg_length(target), plan.leg_ratio, fps, reachable)
+def _effector_points(rig, pose):
+    """{effector: its points (F,P,3)} of a rig's pose (F,J,4,4), world space."""
+    heads, tails = rig.world_points(pose)
+    return {e: rt.effector_points(rig, heads, tails, e) for e in rt.EFFECTORS}
+
+
+def _contact_figures(prepared, target_points, source_points, reachable, fps):
+    """rt.contact_figures of the target's effector points against the source's contacts: (figures per
+    effector, (F,E) contact error)."""
+    plan = prepared.plan
+    figures, curves = rt.contact_figures(plan.contact_list, target_points, source_points, plan.boxes, plan.ground,
+                                         rt.leg_length(prepared.target), plan.leg_ratio, fps, reachable)
+    return figures, np.stack([curves[e] for e in rt.EFFECTORS], axis=1)
+
+
+def _contact_report(prepared, figures):
+    """The report's contact section: what was asked for, the floor, and per effector its figures with each
+    contact by frame number and what it touches."""
+    plan = prepared.plan
     objects = [name.split(" ", 1)[1] for name in prepared.contact_names if name.startswith("object ")]
     for e, found in plan.contact_list.items():  # each contact by frame number, and what it touches
         for listed, contact in zip(figures[e]["contacts"], found):
             listed.update(frame_start=_frame_number(prepared.frames[contact.start]),
                           frame_end=_frame_number(prepared.frames[contact.stop - 1]),
                           touches=objects[contact.box] if contact.box >= 0 else contact.kind)
-    report = {"contacts": list(prepared.contact_names), "floor": plan.ground, "effectors": figures}
-    return {"report": report}, np.stack([curves[e] for e in rt.EFFECTORS], axis=1)
+    return {"contacts": list(prepared.contact_names), "floor": plan.ground, "effectors": figures}
 
 
 @dataclass
