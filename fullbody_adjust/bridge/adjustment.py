@@ -48,6 +48,16 @@ class Options:
     evaluated_residuals: bool = True
 
 
+def missed_target_line(effectors, missed, residuals, why):
+    """One line for the first effector with a target missed within reach: ``missed`` (F,E) bool, its frames
+    (when F > 1), its largest residual and ``why`` (F,E) of that frame."""
+    k = int(np.nonzero(missed.any(axis=0))[0][0])
+    rows = np.nonzero(missed[:, k])[0]
+    worst = rows[int(np.argmax(residuals[rows, k]))]
+    frames = f" on {len(rows)} frames" if missed.shape[0] > 1 else ""
+    return f"{effectors[k]} missed its target within reach{frames} by {residuals[worst, k]:.4g} ({why[worst, k]})"
+
+
 @dataclass
 class Outcome:
     """What a run did, in world units: per frame and effector (EFFECTORS order) residuals (NaN: no target)."""
@@ -76,12 +86,7 @@ class Outcome:
         that end inside an obstacle; None when neither happened."""
         missed = self.constrained & ~self.met & (self.status != "unreachable")
         if missed.any():
-            effector = int(np.nonzero(missed.any(axis=0))[0][0])
-            rows = np.nonzero(missed[:, effector])[0]
-            worst = rows[int(np.argmax(self.residuals[rows, effector]))]
-            frames = f" on {len(rows)} frames" if len(self.frames) > 1 else ""
-            return (f"{self.effectors[effector]} missed its target within reach{frames} by "
-                    f"{self.residuals[worst, effector]:.4g} ({self.reasons[worst, effector]})")
+            return missed_target_line(self.effectors, missed, self.residuals, self.reasons)
         inside, crossing = int(np.sum(self.joints_inside)), int(np.sum(self.segments_crossing))
         if inside or crossing:
             return f"bones end inside obstacles: {inside} joints inside, {crossing} bones crossing"

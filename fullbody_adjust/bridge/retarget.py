@@ -70,11 +70,7 @@ class RetargetOutcome:
         a contact within reach that was not held; None when neither happened."""
         missed = ~np.isin(self.status, ("reached", "unreachable", UNCONSTRAINED))
         if missed.any():
-            k = int(np.nonzero(missed.any(axis=0))[0][0])
-            rows = np.nonzero(missed[:, k])[0]
-            worst = rows[int(np.argmax(self.residuals[rows, k]))]
-            return (f"{self.effectors[k]} missed its target within reach on {len(rows)} frames by "
-                    f"{self.residuals[worst, k]:.4g} ({self.status[worst, k]})")
+            return adjustment.missed_target_line(self.effectors, missed, self.residuals, self.status)
         for effector, figures in (self.contact_report or {}).get("effectors", {}).items():
             if figures["not_held_frames"]:
                 return f"{effector} does not hold its contact on {figures['not_held_frames']} frames within reach"
