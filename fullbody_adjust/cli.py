@@ -253,16 +253,23 @@ def _adjust(args, context):
 
 # --- retarget --------------------------------------------------------------------------------------------------
 
-def _retarget(args, context):
-    source = batch.armature_named(context, args.source, "--source")
+def retarget_target(args, context):
+    """A retarget's --target armature, checked as retargeting onto it needs (one line otherwise), and its
+    --contacts as the bridge takes them ('ground', or ('object', Object))."""
     target = batch.armature_named(context, args.target, "--target")
-    if source == target:
-        raise CommandError("--source and --target are the same armature")
     adjustment.check_armature(target)
-    batch.check_mappable(source, "--source")
     batch.check_mappable(target, "--target")
     contacts = [kind if name is None else (kind, batch.object_named(context, name, "--contacts object"))
                 for kind, name in args.contacts or [("ground", None)]]
+    return target, contacts
+
+
+def _retarget(args, context):
+    source = batch.armature_named(context, args.source, "--source")
+    batch.check_mappable(source, "--source")
+    target, contacts = retarget_target(args, context)
+    if source == target:
+        raise CommandError("--source and --target are the same armature")
     start, end = batch.frame_range(source, context.scene, args.frame_start, args.frame_end, within_scene=True)
     batch.check_frame_budget(context, target, start, end)
 

@@ -35,7 +35,7 @@ def run(args):
     saved, csv_path = _checked_outputs(args, blend_in, clips)
     if not cli.same_file(blend_in, batch.current_file()):
         batch.open_blend(blend_in)
-    target = _checked_target(args, bpy.context)
+    target, _contacts = cli.retarget_target(args, bpy.context)
     rows, tasks = _tasks(args, clips)
     if args.output_dir:
         os.makedirs(args.output_dir, exist_ok=True)
@@ -85,15 +85,6 @@ def _checked_outputs(args, input_path, clips):
     if csv_path:
         cli.check_writable(csv_path, "--report")
     return saved, csv_path
-
-
-def _checked_target(args, context):
-    target = batch.armature_named(context, args.target, "--target")
-    batch.check_mappable(target, "--target")
-    for _kind, name in args.contacts or ():
-        if name is not None:
-            batch.object_named(context, name, "--contacts object")
-    return target
 
 
 def _tasks(args, clips):

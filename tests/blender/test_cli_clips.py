@@ -329,3 +329,16 @@ def test_clips_over_the_time_limit_are_reported_failed(cli, capsys, tmp_path, cl
     assert len(rows) == len(CUTS) + 1
     assert all(row["status"] == "failed" and row["reason"] == "stopped after 0.01 s (the clip time limit)"
                for row in rows), rows
+
+
+def test_a_target_with_a_negative_scale_is_refused_before_any_clip(cli, capsys, tmp_path, clips, rig):
+    """As the single retarget does: one line, exit 2, no worker started for any clip."""
+    rig.name = "Hero"
+    rig.scale = (-1.0, 1.0, 1.0)
+    path = tmp_path / "mirrored.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    bpy.ops.wm.read_homefile(use_empty=True)
+    code, _, err = run(cli, capsys, "retarget", path, "--target", "Hero", "--source-file", clips,
+                       "--output-dir", tmp_path / "out", "--quiet")
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "negative or zero scale" in err, err
+    assert not (tmp_path / "out").exists()
