@@ -3,8 +3,8 @@
 open the target's .blend, import the clip, retarget it onto the target, and write the result, then answer with
 the clip's row. A clip that fails is a row with its reason; the worker goes on with the next one.
 
-The job (first line on stdin): file, target, import (clip_import.ImportOptions fields), contacts,
-contact_object, exact, floor, frame_start, frame_end, keep_sources. A task: clip, name (of the action), out (the
+The job (first line on stdin): file, target, import (clip_import.ImportOptions fields), contacts (pairs
+[kind, object name or null]), floor, frame_start, frame_end, keep_sources. A task: clip, name (of the action), out (the
 .blend to save, one per clip) or part (a small .blend holding only the new action, merged by the parent).
 """
 
@@ -24,19 +24,18 @@ from .reporting import summary
 from .reporting.batch_report import DONE, FAILED
 
 
-def serve(stdin=None):
+def serve():
     """Answer tasks until stdin ends. The protocol goes to the process's original stdout; everything else
     printed (importers, Blender) goes to stderr, so it cannot break a message."""
     protocol = os.fdopen(os.dup(1), "w", buffering=1)
     sys.stdout.flush()
     os.dup2(2, 1)
-    stdin = stdin or sys.stdin
-    job = json.loads(stdin.readline())
+    job = json.loads(sys.stdin.readline())
 
     def send(message):
         protocol.write(json.dumps(message) + "\n")
 
-    for line in stdin:
+    for line in sys.stdin:
         if line.strip():
             task = json.loads(line)
             send({"row": retarget_task(bpy.context, job, task, lambda f: send({"progress": f}))})
@@ -71,8 +70,8 @@ def _retarget_clip(context, job, task, progress):
     start, end = batch.frame_range(source, context.scene, job.get("frame_start"), job.get("frame_end"))
     batch.check_frame_budget(context, target, start, end)
     solve_started = time.perf_counter()
-    contacts = [kind if name is None else (kind, name) for kind, name in job.get("contacts", [["ground", None]])]
-    outcome = retarget(context, source, target, start, end, contacts=contacts, floor=job.get("floor"),
+    outcome = retarget(context, source, target, start, end, contacts=job.get("contacts", [["ground", None]]),
+                       floor=job.get("floor"),
                        new_action=task["name"],
                        progress=lambda stage, fraction: progress(0.3 + 0.6 * fraction))
     solve_seconds = time.perf_counter() - solve_started
