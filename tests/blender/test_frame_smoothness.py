@@ -5,9 +5,11 @@ frame-to-frame rotation of any bone against what the target's own motion implies
 
 import shutil
 from pathlib import Path
+from types import SimpleNamespace
 
 import bpy
 import numpy as np
+import pytest
 
 from .scene_tools import Pose, add_rig, body_axes, bone_map, chain_joints, chain_length, slot
 
@@ -28,10 +30,15 @@ def bone_rotations(obj, frames):
     return np.array(out)
 
 
+def turn_degrees(a, b):
+    """Degrees of the rotations taking a (...,3,3) to b (...,3,3)."""
+    rel = np.einsum("...ki,...kl->...il", a, b)
+    return np.degrees(np.arccos(np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)))
+
+
 def bone_steps(rotations):
     """(F-1,J) degrees each bone turns from one frame to the next."""
-    rel = np.einsum("fjki,fjkl->fjil", rotations[:-1], rotations[1:])
-    return np.degrees(np.arccos(np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)))
+    return turn_degrees(rotations[:-1], rotations[1:])
 
 
 def largest_step(rotations):
@@ -97,9 +104,11 @@ def reach_limit_step(obj, frames):
     return 2.0 * n / (n + 1.0) * float(np.max(turns))
 
 
-def adjusted_sample(tmp_path):
-    """The sample's Character after Adjust Frames over FRAMES, with the implied step measured before it."""
-    path = tmp_path / SAMPLE.name
+@pytest.fixture(scope="module")
+def adjusted_sample(tmp_path_factory):
+    """The sample's Character after Adjust Frames over FRAMES (one run for the tests below): its bone names,
+    its trunk bones, every bone's rotation on every frame, and the bound measured before the run."""
+    path = tmp_path_factory.mktemp("sample") / SAMPLE.name
     shutil.copyfile(SAMPLE, path)
     bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
     obj = bpy.data.objects["Character"]
@@ -107,25 +116,23 @@ def adjusted_sample(tmp_path):
     assert bone_map(obj)  # the sample is mapped
     bound = reach_limit_step(obj, FRAMES)
     assert bpy.ops.fullbody_adjust.adjust_frames(frame_start=FRAMES[0], frame_end=FRAMES[-1]) == {'FINISHED'}
-    return obj, bound
-
-
-def test_the_trunk_bends_steadily_as_the_target_moves_away(tmp_path):
-    obj, _bound = adjusted_sample(tmp_path)
-    rotations = bone_rotations(obj, FRAMES)
     names = [bone.name for bone in obj.pose.bones]
-    trunk = [names.index(name) for name in bone_map(obj)["trunk"]]
+    return SimpleNamespace(names=names, trunk=[names.index(name) for name in bone_map(obj)["trunk"]],
+                           rotations=bone_rotations(obj, FRAMES), bound=bound)
+
+
+def test_the_trunk_bends_steadily_as_the_target_moves_away(adjusted_sample):
+    rotations, trunk = adjusted_sample.rotations, adjusted_sample.trunk
     # Each trunk bone's angle from its first-frame rotation, frame by frame (the target only moves away).
-    rel = np.einsum("jki,fjkl->fjil", rotations[0, trunk], rotations[:, trunk])
-    angles = np.degrees(np.arccos(np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)))
+    angles = turn_degrees(rotations[0, trunk], rotations[:, trunk])
     assert angles[-1].min() > 10.0  # the trunk did bend
     assert np.diff(angles, axis=0).min() > -0.1
 
 
-def test_no_bone_turns_faster_than_the_target_implies(tmp_path):
-    obj, bound = adjusted_sample(tmp_path)
-    degrees, step, bone = largest_step(bone_rotations(obj, FRAMES))
-    print(f"largest bone step {degrees:.2f} deg ({obj.pose.bones[bone].name}, frame {FRAMES[step]}), "
+def test_no_bone_turns_faster_than_the_target_implies(adjusted_sample):
+    degrees, step, bone = largest_step(adjusted_sample.rotations)
+    bound = adjusted_sample.bound
+    print(f"largest bone step {degrees:.2f} deg ({adjusted_sample.names[bone]}, frame {FRAMES[step]}), "
           f"implied {bound:.2f} deg")
     assert degrees <= bound
 
