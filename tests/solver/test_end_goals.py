@@ -5,12 +5,7 @@ import numpy as np
 
 from fullbody_adjust.solver.limb_rotations import END_SWING, end_rotation
 from fullbody_adjust.solver.two_bone_start import two_bone_start
-
-
-def _rotation(axis, angle):
-    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
-    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)
+from tests.helpers.rotations import about_axis
 
 
 def _angle(a, b):
@@ -19,8 +14,8 @@ def _angle(a, b):
 
 def test_end_rotation_keeps_a_wanted_turn_within_the_cone_and_stops_at_its_edge_beyond():
     direction = np.array([[0.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
-    carried = np.stack([_rotation([1, 0, 0], 0.2)] * 2)
-    wanted = np.stack([_rotation([0.3, 0.0, 1.0], 0.9), _rotation([0.0, 0.2, 1.0], 2.8)])
+    carried = np.stack([about_axis([1, 0, 0], 0.2)] * 2)
+    wanted = np.stack([about_axis([0.3, 0.0, 1.0], 0.9), about_axis([0.0, 0.2, 1.0], 2.8)])
     got = end_rotation(wanted, carried, direction)
     np.testing.assert_allclose(got[0], wanted[0], atol=1e-12)
     ride = carried[1] @ direction[1]
@@ -47,7 +42,7 @@ def test_two_bone_start_bends_toward_the_pole_in_its_plane():
 def test_end_rotation_stays_finite_for_a_wanted_direction_right_opposite():
     direction = np.array([[0.0, 1.0, 0.0]])
     carried = np.eye(3)[None]
-    wanted = _rotation([1.0, 0.0, 0.0], np.pi)[None]
+    wanted = about_axis([1.0, 0.0, 0.0], np.pi)[None]
     got = end_rotation(wanted, carried, direction)
     assert np.all(np.isfinite(got))
     assert abs(_angle(got[0] @ direction[0], direction[0]) - END_SWING) < 1e-9

@@ -9,16 +9,11 @@ from hypothesis.extra.numpy import arrays
 
 from fullbody_adjust.solver import Boxes, SolverInputError, penetrations, points_inside, segments_cross
 from fullbody_adjust.solver.chain import solve_chain
+from tests.helpers.rotations import about_axis
 
 # Corner i of Blender's bound_box: x from bit 2, y from (i in 2,3,6,7), z from (i in 1,2,5,6).
 _BOUND_BOX_SIGNS = np.array([[-1, -1, -1], [-1, -1, 1], [-1, 1, 1], [-1, 1, -1],
                              [1, -1, -1], [1, -1, 1], [1, 1, 1], [1, 1, -1]], dtype=np.float64)
-
-
-def _rotation(axis, angle):
-    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
-    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * (k @ k)
 
 
 def _box_corners(centre, rotation, half):
@@ -35,7 +30,7 @@ unit3 = arrays(np.float64, 3, elements=st.floats(-1.0, 1.0))
        arrays(np.float64, 3, elements=st.floats(0.1, 1.5)))
 def test_inside_and_crossing_are_the_axis_aligned_tests_in_the_box_frame(points, axis, angle, centre, half):
     assume(np.linalg.norm(axis) > 0.1)
-    rotation = _rotation(axis, angle)
+    rotation = about_axis(axis, angle)
     box = Boxes.from_box_corners(_box_corners(centre, rotation, half)[None])
     unrotated = Boxes((-half)[None], half[None])  # the same box before its rotation, about its centre
     pts = np.array(points)
@@ -55,14 +50,14 @@ def test_inside_and_crossing_are_the_axis_aligned_tests_in_the_box_frame(points,
 
 
 def test_corners_come_back_and_an_unrotated_box_stays_axis_aligned():
-    rotation = _rotation([1.0, 2.0, 0.5], 0.7)
+    rotation = about_axis([1.0, 2.0, 0.5], 0.7)
     corners = _box_corners(np.array([0.3, -1.0, 2.0]), rotation, np.array([0.5, 1.0, 0.2]))
     box = Boxes.from_box_corners(corners[None])
     assert box.oriented
     # The box's corners are the given ones, in some order.
     got = box.corners()[0]
     assert np.max(np.min(np.linalg.norm(got[:, None] - corners[None], axis=-1), axis=0)) < 1e-12
-    quarter = _rotation([0.0, 0.0, 1.0], np.pi / 2)
+    quarter = about_axis([0.0, 0.0, 1.0], np.pi / 2)
     plain = Boxes.from_box_corners(_box_corners(np.zeros(3), quarter, np.array([1.0, 2.0, 3.0]))[None])
     assert not plain.oriented
     np.testing.assert_allclose(plain.mins, [[-2.0, -1.0, -3.0]], atol=1e-12)
@@ -70,13 +65,13 @@ def test_corners_come_back_and_an_unrotated_box_stays_axis_aligned():
 
 
 def test_per_frame_oriented_boxes_select_their_axes():
-    frames = np.stack([_box_corners(np.zeros(3), _rotation([0.0, 0.0, 1.0], a), np.ones(3)) for a in (0.3, 0.6)])
+    frames = np.stack([_box_corners(np.zeros(3), about_axis([0.0, 0.0, 1.0], a), np.ones(3)) for a in (0.3, 0.6)])
     boxes = Boxes.from_box_corners(frames[:, None])
     assert boxes.batched and boxes.oriented
     picked = boxes.select(np.array([1]))
     np.testing.assert_array_equal(picked.axes, boxes.axes[1:])
     point = np.array([[[1.2, 0.0, 0.0]], [[1.2, 0.0, 0.0]]])
-    expected = [np.abs(_rotation([0, 0, 1], a).T @ point[0, 0]).max() <= 1.0 for a in (0.3, 0.6)]
+    expected = [np.abs(about_axis([0, 0, 1], a).T @ point[0, 0]).max() <= 1.0 for a in (0.3, 0.6)]
     np.testing.assert_array_equal(points_inside(point, boxes)[:, 0, 0], expected)
 
 
@@ -86,7 +81,7 @@ def test_axes_must_be_orthonormal():
 
 
 def test_a_chain_keeps_out_of_a_45_degree_box_but_uses_the_corners_its_aligned_box_would_add():
-    rotation = _rotation([0.0, 0.0, 1.0], np.pi / 4)
+    rotation = about_axis([0.0, 0.0, 1.0], np.pi / 4)
     corners = _box_corners(np.zeros(3), rotation, np.array([1.0, 1.0, 1.0]))
     oriented = Boxes.from_box_corners(corners[None])
     aligned = Boxes.from_corners(corners[None])
