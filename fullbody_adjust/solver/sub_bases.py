@@ -118,20 +118,21 @@ class SubBasePlacement:
         need_sc = ~self._in_reach(upper, rows, {n: sc0 + offsets[n] for n in upper})
         if force_sc is not None:
             need_sc |= force_sc
+        # Placed only on the frames that need it (every step of a placement is row by row).
         sc_star = sc0.copy()
         leaned = np.zeros(b, dtype=bool)
-        if np.any(need_sc):
-            point, leaned = self._place_sc(rows, sc0, base0, offsets)
-            sc_star = np.where(need_sc[:, None], point, sc0)
+        if need_sc.any():
+            n = np.nonzero(need_sc)[0]
+            sc_star[n], leaned[n] = self._place_sc(rows[n], sc0[n], base0[n], _rows_of(offsets, n))
 
         # Root: stays exactly while every constrained foot reaches from its hip and the trunk reaches sc*.
         legs = self._legs()
         trunk_ok = ~need_sc | (norm(sc_star - base0) <= self.reach["trunk"][rows])
         need_root = ~(self._in_reach(legs, rows, {n: self.chain0[n][rows, 0] for n in legs}) & trunk_ok)
         delta = np.zeros((b, 3))
-        if np.any(need_root):
-            d = self._root_delta(rows, np.zeros((b, 3)), sc_star - base0, need_sc)
-            delta = np.where(need_root[:, None], d, 0.0)
+        if need_root.any():
+            n = np.nonzero(need_root)[0]
+            delta[n] = self._root_delta(rows[n], np.zeros((n.size, 3)), sc_star[n] - base0[n], need_sc[n])
         moved_root = np.any(delta != 0.0, axis=1)
 
         # A root moved for the feet carries the SC along if the arms still reach from there; else the SC goes
@@ -140,10 +141,9 @@ class SubBasePlacement:
         if np.any(carried):
             sc_c = sc0 + delta
             need_c = carried & ~self._in_reach(upper, rows, {n: sc_c + offsets[n] for n in upper})
-            if np.any(need_c):
-                point, leaned_c = self._place_sc(rows, sc_c, base0 + delta, offsets)
-                sc_star = np.where(need_c[:, None], point, sc_star)
-                leaned = np.where(need_c, leaned_c, leaned)
+            if need_c.any():
+                n = np.nonzero(need_c)[0]
+                sc_star[n], leaned[n] = self._place_sc(rows[n], sc_c[n], base0[n] + delta[n], _rows_of(offsets, n))
                 need_sc = need_sc | need_c
 
         # Trunk: FABRIK from the translated root to sc* where the SC moves relative to the root; else it rides.
@@ -226,3 +226,8 @@ class SubBasePlacement:
 
     _PER_FRAME = ("H0", "T0", "targets", "active_e", "iterations")
     _PER_FRAME_DICTS = ("chain0", "reach", "reach_eff", "limb_target", "limb_active")
+
+
+def _rows_of(per_limb, rows):
+    """{limb: array} restricted to ``rows``."""
+    return {name: value[rows] for name, value in per_limb.items()}
