@@ -142,11 +142,12 @@ def settings_of(obj, options=Options()):
     return AdjustSettings(chain=chain, variant=str(pick("variant")).lower(), use_limits=bool(pick("use_joint_limits")))
 
 
-def adjust_pose(context, obj, options=Options(), start=None):
+def adjust_pose(context, obj, options=Options(), start=None, rig=None):
     """Adjust the armature's pose at the current frame, apply it, and key the bones that moved. ``start``:
-    the pose to solve from, a PoseSnapshot of this frame (default: the pose as it is now)."""
+    the pose to solve from, a PoseSnapshot of this frame (default: the pose as it is now); ``rig``: its
+    rig_cache.Rig, when the caller just looked it up."""
     frame = context.scene.frame_current
-    return _run(context, obj, [frame], options, apply_pose=True, start=start)
+    return _run(context, obj, [frame], options, apply_pose=True, start=start, rig=rig)
 
 
 def adjust_frames(context, obj, frame_start, frame_end, options=Options(), progress=None):
@@ -157,10 +158,10 @@ def adjust_frames(context, obj, frame_start, frame_end, options=Options(), progr
     return _run(context, obj, frames, options, apply_pose=False, progress=progress)
 
 
-def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None):
+def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None, rig=None):
     progress = progress or (lambda stage, fraction: None)
     check_armature(obj)
-    rig = rig_cache.rig_of(obj)
+    rig = rig or rig_cache.rig_of(obj)
     settings = settings_of(obj, options)
     keep_hands = options.keep_hand_orientation
     keep_hands = obj.fullbody_adjust.keep_hand_orientation if keep_hands is None else keep_hands
@@ -190,7 +191,7 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
     world_targets = goals.positions  # (F,E,3), NaN: no target
     _check_object_scale(obj, snapshot)
     bone_map, model = rig.bone_map, rig.model
-    controlled = control_rig.is_generated_rigify(obj)
+    controlled = rig.controlled
     if controlled:  # solved on the metarig's hierarchy of the ORG- bones, as the model is
         snapshot = replace(snapshot, parents=model.parents)
     else:

@@ -208,13 +208,14 @@ def _solve(obj, state, context):
     _busy = True
     try:
         frame = _current_frame(context.scene)
+        rig = None
         if state.stale or state.start_frame != frame or state.start.names != tuple(obj.data.bones.keys()):
             _restore(obj, state, frame)
-            static = rig_cache.rig_of(obj).static(obj)
-            state.start, state.start_frame, state.written = pose.read_pose(obj, static), frame, ()
+            rig = rig_cache.rig_of(obj)  # looked up once for the base pose's read and the solve
+            state.start, state.start_frame, state.written = pose.read_pose(obj, rig.static(obj)), frame, ()
             state.stale = False
         state.solves += 1
-        outcome = adjustment.adjust_pose(context, obj, LIVE_OPTIONS, start=state.start)
+        outcome = adjustment.adjust_pose(context, obj, LIVE_OPTIONS, start=state.start, rig=rig)
     except AdjustError as ex:
         state.error, state.warning = str(ex), ""
         _restore(obj, state, frame)

@@ -37,6 +37,11 @@ class Rig:
     # On a generated control rig: each limb chain bone's FK control (control_rig.fk_control), or None.
     fk_controls: dict = None
 
+    @property
+    def controlled(self):
+        """A generated control rig (solved on its skeleton, keyed on its controls)."""
+        return self.fk_controls is not None
+
     def static(self, obj):
         """pose.read_static(obj) of this rig, the rotation modes read now."""
         return {**self.rest, "rotation_modes": tuple(bone.rotation_mode for bone in obj.pose.bones)}
@@ -61,11 +66,12 @@ def rig_of(obj):
     rest = pose.read_static(obj)
     del rest["rotation_modes"]
     parents = rest["parents"]
-    if control_rig.is_generated_rigify(obj):  # a control rig is solved on its skeleton (control_rig)
+    controlled = control_rig.is_generated_rigify(obj)
+    if controlled:  # a control rig is solved on its skeleton (control_rig)
         parents = control_rig.skeleton_parents(rest["names"], parents)
     model = body_model(rest["names"], parents, bone_map)
     fk_controls = None
-    if control_rig.is_generated_rigify(obj):
+    if controlled:
         fk_controls = control_rig.fk_controls(obj, [model.names[b] for limb in model.limbs.values()
                                                     for b in limb.bones])
     rig = Rig(bone_map=bone_map, model=model, rest=rest, fk_controls=fk_controls)
