@@ -6,7 +6,7 @@ is SKIP_SAVE, so a run starts from its defaults and the stored settings, never f
 import bpy
 from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
-from .bridge import adjustment, live, mapping, retarget
+from .bridge import adjustment, batch, live, mapping, retarget
 from .bridge.errors import AdjustError
 from .properties import FULLBODY_ADJUST_PG_settings
 
@@ -147,12 +147,8 @@ class FULLBODY_ADJUST_OT_adjust_pose(_SolverOptions, ArmatureOperator, bpy.types
     bl_options = {'REGISTER', 'UNDO'}
 
     def execute(self, context):
-        outcome = self.run(context, lambda: adjustment.adjust_pose(context, context.active_object,
-                                                                    self.solver_options()))
-        if outcome is None:
-            return {'CANCELLED'}
-        report_outcome(self, outcome)
-        return {'FINISHED'}
+        return self.run_and_report(context, lambda _progress: adjustment.adjust_pose(
+            context, context.active_object, self.solver_options()))
 
 
 class FULLBODY_ADJUST_OT_adjust_frames(_SolverOptions, ArmatureOperator, bpy.types.Operator):
@@ -227,10 +223,7 @@ def source_armature(context, name=""):
     """The armature to retarget from: the object named ``name``, else the one selected armature other than the
     active one. AdjustError (one line) when there is none or more than one."""
     if name:
-        source = bpy.data.objects.get(name)
-        if source is None:
-            raise AdjustError(f"No object named '{name}' to retarget from")
-        return source
+        return batch.armature_named(context, name, "Source")
     candidates = [ob for ob in context.selected_objects if ob.type == 'ARMATURE' and ob != context.active_object]
     if not candidates:
         raise AdjustError("Select the source armature too (the target is the active one), or name the source")

@@ -471,6 +471,8 @@ def test_operator_reports_what_is_missing():
     select_only(target)
     with pytest.raises(RuntimeError, match="Select the source armature"):
         bpy.ops.fullbody_adjust.retarget()
+    with pytest.raises(RuntimeError, match="Source: no object named 'Nobody' in scene"):
+        bpy.ops.fullbody_adjust.retarget(source="Nobody")
     select_only(source, target, active=target)
     with pytest.raises(RuntimeError, match="contact object"):
         bpy.ops.fullbody_adjust.retarget(contacts={'GROUND', 'OBJECT'})
