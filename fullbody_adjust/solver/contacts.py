@@ -118,20 +118,6 @@ def _speeds(points, fps):
     return norm(np.gradient(points, axis=0)).min(axis=-1) * fps
 
 
-def detect_plants(points, up, fps, leg, settings=RetargetSettings()):
-    """Planted intervals of one foot on the floor: the foot's points (F,3) or (F,P,3) (world; ``up`` the index
-    of the vertical axis), its slowest point slower than plant_speed·leg per second and its lowest within
-    plant_height·leg of the lowest height it reaches (2nd percentile), for at least plant_min_duration
-    (interruptions up to gap_duration bridged). Returns [(start, stop)]."""
-    points = np.asarray(points, dtype=np.float64)
-    points = points[:, None] if points.ndim == 2 else points
-    height = points[..., up].min(axis=1)
-    low = np.percentile(height, 2) if len(height) else 0.0
-    rule = settings.detection
-    candidate = (_speeds(points, fps) < rule.plant_speed * leg) & (height <= low + rule.plant_height * leg)
-    return intervals(candidate, settings.frames(rule.plant_min_duration), settings.frames(rule.gap_duration))
-
-
 def box_distance(points, mins, maxs):
     """Distance (…,K) from points (…,3) to each closed box (K,3)/(K,3) (0 inside)."""
     p = np.asarray(points, dtype=np.float64)[..., None, :]

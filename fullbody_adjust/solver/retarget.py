@@ -67,7 +67,7 @@ from .geometry import apply_matrix, cross, dot, norm
 from .limits import HINGE
 # The retargeting API in one namespace (the bridge and tests use ``retarget.X``).
 from .contacts import (GROUND, OBJECT, RAISED, Contact, ContactDetection, RetargetSettings,  # noqa: F401
-                       box_distance, detect_contacts, detect_plants, hold, intervals)
+                       box_distance, detect_contacts, hold, intervals)
 from .retarget_metrics import angular_roughness, contact_figures, roughness  # noqa: F401
 from .retarget_plan import RetargetPlan, body_shift, moving_average, plan_retarget, source_floor  # noqa: F401
 from .retarget_rig import (EFFECTORS, Rig, ankle_above_sole, basis_from_pose,  # noqa: F401

@@ -403,8 +403,9 @@ def test_a_step_is_found_as_two_plants():
     x = np.concatenate([np.zeros(40), np.linspace(0.0, 0.6, 40), np.full(40, 0.6)])
     z = 0.08 + np.concatenate([np.zeros(40), 0.15 * np.sin(np.linspace(0, np.pi, 40)), np.zeros(40)])
     ankle = np.stack([x, np.zeros(frames), z], axis=1)
-    runs = rt.detect_plants(ankle, 2, FPS, 0.9, settings)
-    assert len(runs) == 2
+    found = rt.detect_contacts("foot.L", ankle[:, None], 0.08, None, 0.9, settings)
+    assert [c.kind for c in found] == [rt.GROUND, rt.GROUND]
+    runs = sorted((c.start, c.stop) for c in found)
     (a0, b0), (a1, b1) = runs
     assert a0 == 0 and b1 == frames
     # The plants end and start where the foot is still moving slower than the threshold.
