@@ -47,7 +47,7 @@ from mathutils import Matrix  # noqa: E402
 
 import fullbody_adjust  # noqa: E402
 from bench.command_line import print_report, whole_number_options  # noqa: E402
-from fullbody_adjust.bridge import mapping, retarget  # noqa: E402
+from fullbody_adjust.bridge import keyframes, mapping, retarget  # noqa: E402
 from fullbody_adjust.solver import retarget as rt  # noqa: E402
 from tests.helpers.bvh import CMU_SCALE, MOCAP_DIR  # noqa: E402
 
@@ -109,16 +109,7 @@ def bake(rig, frames, bones):
 
 def keyed_channels(rig):
     """What the rig's action keys: {"bones": how many pose bones, "fcurves": how many F-Curves}."""
-    anim = rig.animation_data
-    if anim is None or anim.action is None:
-        return {"bones": 0, "fcurves": 0}
-    if LAYERED:
-        from bpy_extras import anim_utils
-        bag = anim_utils.action_get_channelbag_for_slot(anim.action, anim.action_slot)
-        fcurves = bag.fcurves if bag is not None else ()
-    else:
-        fcurves = anim.action.fcurves
-    paths = [fc.data_path for fc in fcurves]
+    paths = [fc.data_path for fc in keyframes.animating_fcurves(rig)]
     return {"bones": len({p.split('"')[1] for p in paths if p.startswith("pose.bones")}), "fcurves": len(paths)}
 
 
@@ -246,8 +237,11 @@ def bone_directions(rig, bones, frames):
 
 
 def stats(values):
-    return {"median": float(np.median(values)), "p99": float(np.percentile(values, 99)),
-            "max": float(np.max(values))}
+    """Median, p99 and max of ``values``, or None when there are none."""
+    values = np.asarray(values, dtype=np.float64)
+    if values.size == 0:
+        return None
+    return {"median": float(np.median(values)), "p99": float(np.percentile(values, 99)), "max": float(values.max())}
 
 
 def main():

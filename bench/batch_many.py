@@ -39,7 +39,7 @@ sys.path.insert(0, str(REPO))
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 
-from bench.batch import copy_target, reach_errors, remove_run, run_constraints  # noqa: E402
+from bench.batch import copy_target, reach_errors, remove_run, run_constraints, stats  # noqa: E402
 from bench.command_line import print_report, whole_number_options  # noqa: E402
 import fullbody_adjust  # noqa: E402
 from fullbody_adjust.bridge import clip_import, mapping, retarget  # noqa: E402
@@ -120,13 +120,6 @@ def baseline(character, clip, out_blend, row):
     bpy.ops.wm.open_mainfile(filepath=str(out_blend), load_ui=False)
     ours = contact_errors(bpy.data.objects["Hero"], hand_foot, frames, plan.world_targets, plan.contacts)
     return imported, seconds, cpu, theirs, ours
-
-
-def stats(values):
-    values = np.asarray(values, dtype=np.float64)
-    if values.size == 0:
-        return None
-    return {"median": float(np.median(values)), "p99": float(np.percentile(values, 99)), "max": float(values.max())}
 
 
 def main():
