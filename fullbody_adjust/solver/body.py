@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import SolverInputError
-from .geometry import any_perpendicular, cross, dot, norm, normalize
+from .geometry import any_perpendicular, apply_matrix, cross, dot, norm, normalize
 from .limits import CONE, HINGE, JointLimits
 from .vocabulary import EFFECTORS, GROUPS, REQUIRED_GROUPS, SINGLE_BONE_GROUPS
 
@@ -332,6 +332,24 @@ class LimbLimits:
 
     limits: JointLimits
     parent_direction: np.ndarray | None
+
+    def for_chains(self, chains, frames, carry=None):
+        """(JointLimits, joint 0's parent directions (b,3) or None) for the chain solves of frames ``frames``
+        (b,) whose start chains are ``chains`` (b,n,3). The hinge axes of joints > 0 stay in the start pose's
+        frame: each is referenced to its start parent direction, from which the solver carries it by the
+        parent's minimal swing, as limb_rotations turns the bones, so the elbow or knee written out is the hinge
+        the solver enforced. Joint 0's hinge axis and parent direction ride on the limb's parent: turned by
+        ``carry`` (b,3,3), its rotation since the start (None: not turned)."""
+        lim = self.limits
+        axes = lim.hinge_axis[frames] if lim.hinge_axis.ndim == 3 else \
+            np.broadcast_to(lim.hinge_axis, (len(frames),) + lim.hinge_axis.shape).copy()
+        pdir = None if self.parent_direction is None else self.parent_direction[frames]
+        reference = np.diff(chains, axis=1)
+        reference = np.concatenate([reference[:, :1], reference[:, :-1]], axis=1)
+        if carry is not None:
+            axes[:, 0] = apply_matrix(carry, axes[:, 0])
+            pdir = None if pdir is None else apply_matrix(carry, pdir)
+        return lim.derived(hinge_axis=axes, hinge_reference=reference), pdir
 
 
 def default_limits(model: BodyModel, heads, tails, human: HumanLimits = HumanLimits(), bone_x_axes=None):

@@ -35,19 +35,9 @@ class LimbPlacement:
         pole_placed = False
         ll = self.limits.get(name)
         if ll is not None and ll.limits.any_active:
-            lim = ll.limits
+            lim, pdir = ll.for_chains(self.chain0[name][rows], rows, carry)
+            axes, reference = lim.hinge_axis, lim.hinge_reference
             m = len(lim)
-            axes = np.broadcast_to(lim.hinge_axis, (self.F,) + lim.hinge_axis.shape[-2:])[rows].copy()
-            pdir = None if ll.parent_direction is None else ll.parent_direction[rows]
-            # Hinge axes of joints > 0 stay in the start pose's frame: the solver carries them from the START
-            # chain's parent directions by the parent's minimal swing, as _segment_rotations turns the bones,
-            # so the output's elbow/knee is the hinge the solver enforced. Joint 0's parent direction (and a
-            # hinge there) rides on the limb's parent.
-            reference = np.diff(self.chain0[name][rows], axis=1)
-            reference = np.concatenate([reference[:, :1], reference[:, :-1]], axis=1)
-            if carry is not None:
-                axes[:, 0] = apply_matrix(carry, axes[:, 0])
-                pdir = None if pdir is None else apply_matrix(carry, pdir)
             if lim.kind[m - 1] == HINGE and m >= 2:
                 warm = np.nonzero((norm(start[:, -1] - targets) > self.settings.chain.tolerance)
                                   | np.isfinite(pole[:, 0]))[0]
@@ -57,7 +47,7 @@ class LimbPlacement:
                     start = start.copy()
                     start[warm] = two_bone_start(start[warm], targets[warm], at_start, pole[warm])
                 pole_placed = True
-            kwargs["limits"] = lim.derived(hinge_axis=axes, hinge_reference=reference)
+            kwargs["limits"] = lim
             kwargs["parent_directions"] = pdir
         pending = np.nonzero(np.isfinite(pole[:, 0]) & (not pole_placed))[0]
         if pending.size and start.shape[1] >= 3:  # a pole without a hinge limit: the same warm start

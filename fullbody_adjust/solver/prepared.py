@@ -23,7 +23,7 @@ from .body import CHAIN, END, FIXED, ROOT, default_limits
 from .chain_model import ChainModel
 from .chain_types import _reach_bounds
 from .errors import SolverInputError
-from .geometry import apply_matrix, norm
+from .geometry import norm
 
 _CAPACITY = 4
 _MAX_CACHED_FRAMES = 16
@@ -80,17 +80,11 @@ class PreparedStart:
                 ok = np.ones(self._heads.shape[0], dtype=bool)
             else:
                 c0 = self.chains()[0][name]
-                reference = np.diff(c0, axis=1)
-                reference = np.concatenate([reference[:, :1], reference[:, :-1]], axis=1)
-                lim = ll.limits
-                axes = np.broadcast_to(lim.hinge_axis, (c0.shape[0],) + lim.hinge_axis.shape[-2:]).copy()
                 # Carried by an unmoved parent's rotation (the identity) as the solve carries them, so even the
                 # sign of a zero is the same.
                 still = np.broadcast_to(np.eye(3), (c0.shape[0], 3, 3))
-                axes[:, 0] = apply_matrix(still, axes[:, 0])
-                pdir = None if ll.parent_direction is None else apply_matrix(still, ll.parent_direction)
-                chain = ChainModel(c0.copy(), c0[:, -1].copy(), chain_settings,
-                                   lim.derived(hinge_axis=axes, hinge_reference=reference), None, pdir)
+                limits, pdir = ll.for_chains(c0, np.arange(c0.shape[0]), still)
+                chain = ChainModel(c0.copy(), c0[:, -1].copy(), chain_settings, limits, None, pdir)
                 ok = ~chain.violations(c0, np.arange(c0.shape[0]))
             self._start_ok[name] = ok
         return ok
