@@ -4,7 +4,8 @@
 Each worker is a Python with bpy or a `blender -b` started with ``command``; it reads a job (one JSON line) on
 stdin, then one task (a JSON line) at a time, and answers on stdout with JSON lines: ``{"progress": f}`` while
 it works and ``{"row": {...}}`` when the task is done (its chatter goes to stderr, kept in a log file). A worker
-takes the next task as soon as it is free, so long and short clips even out. A worker that dies fails only the
+takes the next task as soon as it is free, the largest first (a task's "size", e.g. its file's bytes), so the
+batch does not end waiting on one long clip. A worker that dies fails only the
 task it had, with the last line it wrote as the reason, and a fresh worker takes the rest; so does a worker
 stopped because its task ran longer than the pool's timeout.
 """
@@ -36,11 +37,12 @@ class WorkerPool:
         self._lock = threading.Lock()
 
     def run(self, tasks, on_row=None):
-        """The row of every task (dicts, in the order given; a task is a dict with at least 'clip').
+        """The row of every task (dicts, in the order given; a task is a dict with at least 'clip', started
+        largest 'size' first, ties in the order given).
         ``on_row(index, row)`` is called in the calling thread as each task ends. On KeyboardInterrupt no task
         is started any more and the interrupt goes on to the caller (workers end after their task)."""
         tasks = list(tasks)
-        self._queue = deque(enumerate(tasks))
+        self._queue = deque(sorted(enumerate(tasks), key=lambda item: -item[1].get("size", 0)))
         self._ended = queue.SimpleQueue()
         self._share = {}  # task index -> fraction done of a running task
         self._done = self._failed = 0

@@ -98,8 +98,15 @@ def _tasks(args, clips):
             rows.append({"clip": clip, "name": name, "status": batch_report.SKIPPED, "output": out,
                          "action": name})
         else:
-            tasks.append({"clip": clip, "name": name, "out": out})
+            tasks.append({"clip": clip, "name": name, "out": out, "size": _file_size(clip)})
     return rows, tasks
+
+
+def _file_size(path):
+    try:
+        return os.path.getsize(path)
+    except OSError:  # gone since it was listed: its worker says so
+        return 0
 
 
 def _run_tasks(args, tasks, jobs, blend_in, target_name, saved):
@@ -231,7 +238,11 @@ def worker_code():
 
 
 def worker_env():
+    """The workers' environment: this package importable, and numpy's OpenBLAS on one thread unless the user
+    says otherwise (the workers are the parallelism; OpenBLAS's own threads spin between calls and took a
+    quarter of a worker's CPU time, measured with bench/batch_many.py's clips)."""
     parent, _name = _package()
     env = dict(os.environ)
+    env.setdefault("OPENBLAS_NUM_THREADS", "1")
     env["PYTHONPATH"] = os.pathsep.join(p for p in (parent, env.get("PYTHONPATH")) if p)
     return env

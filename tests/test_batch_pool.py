@@ -84,6 +84,16 @@ def test_rows_reach_the_caller_in_its_thread_and_an_interrupt_starts_no_more_tas
     assert not pool._queue  # nothing left to start
 
 
+def test_the_largest_tasks_start_first_and_rows_keep_the_order_given():
+    started = []
+    pool = WorkerPool([sys.executable, "-c", FAKE_WORKER], {"tag": "t"}, 1)
+    tasks = [{"clip": "a", "size": 10}, {"clip": "b", "size": 300}, {"clip": "c"}, {"clip": "d", "size": 40},
+             {"clip": "e", "size": 40}]
+    rows = pool.run(tasks, on_row=lambda index, row: started.append(row["clip"]))
+    assert started == ["b", "d", "e", "a", "c"]  # one worker: it ends them in the order it starts them
+    assert [row["clip"] for row in rows] == ["a", "b", "c", "d", "e"]
+
+
 def test_a_worker_that_cannot_start_fails_every_task_with_the_reason(tmp_path):
     rows = WorkerPool([str(tmp_path / "no-such-program")], {}, 2).run([{"clip": "a"}, {"clip": "b"}])
     assert [row["status"] for row in rows] == ["failed", "failed"]
