@@ -67,9 +67,13 @@ class SubBasePlacement:
         shares = self._curl_shares(spine)
         lean_r = norm(pref - trunk_base)
         for _ in range(_LEAN_ROUNDS):
-            lean, _ = nearest_on_sphere_in_balls(pref, trunk_base, lean_r, centres, radii, active)
-            lean_r = curl_chord(spine, lean, shares)
-        lean, ok_lean = nearest_on_sphere_in_balls(pref, trunk_base, lean_r, centres, radii, active)
+            lean, ok_lean = nearest_on_sphere_in_balls(pref, trunk_base, lean_r, centres, radii, active)
+            chord = curl_chord(spine, lean, shares)
+            if np.array_equal(chord, lean_r):
+                break  # settled: the rounds left and the placement below would repeat this one exactly
+            lean_r = chord
+        else:
+            lean, ok_lean = nearest_on_sphere_in_balls(pref, trunk_base, lean_r, centres, radii, active)
         if np.all(ok_lean):
             return lean, ok_lean
         bend, ok_bend = nearest_in_balls(
