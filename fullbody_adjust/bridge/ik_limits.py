@@ -20,9 +20,15 @@ from . import control_rig
 from .errors import AdjustError
 
 
+_IK_SETTINGS = tuple(f"{kind}_{a}" for kind in ("lock_ik", "use_ik_limit") for a in "xyz")
+_NO_LIMITS = BoneLimitSpec()
+
+
 def bone_limits(pose_bone):
     """The BoneLimitSpec of one pose bone (its own IK settings and LOCAL Limit Rotation constraints, its rest
     orientation in its parent's). AdjustError (one line) for a constraint range that is empty."""
+    if not pose_bone.constraints and not any(getattr(pose_bone, name) for name in _IK_SETTINGS):
+        return _NO_LIMITS  # most bones, on every Live update: no need for their rest orientation
     bone = pose_bone.bone
     rest = bone.matrix_local.to_3x3().normalized()
     if bone.parent is not None:

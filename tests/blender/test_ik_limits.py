@@ -200,6 +200,16 @@ def test_bone_limits_reads_ik_settings_and_local_limit_rotations(extension_modul
     bones = obj.data.bones
     thigh, shin = (_unit(np.array(bones[n].matrix_local)[:3, :3].T).T for n in ("thigh.L", "shin.L"))  # unit columns
     np.testing.assert_allclose(spec.rest_in_parent, np.linalg.inv(thigh) @ shin, atol=1e-7)
+    # Each source alone is read: one IK setting, or one constraint without any IK setting.
+    for setting in ("lock_ik_x", "use_ik_limit_z"):
+        other = obj.pose.bones["shin.R"]
+        setattr(other, setting, True)
+        assert ik_limits.bone_limits(other).limits_direction
+        setattr(other, setting, False)
+    con = obj.pose.bones["forearm.L"].constraints.new('LIMIT_ROTATION')
+    con.owner_space, con.use_limit_z, con.min_z, con.max_z = 'LOCAL', True, -0.1, 0.1
+    assert ik_limits.bone_limits(obj.pose.bones["forearm.L"]).ranges[2] == (
+        pytest.approx(-0.1, abs=1e-7), pytest.approx(0.1, abs=1e-7))
 
 
 def test_empty_constraint_range_is_one_clear_error():
