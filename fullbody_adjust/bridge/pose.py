@@ -219,9 +219,17 @@ def read_static(obj):
         "names": names,
         "parents": parents,
         "use_connect": _get(bones, "use_connect", count, (), bool),
-        "rotation_modes": tuple(pb.rotation_mode for pb in obj.pose.bones),
+        "rotation_modes": rotation_modes(obj),
         "rest_matrices": _get_matrices(bones, "matrix_local", count),
     }
+
+
+def rotation_modes(obj):
+    """Each pose bone's rotation mode (identifiers, in pose-bone order), read in one bulk call: it is read on
+    every Adjust Pose and Live update, and one attribute read per bone costs more than the rest of the read."""
+    values = np.empty(len(obj.pose.bones), dtype=np.int32)
+    obj.pose.bones.foreach_get("rotation_mode", values)
+    return tuple(_ROTATION_MODE_NAMES[int(v)] for v in values)
 
 
 def _check_readable(obj):
@@ -252,6 +260,10 @@ def _read_frame(obj):
         "lengths": np.linalg.norm(tails - heads, axis=-1),
         "channels": channels,
     }
+
+
+_ROTATION_MODE_NAMES = {item.value: item.identifier
+                        for item in bpy.types.PoseBone.bl_rna.properties["rotation_mode"].enum_items}
 
 
 def _get(collection, prop, count, shape, dtype=np.float32):

@@ -60,7 +60,7 @@ def _basis_from_fcurves(obj, frames):
     pose_bones = obj.pose.bones
     names = [pb.name for pb in pose_bones]
     index = {n: i for i, n in enumerate(names)}
-    modes = [pb.rotation_mode for pb in pose_bones]
+    modes = pose.rotation_modes(obj)
     count, frames_n = len(names), len(frames)
     used = {"location", "scale"} | {rt.ROTATION_PROPERTY[m] for m in modes}
     values = {prop: np.broadcast_to(pose_property(pose_bones, prop, (size,)), (frames_n, count, size)).copy()

@@ -31,7 +31,7 @@ def write_pose(context, target_obj, target, pose_matrices, frames, action_name):
         context.scene.frame_set(context.scene.frame_current)
         return action, tuple(channels)
     basis = rt.basis_from_pose(target, pose_matrices, written)
-    modes = tuple(pb.rotation_mode for pb in target_obj.pose.bones)
+    modes = pose.rotation_modes(target_obj)
     channels = _channels(target_obj, target, basis, written, modes)
     action = _new_action(target_obj, action_name)
     keyframes.key_bones_frames(target_obj, None, frames, channels)

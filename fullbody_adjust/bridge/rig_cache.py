@@ -44,7 +44,7 @@ class Rig:
 
     def static(self, obj):
         """pose.read_static(obj) of this rig, the rotation modes read now."""
-        return {**self.rest, "rotation_modes": tuple(bone.rotation_mode for bone in obj.pose.bones)}
+        return {**self.rest, "rotation_modes": pose.rotation_modes(obj)}
 
 
 @dataclass(frozen=True)

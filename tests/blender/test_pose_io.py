@@ -19,6 +19,7 @@ from fullbody_adjust.bridge.pose import (
     apply_channels,
     read_pose,
     read_pose_frames,
+    rotation_modes,
     world_rotations_to_channels,
 )
 
@@ -212,6 +213,16 @@ def test_read_pose_matches_blender(transform):
     np.testing.assert_allclose(snapshot.matrices[:, :3, 3], snapshot.heads, atol=1e-6)
     y = unit(snapshot.matrices[:, :3, 1])
     np.testing.assert_allclose(y, unit(snapshot.tails - snapshot.heads), atol=1e-6)
+
+
+def test_rotation_modes_read_in_bulk_name_every_mode():
+    obj = build_chain_rig("identity")
+    modes = [item.identifier for item in bpy.types.PoseBone.bl_rna.properties["rotation_mode"].enum_items]
+    assert len(modes) == 8
+    for shift in range(len(modes)):
+        for i, pb in enumerate(obj.pose.bones):
+            pb.rotation_mode = modes[(i + shift) % len(modes)]
+        assert rotation_modes(obj) == tuple(pb.rotation_mode for pb in obj.pose.bones)
 
 
 def test_read_pose_frames_matches_read_pose_at_each_frame():
