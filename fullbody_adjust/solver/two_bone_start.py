@@ -51,10 +51,11 @@ def two_bone_start(start, targets, axis, pole=None):
     to_target = targets - pivot
     d = np.clip(norm(to_target), np.abs(a - c), a + c)
     dt = to_target / np.maximum(norm(to_target), 1e-300)[:, None]
-    if pole is not None:
+    given = None if pole is None else np.isfinite(pole[:, 0])
+    if given is not None and given.any():
         # The elbow lands at cos(alpha) dt + sin(alpha) (dt x n): toward the pole's side when n = w x dt.
-        toward = cross(np.nan_to_num(pole - pivot), dt)
-        use = np.isfinite(pole[:, 0]) & (norm(toward) > 1e-9 * np.maximum(norm(to_target), 1e-300))
+        toward = cross(np.where(given[:, None], pole - pivot, 0.0), dt)
+        use = given & (norm(toward) > 1e-9 * np.maximum(norm(to_target), 1e-300))
         axis = np.where(use[:, None], toward, axis)
     n = axis - dot(axis, dt)[:, None] * dt
     ok = norm(n) > 1e-9
