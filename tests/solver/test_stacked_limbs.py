@@ -6,7 +6,7 @@ import pytest
 
 from fullbody_adjust.solver import limb_placement
 from fullbody_adjust.solver.adjust import adjust_frames
-from fullbody_adjust.solver.body import default_limits
+from fullbody_adjust.solver.body import LimbLimits, default_limits
 from fullbody_adjust.solver.obstacles import Boxes
 from tests.helpers import metarig
 
@@ -101,7 +101,7 @@ def test_arms_with_different_limits_are_solved_apart(rig, monkeypatch):
     limits = default_limits(model, heads, tails, bone_x_axes=x)
     right = limits["arm.R"]
     narrower = right.limits.with_cone(0, float(right.limits.cone_angle[0]) * 0.5)
-    limits["arm.R"] = type(right)(narrower, right.parent_direction)
+    limits["arm.R"] = LimbLimits(narrower, right.parent_direction)
     assert limits["arm.L"].limits.cone_angle[0] != narrower.cone_angle[0]
     stacked, groups = _solve_recording_groups(monkeypatch, case, limits)
     assert ("arm.L", "arm.R") not in groups and ("leg.L", "leg.R") in groups
