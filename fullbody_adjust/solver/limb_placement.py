@@ -2,14 +2,16 @@
 solving each limb from its base riding on its parent (LimbPlacement, mixed into adjust._Problem; it uses the
 problem's chains, targets, limits, obstacles and settings)."""
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from .body import CHAIN, ROOT
 from .chain import solve_chain_batch
-from .chain_types import _final_status
+from .chain_types import ChainBatchResult, _final_status
 from .geometry import apply_matrix, norm
 from .limb_rotations import _EYE, LimbSolve, end_rotation
-from .limits import HINGE, carry_axis
+from .limits import HINGE, JointLimits, carry_axis
 from .obstacles import points_inside, segments_cross
 from .two_bone_start import two_bone_start
 
@@ -18,11 +20,19 @@ class LimbPlacement:
     """The limbs' chain solves and the pass that places every bone from them."""
 
     def _solve(self, name, rows, start, targets, carry=None):
-        """solve_chain_batch on frames `rows` with the limb's limits and the frames' obstacles. `carry` (b,3,3):
-        the rotation that took the limb's start-pose chain to `start` (its parent's rotation), applied to
-        joint 0's parent direction (and a hinge axis at joint 0), which are given at the start pose. The other
-        hinge axes are carried from the start pose's own chain (hinge_reference; any reference the caller's
-        limits had is replaced), the frame _segment_rotations writes the bones in.
+        """solve_chain_batch on frames `rows` of limb `name` from chains `start` (b,n,3) to `targets` (b,3):
+        _solve_stacked on this one limb."""
+        return self._solve_stacked([ChainTask(name, rows, start, targets, carry)])[0]
+
+    def _solve_stacked(self, tasks):
+        """One solve_chain_batch for `tasks` (ChainTask), their rows stacked in order, with each limb's limits
+        and its frames' obstacles; one ChainBatchResult per task. The tasks' limbs share a _stack_key (chain
+        length, per-joint limits): the chain solve treats its rows independently, so a stacked row equals the
+        limb solved alone, and numpy's per-call cost is paid once for all of them. `carry` (b,3,3): the
+        rotation that took the limb's start-pose chain to `start` (its parent's rotation), applied to joint 0's
+        parent direction (and a hinge axis at joint 0), which are given at the start pose. The other hinge
+        axes are carried from the start pose's own chain (hinge_reference; any reference the caller's limits
+        had is replaced), the frame _segment_rotations writes the bones in.
 
         Warm start for a hinged limb (elbow, knee) whose end is not at its target yet: the last two segments
         are first placed by the two-bone solution in the plane of the start hinge axis carried to the
@@ -30,12 +40,18 @@ class LimbPlacement:
         mean joint angle error of bench/fullbody.py rises from 0.118 to 0.144 rad); FABRIK and the chain's
         two-segment finish then settle the twist, the cones, obstacles and the clavicle. A pole (set_end_goals)
         sets that plane instead, on every frame that has one."""
+        rows = _stack([t.rows for t in tasks])
+        start = _stack([t.start for t in tasks])
+        targets = _stack([t.targets for t in tasks])
+        pole = _stack([self.limb_pole[t.name][t.rows] if t.name in self.limb_pole
+                       else np.full((len(t.rows), 3), np.nan) for t in tasks])
         kwargs = {}
-        pole = self.limb_pole[name][rows] if name in self.limb_pole else np.full((len(rows), 3), np.nan)
         pole_placed = False
-        ll = self.limits.get(name)
+        ll = self.limits.get(tasks[0].name)
         if ll is not None and ll.limits.any_active:
-            lim, pdir = ll.for_chains(self.chain0[name][rows], rows, carry)
+            parts = [self.limits[t.name].for_chains(self.chain0[t.name][t.rows], t.rows, t.carry) for t in tasks]
+            lim = JointLimits.stack([part[0] for part in parts])
+            pdir = None if parts[0][1] is None else _stack([part[1] for part in parts])
             axes, reference = lim.hinge_axis, lim.hinge_reference
             m = len(lim)
             if lim.kind[m - 1] == HINGE and m >= 2:
@@ -57,8 +73,18 @@ class LimbPlacement:
         if self.obstacles is not None:
             kwargs["obstacles"] = self.obstacles.select(rows)
         res = solve_chain_batch(start, targets, settings=self.settings.chain, **kwargs)
-        self.iterations[rows] += res.iterations
-        return res
+        out = [res] if len(tasks) == 1 else _split(res, [len(t.rows) for t in tasks])
+        for t, r in zip(tasks, out):
+            self.iterations[t.rows] += r.iterations  # per task: two limbs' rows may be the same frames
+        return out
+
+    def _stack_key(self, task):
+        """What limbs solved in one stacked chain solve must share: the chain length and, when limited, the
+        per-joint limits and whether joint 0 has a parent direction."""
+        ll = self.limits.get(task.name)
+        if ll is None or not ll.limits.any_active:
+            return task.start.shape[1], None
+        return task.start.shape[1], ll.limits.per_joint_key(), ll.parent_direction is None
 
     def _propagate(self, delta, trunk):
         """Top-down pass over the bones, one hierarchy level at a time: new heads, tails and world rotation
@@ -75,14 +101,17 @@ class LimbPlacement:
             # Rigid children of their parents (overridden below for solved chain bones); where the parent did
             # not move, a bone stays as initialised (its parent's rotation is then the identity).
             _carry(heads, rot, moved, H0, rigid, par)
+            # The limbs starting on this level ride on parents placed on earlier levels: solved together.
+            starts = {name: (heads[:, j], rot[:, p] if p >= 0 else None,
+                             moved[:, p] if p >= 0 else np.zeros(F, dtype=bool))
+                      for j, p, role, name, k in limb_bones if role == CHAIN and k == 0 and name not in solves}
+            if starts:
+                solves.update(self._solve_limbs(starts))
             for j, p, role, name, k in limb_bones:
                 if role == ROOT:
                     heads[:, j] = H0[:, j] + delta  # x + 0.0 == x: an unmoved root stays bit-exact
                     moved[:, j] = np.any(delta != 0.0, axis=1)
                 elif role == CHAIN:
-                    if k == 0 and name not in solves:
-                        solves[name] = self._solve_limb(name, heads[:, j], rot[:, p] if p >= 0 else None,
-                                                        moved[:, p] if p >= 0 else np.zeros(F, dtype=bool))
                     ls = solves[name]
                     s = ls.solved
                     if np.any(s):
@@ -105,12 +134,34 @@ class LimbPlacement:
         tails = np.where(moved[..., None], heads + apply_matrix(rot, T0 - H0), T0) if np.any(moved) else T0.copy()
         return heads, tails, rot, solves
 
-    def _solve_limb(self, name, base, parent_rot, parent_moved):
-        """Solve limb `name` on the frames where its effector has a target, from its base `base` (F,3) riding
-        on its parent (rotation parent_rot (F,3,3), moved (F,) bool); the start chain is the old one carried
-        rigidly. A limb whose parent did not move and whose start pose already meets its target (within its
-        limits, clear of the obstacles) stays exactly as it was: not solved, so its bones keep their
-        positions bit-exact and their rotations exactly identity ("moves only the joints that need to")."""
+    def _solve_limbs(self, starts):
+        """{limb: LimbSolve} for the limbs {name: (base, parent_rot, parent_moved)} (_start_limb); the chain
+        solves of limbs with the same _stack_key (left and right arms, legs) run as one stacked solve."""
+        solves, tasks = {}, []
+        for name, (base, parent_rot, parent_moved) in starts.items():
+            solves[name], task = self._start_limb(name, base, parent_rot, parent_moved)
+            if task is not None:
+                tasks.append(task)
+        for group in _group_limbs(tasks, self._stack_key):
+            for task, res in zip(group, self._solve_stacked(group)):
+                ls, rows = solves[task.name], task.rows
+                ls.joints[rows] = res.positions
+                ls.status[rows] = res.status
+                ls.reason[rows] = res.reason
+                # The chain returns a valid start pose that meets its target untouched (0 iterations).
+                kept = (res.iterations == 0) & task.still & np.all(res.positions == self.chain0[task.name][rows],
+                                                                   axis=(1, 2))
+                ls.solved[rows[kept]] = False
+        return solves
+
+    def _start_limb(self, name, base, parent_rot, parent_moved):
+        """Limb `name` on the frames where its effector has a target, from its base `base` (F,3) riding on its
+        parent (rotation parent_rot (F,3,3), moved (F,) bool); the start chain is the old one carried rigidly.
+        A limb whose parent did not move and whose start pose already meets its target (within its limits,
+        clear of the obstacles) stays exactly as it was: not solved, so its bones keep their positions
+        bit-exact and their rotations exactly identity ("moves only the joints that need to"). Returns its
+        LimbSolve as carried (the caller writes the solved frames in) and the ChainTask of the frames left
+        to solve (None if none)."""
         F = self.F
         c0 = self.chain0[name]
         r = np.broadcast_to(_EYE, (F, 3, 3)) if parent_rot is None else parent_rot
@@ -119,7 +170,6 @@ class LimbPlacement:
         solved = self.limb_active[name].copy()
         status = np.full(F, "", dtype=object)
         reason = np.full(F, "", dtype=object)
-        joints = carried
         rows = np.nonzero(solved)[0]
         untouched = self._untouched_start(name, rows, parent_moved)
         if untouched.any():
@@ -128,16 +178,10 @@ class LimbPlacement:
             status[done], reason[done] = _final_status(True, True, 0.0, 1.0, 0.0, False, 0, False, False)
             solved[rows[untouched]] = False
             rows = rows[~untouched]
+        task = None
         if rows.size:
-            res = self._solve(name, rows, carried[rows], self.limb_target[name][rows], carry=r[rows])
-            joints = carried.copy()
-            joints[rows] = res.positions
-            status[rows] = res.status
-            reason[rows] = res.reason
-            # The chain returns a valid start pose that meets its target untouched (0 iterations).
-            kept = (res.iterations == 0) & ~parent_moved[rows] & np.all(res.positions == c0[rows], axis=(1, 2))
-            solved[rows[kept]] = False
-        return LimbSolve(joints, solved, status, reason)
+            task = ChainTask(name, rows, carried[rows], self.limb_target[name][rows], r[rows], ~parent_moved[rows])
+        return LimbSolve(carried, solved, status, reason), task
 
     def _untouched_start(self, name, rows, parent_moved):
         """(b,) bool over frames `rows`: the chain solve would return limb `name`'s start chain untouched (0
@@ -161,6 +205,44 @@ class LimbPlacement:
                 return np.zeros(rows.size, dtype=bool)
             keep &= self.prepared.start_keeps_limits(name, self.settings.chain)[rows]
         return keep
+
+
+@dataclass
+class ChainTask:
+    """One limb's chain solve on frames `rows` (b,): start chains (b,n,3), targets (b,3), `carry` (b,3,3) the
+    parent's rotation since the start pose (None: not turned), `still` (b,) bool where the parent did not move
+    (None: unknown)."""
+
+    name: str
+    rows: np.ndarray
+    start: np.ndarray
+    targets: np.ndarray
+    carry: np.ndarray = None
+    still: np.ndarray = None
+
+
+def _group_limbs(tasks, key):
+    """`tasks` in groups solved by one stacked chain solve each: those with equal key(task), in order."""
+    groups = {}
+    for t in tasks:
+        groups.setdefault(key(t), []).append(t)
+    return list(groups.values())
+
+
+def _stack(parts):
+    """The arrays `parts` concatenated along the rows (a single part as it is)."""
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
+def _split(res, sizes):
+    """ChainBatchResult `res` cut into consecutive pieces of `sizes` rows."""
+    out, at = [], 0
+    for size in sizes:
+        cut = slice(at, at + size)
+        out.append(ChainBatchResult(res.positions[cut], res.iterations[cut], res.residual[cut],
+                                    res.reachable[cut], res.status[cut], res.reason[cut]))
+        at += size
+    return out
 
 
 def _carry(heads, rot, moved, H0, bones, carriers):

@@ -150,6 +150,21 @@ class JointLimits:
     def any_active(self):
         return bool(np.any(self.kind != FREE))
 
+    def per_joint_key(self):
+        """The limits every problem of a batch shares (kinds, cone angles, hinge ranges and twists), as a
+        hashable value: limits with equal keys can be stacked into one batch (stack)."""
+        return tuple(a.tobytes() for a in (self.kind, self.cone_angle, self.hinge_min, self.hinge_max,
+                                           self.hinge_twist))
+
+    @staticmethod
+    def stack(parts):
+        """One JointLimits for the batches of `parts` stacked in order: limits with the same per_joint_key and
+        per-problem hinge axes and references (b_i,m,3), as a solver's own per-solve copies have them."""
+        if len(parts) == 1:
+            return parts[0]
+        return parts[0].derived(hinge_axis=np.concatenate([p.hinge_axis for p in parts]),
+                                hinge_reference=np.concatenate([p.hinge_reference for p in parts]))
+
 
 def hinge_axis_from_bend(parent_dir, child_dir):
     """Hinge axis normalize(cross(parent, child)) of a bent start pose, so that the start pose's bend side is

@@ -1,0 +1,108 @@
+"""Sibling limbs (left and right arms, left and right legs) go through one stacked chain solve: the results must
+be exactly those of solving each limb alone, and limbs whose limits differ must not be stacked."""
+
+import numpy as np
+import pytest
+
+from fullbody_adjust.solver import limb_placement
+from fullbody_adjust.solver.adjust import adjust_frames
+from fullbody_adjust.solver.body import LimbLimits, default_limits
+from fullbody_adjust.solver.obstacles import Boxes
+from tests.helpers import metarig
+
+FIELDS = ("heads", "tails", "rotations", "residuals", "status", "reasons", "moved", "iterations",
+          "sc_displacement", "root_displacement")
+
+
+@pytest.fixture(scope="module")
+def rig():
+    return metarig.load()
+
+
+def _four_limbs_case(rig, per_frame_boxes):
+    """Four frames where both feet move (each frame differently) and both hands: on frame 0 to metarig's
+    obstacle case (its box where the left forearm would go), on frame 1 the left hand beyond reach, on frames
+    2 and 3 elsewhere (on frame 2 the left foot raised to where its limits hold the leg short, which also runs
+    the re-solve of held limbs); on frame 3 the right hand at its start. Poles for the left elbow on frame 2
+    and the right knee on frame 0 only: stacked with limbs without one."""
+    model, h, t, x = rig
+    base, boxes = metarig.case(model, h, t, "obstacle")
+    far, _ = metarig.case(model, h, t, "far")
+    height = float(np.ptp(np.concatenate([h, t])[:, 2]))
+    rng = np.random.default_rng(7)
+    targets = np.repeat(base[None], 4, 0)
+    targets[1, 0] = far[0]
+    targets[2:, :2] += rng.normal(scale=0.08, size=(2, 2, 3)) * height
+    targets[:, 2] += np.array([0.02, -0.04, 0.07]) * height + rng.normal(scale=0.01, size=(4, 3)) * height
+    targets[:, 3] += np.array([-0.03, 0.05, 0.05]) * height + rng.normal(scale=0.01, size=(4, 3)) * height
+    targets[3, 1] = metarig.wrists_and_ankles(model, h)[1]
+    targets[2, 2] += np.array([0.0, -0.3, 0.3]) * height
+    if per_frame_boxes:  # one box per frame, drifting: the stacked rows must pick their own frame's box
+        shift = np.linspace(0.0, 0.01, 4)[:, None, None] * height
+        boxes = Boxes(boxes.mins[None] + shift, boxes.maxs[None] + shift)
+    poles = np.full(targets.shape, np.nan)
+    poles[2, 0] = targets[2, 0] + np.array([0.1, 0.2, -0.3]) * height
+    poles[0, 3] = targets[0, 3] + np.array([0.0, -0.3, 0.3]) * height
+    n = len(targets)
+    return model, np.repeat(h[None], n, 0), np.repeat(t[None], n, 0), targets, boxes, np.repeat(x[None], n, 0), \
+        poles
+
+
+def _solve(case, limits=None):
+    model, heads, tails, targets, boxes, x, poles = case
+    return adjust_frames(model, heads, tails, targets, metarig.EFFECTORS, metarig.PRIORITIES, obstacles=boxes,
+                         bone_x_axes=x, limits=limits, poles=poles)
+
+
+def _solve_recording_groups(monkeypatch, case, limits=None):
+    """The solve, and the limbs of every stacked group it ran (groups of one left out)."""
+    stacked = []
+    group = limb_placement._group_limbs
+
+    def recording(tasks, key):
+        groups = group(tasks, key)
+        stacked.extend(tuple(t.name for t in g) for g in groups if len(g) > 1)
+        return groups
+
+    with monkeypatch.context() as patch:
+        patch.setattr(limb_placement, "_group_limbs", recording)
+        return _solve(case, limits), stacked
+
+
+def _solve_one_limb_at_a_time(monkeypatch, case, limits=None):
+    with monkeypatch.context() as patch:
+        patch.setattr(limb_placement, "_group_limbs", lambda tasks, key: [[t] for t in tasks])
+        return _solve(case, limits)
+
+
+def _assert_identical(stacked, alone):
+    for name in FIELDS:
+        a, b = getattr(stacked, name), getattr(alone, name)
+        same = np.array_equal(a, b, equal_nan=True) if a.dtype.kind == "f" else np.array_equal(a, b)
+        assert same, f"{name} differs between the stacked and the one-limb-at-a-time solve"
+
+
+@pytest.mark.parametrize("per_frame_boxes", [False, True])
+def test_stacked_arms_and_legs_equal_each_limb_solved_alone(rig, monkeypatch, per_frame_boxes):
+    case = _four_limbs_case(rig, per_frame_boxes)
+    stacked, groups = _solve_recording_groups(monkeypatch, case)
+    assert ("arm.L", "arm.R") in groups and ("leg.L", "leg.R") in groups
+    alone = _solve_one_limb_at_a_time(monkeypatch, case)
+    # The case exercises what it claims: every limb moved; targets reached, out of reach, held by limits.
+    limbs = [stacked.group_names.index(g) for g in ("arm.L", "arm.R", "leg.L", "leg.R")]
+    assert stacked.moved[:, limbs].any(axis=0).all()
+    assert {"reached", "unreachable", "limited"} <= set(stacked.status[:, :4].ravel())
+    _assert_identical(stacked, alone)
+
+
+def test_arms_with_different_limits_are_solved_apart(rig, monkeypatch):
+    case = _four_limbs_case(rig, per_frame_boxes=False)
+    model, heads, tails, _, _, x, _ = case
+    limits = default_limits(model, heads, tails, bone_x_axes=x)
+    right = limits["arm.R"]
+    narrower = right.limits.with_cone(0, float(right.limits.cone_angle[0]) * 0.5)
+    limits["arm.R"] = LimbLimits(narrower, right.parent_direction)
+    assert limits["arm.L"].limits.cone_angle[0] != narrower.cone_angle[0]
+    stacked, groups = _solve_recording_groups(monkeypatch, case, limits)
+    assert ("arm.L", "arm.R") not in groups and ("leg.L", "leg.R") in groups
+    _assert_identical(stacked, _solve_one_limb_at_a_time(monkeypatch, case, limits))
