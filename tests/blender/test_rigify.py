@@ -59,6 +59,43 @@ def move_rotate_scale(rig):
     bpy.ops.fullbody_adjust.create_targets(reset=True)
 
 
+def test_control_matching_ends_on_its_best_sweep(extension_module_name, capfd, monkeypatch):
+    # Near the precision of Blender's IK solver a sweep over an IK arm's pole and stretch can land farther off
+    # than the one before: the controls are left as the best sweep had them, and the evaluated rig agrees.
+    control_match = importlib.import_module(f"{extension_module_name}.bridge.control_match")
+    rig = generated_rig("basic", "IK")
+    pose = Pose(rig)
+    arm = chain_joints(rig, pose, "arm.L")
+    reach = float(np.sum(np.linalg.norm(np.diff(arm, axis=0), axis=1)))
+    pair_error, match = control_match._pair_error, control_match.match_controls
+    errors, checked = [], []
+
+    def recording_error(pose_bones, pair, desired, lengths):
+        errors.append(pair_error(pose_bones, pair, desired, lengths))
+        return errors[-1]
+
+    def checked_match(obj, view_layer, pairs, desired, tolerance, **options):
+        errors.clear()
+        returned = match(obj, view_layer, pairs, desired, tolerance, **options)
+        sweeps = [max(errors[i:i + len(pairs)]) for i in range(0, len(errors), len(pairs))]
+        view_layer.update()
+        lengths = {p.bone: obj.pose.bones[p.bone].bone.length for p in pairs}
+        now = max(pair_error(obj.pose.bones, p, desired, lengths) for p in pairs)
+        checked.append((returned, min(sweeps), now))
+        return returned
+
+    monkeypatch.setattr(control_match, "_pair_error", recording_error)
+    monkeypatch.setattr(control_match, "match_controls", checked_match)
+    rng = np.random.default_rng(5)
+    for _ in range(8):  # the left hand to points within the arm's reach around its wrist
+        place(slot(rig, "hand.L").target, pose.to_world(arm[-1] + rng.uniform(-0.15, 0.15, 3) * reach))
+        bpy.context.view_layer.update()
+        adjust(capfd)
+    assert len(checked) == 8
+    for returned, best, now in checked:
+        assert returned == best and now == pytest.approx(best, rel=1e-9, abs=1e-12)
+
+
 @pytest.mark.parametrize("kind, limbs, task, moved", [
     ("basic", "FK", "arm", False), ("basic", "FK", "trunk", False), ("basic", "IK", "arm", False),
     ("basic", "IK", "trunk", False), ("basic", "IK", "pelvis", False), ("full", "IK", "arm", False),
