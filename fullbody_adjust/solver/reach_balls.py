@@ -209,6 +209,8 @@ def sub_base_point(points, centres, radii, active, priorities, variant):
             if trial.sum(axis=1).max() <= 1:
                 kept = trial  # one ball (or none) always has a point
                 continue
+            if np.array_equal(trial, act):
+                continue  # all of them: these rows are those whose balls have no common point (above)
             _, ok = nearest_in_balls(p, c, r, trial)
             kept = np.where(ok[:, None], trial, kept)
         y = p.copy()
