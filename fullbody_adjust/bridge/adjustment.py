@@ -245,8 +245,10 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
     if apply_pose and options.evaluated_residuals:
         # What the user sees is the pose Blender evaluates from the written channels (float32, constraints):
         # report the residuals of that pose rather than the solver's.
-        applied = pose.read_pose(obj, rig.static(obj))
-        world_effectors = _effector_positions(model, applied.heads[None], np.eye(4)[None])
+        heads = np.full((1, len(model.names), 3), np.nan)  # only the effectors' are read
+        ends = [limb.end_bone for limb in model.limbs.values() if limb.effector in targets.EFFECTORS]
+        heads[0, ends] = pose.evaluated_heads(obj, [model.names[j] for j in ends])
+        world_effectors = _effector_positions(model, heads, np.eye(4)[None])
     else:
         world_effectors = _effector_positions(model, result.heads, snapshot.matrix_world)
     residuals = np.linalg.norm(world_effectors - world_targets, axis=-1)

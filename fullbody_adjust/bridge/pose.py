@@ -109,6 +109,15 @@ def read_pose(obj, static=None):
     return PoseSnapshot(**static, **_read_frame(obj))
 
 
+def evaluated_heads(obj, names):
+    """World positions (k,3) of the heads of the bones ``names`` in the evaluated pose at the current frame, as
+    read_pose gives them (float32 values, then float64), without reading the whole pose."""
+    evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    bones = evaluated.pose.bones
+    heads = np.array([tuple(bones[name].head) for name in names], dtype=np.float64).reshape(-1, 3)
+    return _to_world(np.array(evaluated.matrix_world, dtype=np.float64), heads)
+
+
 def read_pose_frames(obj, frames, each_frame=None):
     """A batched PoseSnapshot (leading axis F) of ``obj`` at each of ``frames`` (scene frames, may be
     fractional). Sets each frame in turn and restores the scene's current frame afterwards.

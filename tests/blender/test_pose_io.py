@@ -17,6 +17,7 @@ from fullbody_adjust.bridge.keyframes import key_bones_frames
 from fullbody_adjust.solver.vocabulary import EULER_ORDERS
 from fullbody_adjust.bridge.pose import (
     apply_channels,
+    evaluated_heads,
     read_pose,
     read_pose_frames,
     rotation_modes,
@@ -209,6 +210,9 @@ def test_read_pose_matches_blender(transform):
         np.testing.assert_array_equal(snapshot.channels["location"][i], np.array(pb.location, np.float32))
         np.testing.assert_array_equal(snapshot.channels["rotation_euler"][i],
                                       np.array(pb.rotation_euler, np.float32))
+    # A few bones' heads alone read the same, bit for bit.
+    picked = [3, 0, len(snapshot.names) - 1]
+    np.testing.assert_array_equal(evaluated_heads(obj, [snapshot.names[i] for i in picked]), snapshot.heads[picked])
     # The world matrix's translation is the head; its Y axis points along the bone.
     np.testing.assert_allclose(snapshot.matrices[:, :3, 3], snapshot.heads, atol=1e-6)
     y = unit(snapshot.matrices[:, :3, 1])
