@@ -418,9 +418,10 @@ def _check_driven_bones(model, snapshot):
     driven = np.isin(model.roles, (ROOT, CHAIN, END))
     needed = driven.copy()
     needed[snapshot.parents[driven & (snapshot.parents >= 0)]] = True
-    axis_scales = np.linalg.norm(snapshot.pose_matrices[..., :3, :3], axis=-2)  # (F,J,3)
-    flat = (axis_scales.min(axis=-1) <= _FLAT) | (snapshot.lengths <= _FLAT * _size(snapshot.heads))  # (F,J)
-    bad = np.nonzero(needed & np.any(flat, axis=0))[0]
+    needed = np.nonzero(needed)[0]  # only these are measured (a fraction of a full rig's bones)
+    axis_scales = np.linalg.norm(snapshot.pose_matrices[:, needed, :3, :3], axis=-2)  # (F,k,3)
+    flat = (axis_scales.min(axis=-1) <= _FLAT) | (snapshot.lengths[:, needed] <= _FLAT * _size(snapshot.heads))
+    bad = needed[np.any(flat, axis=0)]
     if len(bad):
         raise AdjustError(f"Bone '{snapshot.names[bad[0]]}' has zero length or scale (scaled to 0 in Pose Mode?): "
                           f"fix it before adjusting")
@@ -452,11 +453,11 @@ def _bones_to_write(model, snapshot, result, keep_hands, oriented):
     for limb in model.limbs.values():
         if limb.effector in targets.EFFECTORS and oriented[targets.EFFECTORS.index(limb.effector)]:
             driven[limb.end_bone] = True
-    turn = np.abs(result.rotations - np.eye(3)).max(axis=(-1, -2))  # (F,J)
+    driven = np.nonzero(driven)[0]  # only these are measured (a fraction of a full rig's bones)
+    turn = np.abs(result.rotations[:, driven] - np.eye(3)).max(axis=(-1, -2))  # (F,k)
     old_heads = snapshot.pose_matrices[..., :3, 3]
-    shift = np.linalg.norm(result.heads - old_heads, axis=-1) / _size(old_heads)
-    changed = np.any((turn > _MOVED) | (shift > _MOVED), axis=0)
-    return np.nonzero(driven & changed)[0]
+    shift = np.linalg.norm(result.heads[:, driven] - old_heads[:, driven], axis=-1) / _size(old_heads)
+    return driven[np.any((turn > _MOVED) | (shift > _MOVED), axis=0)]
 
 
 def _effector_positions(model, heads, matrix_world):
