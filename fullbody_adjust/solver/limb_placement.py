@@ -44,7 +44,7 @@ class LimbPlacement:
         start = stack_rows([t.start for t in tasks])
         targets = stack_rows([t.targets for t in tasks])
         pole = stack_rows([self.limb_pole[t.name][t.rows] if t.name in self.limb_pole
-                       else np.full((len(t.rows), 3), np.nan) for t in tasks])
+                            else np.full((len(t.rows), 3), np.nan) for t in tasks])
         kwargs = {}
         pole_placed = False
         ll = self.limits.get(tasks[0].name)
