@@ -106,6 +106,11 @@ def swing_rotation(old_dirs, new_dirs):
     return out
 
 
+def stack_rows(parts):
+    """The arrays `parts` concatenated along their first axis (a single part as it is, not copied)."""
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+
 def rotate_about_axis(v, axis, angle):
     """Rotate vectors v (...,3) about `axis` (...,3, need not be unit) by `angle` (...) radians,
     right-handed (Rodrigues)."""

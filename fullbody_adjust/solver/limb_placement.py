@@ -9,8 +9,8 @@ import numpy as np
 from .body import CHAIN, ROOT
 from .chain import solve_chain_batch
 from .chain_types import ChainBatchResult, _final_status
-from .geometry import apply_matrix, norm
-from .limb_rotations import _EYE, LimbSolve, end_rotation
+from .geometry import apply_matrix, norm, stack_rows
+from .limb_rotations import _EYE, LimbSolve, end_rotation, set_segment_rotations
 from .limits import HINGE, JointLimits, carry_axis
 from .obstacles import points_inside, segments_cross
 from .two_bone_start import two_bone_start
@@ -40,18 +40,18 @@ class LimbPlacement:
         mean joint angle error of bench/fullbody.py rises from 0.118 to 0.144 rad); FABRIK and the chain's
         two-segment finish then settle the twist, the cones, obstacles and the clavicle. A pole (set_end_goals)
         sets that plane instead, on every frame that has one."""
-        rows = _stack([t.rows for t in tasks])
-        start = _stack([t.start for t in tasks])
-        targets = _stack([t.targets for t in tasks])
-        pole = _stack([self.limb_pole[t.name][t.rows] if t.name in self.limb_pole
-                       else np.full((len(t.rows), 3), np.nan) for t in tasks])
+        rows = stack_rows([t.rows for t in tasks])
+        start = stack_rows([t.start for t in tasks])
+        targets = stack_rows([t.targets for t in tasks])
+        pole = stack_rows([self.limb_pole[t.name][t.rows] if t.name in self.limb_pole
+                            else np.full((len(t.rows), 3), np.nan) for t in tasks])
         kwargs = {}
         pole_placed = False
         ll = self.limits.get(tasks[0].name)
         if ll is not None and ll.limits.any_active:
             parts = [self.limits[t.name].for_chains(self.chain0[t.name][t.rows], t.rows, t.carry) for t in tasks]
             lim = JointLimits.stack([part[0] for part in parts])
-            pdir = None if parts[0][1] is None else _stack([part[1] for part in parts])
+            pdir = None if parts[0][1] is None else stack_rows([part[1] for part in parts])
             axes, reference = lim.hinge_axis, lim.hinge_reference
             m = len(lim)
             if lim.kind[m - 1] == HINGE and m >= 2:
@@ -136,7 +136,8 @@ class LimbPlacement:
 
     def _solve_limbs(self, starts):
         """{limb: LimbSolve} for the limbs {name: (base, parent_rot, parent_moved)} (_start_limb); the chain
-        solves of limbs with the same _stack_key (left and right arms, legs) run as one stacked solve."""
+        solves of limbs with the same _stack_key (left and right arms, legs) run as one stacked solve, and so
+        do their segment rotations."""
         solves, tasks = {}, []
         for name, (base, parent_rot, parent_moved) in starts.items():
             solves[name], task = self._start_limb(name, base, parent_rot, parent_moved)
@@ -152,6 +153,9 @@ class LimbPlacement:
                 kept = (res.iterations == 0) & task.still & np.all(res.positions == self.chain0[task.name][rows],
                                                                    axis=(1, 2))
                 ls.solved[rows[kept]] = False
+            # Their segment rotations too, in one call (_propagate then finds them computed).
+            set_segment_rotations([solves[t.name] for t in group], [self.chain0[t.name] for t in group],
+                                  [self.limits.get(t.name) for t in group])
         return solves
 
     def _start_limb(self, name, base, parent_rot, parent_moved):
@@ -227,11 +231,6 @@ def _group_limbs(tasks, key):
     for t in tasks:
         groups.setdefault(key(t), []).append(t)
     return list(groups.values())
-
-
-def _stack(parts):
-    """The arrays `parts` concatenated along the rows (a single part as it is)."""
-    return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
 
 def _split(res, sizes):

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .geometry import any_perpendicular, apply_matrix, norm, swing_rotation
+from .geometry import any_perpendicular, apply_matrix, norm, stack_rows, swing_rotation
 from .limits import HINGE, hinge_twist_angle
 
 _EYE = np.eye(3)
@@ -29,21 +29,48 @@ class LimbSolve:
     rotations: np.ndarray = field(default=None)  # (F,n-1,3,3) each segment's world rotation delta
 
     def segment_rotations(self, start, limits):
-        """World rotation deltas of the chain's segments from the start chain to the solved one, on solved
-        frames (computed once per limb; `limits` the limb's LimbLimits or None): see _segment_rotations."""
+        """World rotation deltas of the chain's segments from the start chain `start` (F,n,3) to the solved one,
+        on solved frames (`limits` the limb's LimbLimits or None); computed once per limb, unless
+        set_segment_rotations already did it for its stacked group."""
         if self.rotations is None:
-            self.rotations = np.broadcast_to(_EYE, self.joints.shape[:2] + (3, 3))[:, 1:].copy()
-            s = self.solved
-            if np.any(s):
-                self.rotations[s] = _segment_rotations(start[s], self.joints[s], limits, s)
+            set_segment_rotations([self], [start], [limits])
         return self.rotations
 
 
-def _segment_rotations(start, joints, limits, frames):
-    """World rotation deltas (b,n-1,3,3) of chain segments from `start` (b,n,3) to `joints` (b,n,3) on frames
-    `frames` (a row selector of the limbs' F frames), DESIGN §2.6: each segment turns by the minimal swing
-    from its old direction to its new one (its twist kept), except around a hinge (limits: LimbLimits or None)
-    with joint i > 0:
+def set_segment_rotations(solves, starts, limits):
+    """Fill the `rotations` of LimbSolves `solves` (identity where not solved), their start chains `starts`
+    (F,n,3) and LimbLimits (or None) `limits` each, with one _segment_rotations call on all their solved frames
+    stacked in order. The limbs share a chain length and per-joint limit kinds (a stacked chain solve's group):
+    every row is computed on its own, so a stacked row equals the limb's alone, and numpy's per-call cost is
+    paid once for all of them."""
+    frames = [np.nonzero(ls.solved)[0] for ls in solves]
+    for ls in solves:
+        ls.rotations = np.broadcast_to(_EYE, ls.joints.shape[:2] + (3, 3))[:, 1:].copy()
+    if not any(f.size for f in frames):
+        return
+    kind = axes = None
+    if limits[0] is not None:
+        kind = limits[0].limits.kind
+        if np.any(kind[1:] == HINGE):
+            axes = stack_rows([_frame_axes(ll.limits.hinge_axis, f) for ll, f in zip(limits, frames)])
+    rot = _segment_rotations(stack_rows([s[f] for s, f in zip(starts, frames)]),
+                             stack_rows([ls.joints[f] for ls, f in zip(solves, frames)]), kind, axes)
+    at = 0
+    for ls, f in zip(solves, frames):
+        ls.rotations[f] = rot[at:at + f.size]
+        at += f.size
+
+
+def _frame_axes(axes, frames):
+    """Hinge axes (b,m,3) on `frames` (b,) from per-frame (F,m,3) or shared (m,3) ones."""
+    return axes[frames] if axes.ndim == 3 else np.broadcast_to(axes, (len(frames),) + axes.shape)
+
+
+def _segment_rotations(start, joints, kind, axes):
+    """World rotation deltas (b,n-1,3,3) of chain segments from `start` (b,n,3) to `joints` (b,n,3), DESIGN
+    §2.6: each segment turns by the minimal swing from its old direction to its new one (its twist kept),
+    except around a hinge (`kind` the per-joint limit kinds or None, `axes` (b,n-1,3) the start-pose hinge
+    axes) with joint i > 0:
       - the parent segment i-1 also turns about its new direction by the hinge's twist (the angle by which the
         bend plane left the start axis carried by the parent's swing, as the solver carries it), so the
         start hinge axis turned with the bone is the axis the child bends about;
@@ -52,19 +79,17 @@ def _segment_rotations(start, joints, limits, frames):
     old = np.diff(start, axis=1)
     new = np.diff(joints, axis=1)
     rot = swing_rotation(old, new)
-    if limits is None:
+    if kind is None:
         return rot
-    lim = limits.limits
-    axes = lim.hinge_axis
-    for i in np.nonzero(lim.kind == HINGE)[0]:
+    for i in np.nonzero(kind == HINGE)[0]:
         if i == 0:
             continue
-        axis = axes[frames, i] if axes.ndim == 3 else np.broadcast_to(axes[i], (len(start), 3))
+        axis = axes[:, i]
         parent = new[:, i - 1] / norm(new[:, i - 1])[:, None]
         child = new[:, i] / norm(new[:, i])[:, None]
         tau = hinge_twist_angle(parent, child, apply_matrix(rot[:, i - 1], axis))
         rot[:, i - 1] = np.einsum("bij,bjk->bik", _rotation_about(parent, tau), rot[:, i - 1])
-        if i + 1 >= len(lim) or lim.kind[i + 1] != HINGE:  # a hinge parent itself keeps the solver's frame
+        if i + 1 >= len(kind) or kind[i + 1] != HINGE:  # a hinge parent itself keeps the solver's frame
             rot[:, i] = np.einsum("bij,bjk->bik", swing_rotation(apply_matrix(rot[:, i - 1], old[:, i]), new[:, i]),
                                   rot[:, i - 1])
     return rot

@@ -1,5 +1,6 @@
-"""Sibling limbs (left and right arms, left and right legs) go through one stacked chain solve: the results must
-be exactly those of solving each limb alone, and limbs whose limits differ must not be stacked."""
+"""Sibling limbs (left and right arms, left and right legs) go through one stacked chain solve and one stacked
+computation of their segment rotations: the results must be exactly those of solving each limb alone, and limbs
+whose limits differ must not be stacked."""
 
 import numpy as np
 import pytest
@@ -7,6 +8,7 @@ import pytest
 from fullbody_adjust.solver import limb_placement
 from fullbody_adjust.solver.adjust import adjust_frames
 from fullbody_adjust.solver.body import LimbLimits, default_limits
+from fullbody_adjust.solver.limits import HINGE
 from fullbody_adjust.solver.obstacles import Boxes
 from tests.helpers import metarig
 
@@ -106,3 +108,48 @@ def test_arms_with_different_limits_are_solved_apart(rig, monkeypatch):
     stacked, groups = _solve_recording_groups(monkeypatch, case, limits)
     assert ("arm.L", "arm.R") not in groups and ("leg.L", "leg.R") in groups
     _assert_identical(stacked, _solve_one_limb_at_a_time(monkeypatch, case, limits))
+
+
+def _mixed_frames_case(rig):
+    """The four frames of _four_limbs_case and two more where sibling limbs are solved on different frames:
+    on frame 4 the left hand has no target and the left foot stays at its start (neither limb solved there),
+    on frame 5 the right hand stays at its start and the right foot has no target; the other hand and foot
+    move within reach."""
+    model, heads, tails, targets, boxes, x, poles = _four_limbs_case(rig, per_frame_boxes=False)
+    h, t = heads[0], tails[0]
+    height = float(np.ptp(np.concatenate([h, t])[:, 2]))
+    start = metarig.wrists_and_ankles(model, h)
+    near, _ = metarig.case(model, h, t, "near")
+    extra = np.repeat(start[None], 2, 0)
+    extra[0, 0], extra[0, 1] = np.nan, near[1]
+    extra[0, 3] += np.array([0.01, 0.02, 0.03]) * height
+    extra[1, 0] = near[0]
+    extra[1, 2] += np.array([-0.02, 0.01, 0.03]) * height
+    extra[1, 3] = np.nan
+    grow = lambda a: np.concatenate([a, a[:2]])  # noqa: E731  (the start poses of two more frames)
+    return model, grow(heads), grow(tails), np.concatenate([targets, extra]), boxes, grow(x), \
+        np.concatenate([poles, np.full_like(extra, np.nan)])
+
+
+def test_stacked_segment_rotations_equal_each_limb_alone(rig, monkeypatch):
+    """Sibling limbs also get their segment rotations from one stacked call, on their own solved frames (which
+    differ between them here), hinges included: every result field equals that of one limb at a time."""
+    case = _mixed_frames_case(rig)
+    calls = []
+    compute = limb_placement.set_segment_rotations
+
+    def recording(solves, starts, limits):
+        calls.append(([ls.solved.copy() for ls in solves], limits))
+        return compute(solves, starts, limits)
+
+    with monkeypatch.context() as patch:
+        patch.setattr(limb_placement, "set_segment_rotations", recording)
+        stacked = _solve(case)
+    stacked_calls = [(solved, limits) for solved, limits in calls if len(solved) > 1]
+    hinged = [solved for solved, limits in stacked_calls
+              if limits[0] is not None and np.any(limits[0].limits.kind[1:] == HINGE)]
+    # Arms and legs (both hinged at the elbow or knee) each in one call, solved on some frames and not others,
+    # with different frames for the two sides.
+    assert len(hinged) >= 2
+    assert any(all(s.any() and not s.all() for s in solved) and not np.array_equal(*solved) for solved in hinged)
+    _assert_identical(stacked, _solve_one_limb_at_a_time(monkeypatch, case))
