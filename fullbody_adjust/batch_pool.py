@@ -2,12 +2,12 @@
 """Running clips in parallel worker processes (no bpy here: it only starts processes and talks to them).
 
 Each worker is a Python with bpy or a `blender -b` started with ``command``; it reads a job (one JSON line) on
-stdin, then one task (a JSON line) at a time, and answers on stdout with JSON lines: ``{"progress": f}`` while
-it works and ``{"row": {...}}`` when the task is done (its chatter goes to stderr, kept in a log file). A worker
-takes the next task as soon as it is free, the largest first (a task's "size", e.g. its file's bytes), so the
-batch does not end waiting on one long clip. A worker that dies fails only the
-task it had, with the last line it wrote as the reason, and a fresh worker takes the rest; so does a worker
-stopped because its task ran longer than the pool's timeout.
+stdin, then one task (a JSON line) at a time, and answers on stdout with JSON lines: ``{"progress": f}`` while it
+works and ``{"row": {...}}`` when the task is done (its chatter goes to stderr, kept in a log file). A worker takes
+the next task as soon as it is free, the largest first (a task's "size", e.g. its file's bytes), so the batch does
+not end waiting on one long clip. A worker that dies fails only the task it had, with the last line it wrote as the
+reason, and a fresh worker takes the rest; so does a worker stopped because its task ran longer than the pool's
+timeout.
 """
 
 from collections import deque
