@@ -58,6 +58,15 @@ def reopen(path):
     bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
 
 
+def save_with_twin(path, name, twin_name):
+    """The .blend at ``path`` saved again with a copy of object ``name`` named ``twin_name`` beside it."""
+    reopen(path)
+    twin = bpy.data.objects[name].copy()
+    twin.name = twin_name
+    bpy.context.scene.collection.objects.link(twin)
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+
+
 def effector_and_target(arm_name, effector, frame):
     """World position of an effector joint (head of the bone mapped to it) and of its target, at ``frame``."""
     obj = bpy.data.objects[arm_name]
@@ -297,12 +306,7 @@ def test_bad_input_exits_2_and_leaves_the_input(cli, capsys, tmp_path, case, ext
 
 def test_default_armature_must_be_unambiguous(cli, capsys, tmp_path):
     path = sample(tmp_path, "arm_obstacles")
-    reopen(path)
-    character = bpy.data.objects["Character"]
-    twin = character.copy()
-    twin.name = "Twin"
-    bpy.context.scene.collection.objects.link(twin)
-    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    save_with_twin(path, "Character", "Twin")
     before = Untouched(path)
     code, _, err = run(cli, capsys, "adjust", path, "--quiet")
     assert code == 2 and "Several armatures have targets" in err and "--armature" in err
@@ -396,12 +400,7 @@ def test_retarget_bad_input_exits_2(cli, capsys, tmp_path, extra, words):
 
 def test_retarget_of_an_unmappable_target_exits_2(cli, capsys, tmp_path):
     path = _unmappable_scene(tmp_path)
-    reopen(path)
-    source = bpy.data.objects["Stick"]
-    twin = source.copy()
-    twin.name = "Stick2"
-    bpy.context.scene.collection.objects.link(twin)
-    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    save_with_twin(path, "Stick", "Stick2")
     before = Untouched(path)
     code, _, err = run(cli, capsys, "retarget", path, "--source", "Stick", "--target", "Stick2", "--quiet")
     assert code == 2 and "--source 'Stick' cannot be mapped" in err
