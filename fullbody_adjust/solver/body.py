@@ -358,33 +358,53 @@ def default_limits(model: BodyModel, heads, tails, human: HumanLimits = HumanLim
     bone_x_axes: optional per-bone local X axes in world space (J,3) or (F,J,3). Blender limbs bend about
     their bone's X axis, so the bridge can pass it to orient the elbow/knee hinge of a straight limb, where the
     start pose says nothing about the bend side. Returns {limb name: LimbLimits}."""
-    heads = np.asarray(heads, dtype=np.float64)
-    tails = np.asarray(tails, dtype=np.float64)
-    n_frames = heads.shape[0]
-    x_axes = None
-    if bone_x_axes is not None:
-        x_axes = np.asarray(bone_x_axes, dtype=np.float64)
-        if x_axes.shape not in (heads.shape, heads.shape[1:]):
-            raise SolverInputError(f"bone_x_axes must have shape {heads.shape[1:]} or {heads.shape}, got {x_axes.shape}")
-        x_axes = np.broadcast_to(x_axes, heads.shape)
-        if not np.all(np.isfinite(x_axes)):
-            raise SolverInputError("bone_x_axes have NaN/inf")
-    up, _left, forward = model.body_frame(heads, tails)
-    # The pelvis never rotates during a solve, so its up direction is a fixed frame for the lumbar and hip
-    # cones. The root bone points up in the common rigs (CMU/Blender import, Rigify, Mixamo); where it does not
-    # (more than 60 deg from the lowest trunk segment) the lowest trunk segment stands in.
-    trunk = model.limbs["trunk"].joints(heads, tails)
-    lumbar_dir = normalize(trunk[:, 1] - trunk[:, 0])
-    root = model.root
-    root_dir = normalize(tails[:, root] - heads[:, root], fallback=lumbar_dir)
-    pelvis_up = np.where((dot(root_dir, lumbar_dir) > math.cos(math.radians(60)))[:, None], root_dir, lumbar_dir)
-    sc = trunk[:, -1]
+    start = LimitStart(model, heads, tails, bone_x_axes)
+    return {limb.name: start.limb_limits(limb, human) for limb in model.limbs.values()}
 
-    out = {}
-    for limb in model.limbs.values():
-        joints = limb.joints(heads, tails)
+
+class LimitStart:
+    """What default_limits computes a limb's limits from at the start poses heads/tails (F,J,3): its joints,
+    its bones' X axes, and the body frame every limb shares (forward, the pelvis' up direction, the SC)."""
+
+    def __init__(self, model: BodyModel, heads, tails, bone_x_axes=None):
+        heads = np.asarray(heads, dtype=np.float64)
+        tails = np.asarray(tails, dtype=np.float64)
+        self.heads, self.tails = heads, tails
+        self.x_axes = None
+        if bone_x_axes is not None:
+            x_axes = np.asarray(bone_x_axes, dtype=np.float64)
+            if x_axes.shape not in (heads.shape, heads.shape[1:]):
+                raise SolverInputError(f"bone_x_axes must have shape {heads.shape[1:]} or {heads.shape}, got "
+                                       f"{x_axes.shape}")
+            self.x_axes = np.broadcast_to(x_axes, heads.shape)
+            if not np.all(np.isfinite(self.x_axes)):
+                raise SolverInputError("bone_x_axes have NaN/inf")
+        _up, _left, self.forward = model.body_frame(heads, tails)
+        # The pelvis never rotates during a solve, so its up direction is a fixed frame for the lumbar and hip
+        # cones. The root bone points up in the common rigs (CMU/Blender import, Rigify, Mixamo); where it does
+        # not (more than 60 deg from the lowest trunk segment) the lowest trunk segment stands in.
+        trunk = model.limbs["trunk"].joints(heads, tails)
+        lumbar_dir = normalize(trunk[:, 1] - trunk[:, 0])
+        root = model.root
+        root_dir = normalize(tails[:, root] - heads[:, root], fallback=lumbar_dir)
+        self.pelvis_up = np.where((dot(root_dir, lumbar_dir) > math.cos(math.radians(60)))[:, None], root_dir,
+                                  lumbar_dir)
+        self.sc = trunk[:, -1]
+
+    def inputs(self, limb):
+        """Everything limb_limits(limb, ...) reads, as bytes: two limbs (of any model) with equal inputs and
+        HumanLimits get equal limits, bit for bit."""
+        joints = limb.joints(self.heads, self.tails)
+        x = None if self.x_axes is None else self.x_axes[:, limb.bones[-1]].tobytes()
+        return (limb.name, joints.shape, joints.tobytes(), x, self.forward.tobytes(), self.pelvis_up.tobytes(),
+                self.sc.tobytes())
+
+    def limb_limits(self, limb, human: HumanLimits = HumanLimits()):
+        """The LimbLimits of one limb (see default_limits)."""
+        joints = limb.joints(self.heads, self.tails)
         segs = joints[:, 1:] - joints[:, :-1]
-        m = segs.shape[1]
+        n_frames, m = segs.shape[:2]
+        forward, pelvis_up = self.forward, self.pelvis_up
         kind = np.zeros(m, np.int64)
         cone = np.full(m, math.pi)
         lo = np.full(m, -math.pi)
@@ -399,7 +419,7 @@ def default_limits(model: BodyModel, heads, tails, human: HumanLimits = HumanLim
 
         def set_hinge(i, bend_side, rng, child_bone, twist_range):
             kind[i], lo[i], hi[i], twist[i] = HINGE, rng[0], rng[1], twist_range
-            x = None if x_axes is None else x_axes[:, child_bone]
+            x = None if self.x_axes is None else self.x_axes[:, child_bone]
             axes[:, i] = _hinge_axis(segs[:, i - 1], segs[:, i], bend_side, x, human.bent)
 
         if limb.name == "trunk":
@@ -416,7 +436,7 @@ def default_limits(model: BodyModel, heads, tails, human: HumanLimits = HumanLim
                 set_cone(m - 2, human.shoulder)
             else:
                 # No clavicle: the SC -> shoulder direction plays its part for the shoulder cone.
-                proxy = joints[:, 0] - sc
+                proxy = joints[:, 0] - self.sc
                 if np.all(norm(proxy) > 1e-9 * norm(segs[:, 0])):
                     parent_dir = proxy
                     set_cone(0, human.shoulder)
@@ -429,8 +449,7 @@ def default_limits(model: BodyModel, heads, tails, human: HumanLimits = HumanLim
             for i in range(m):
                 set_cone(i, human.neck)
         limits = JointLimits(kind, cone, axes, lo, hi, twist)
-        out[limb.name] = LimbLimits(limits, None if parent_dir is None else normalize(parent_dir))
-    return out
+        return LimbLimits(limits, None if parent_dir is None else normalize(parent_dir))
 
 
 def _hinge_axis(parent_seg, child_seg, bend_side, x_axis, bent_angle):

@@ -13,13 +13,19 @@ is a different key.
 
 The cache holds the last few start poses of up to _MAX_CACHED_FRAMES frames (a bounded, least recently used
 dict); a longer frame range is prepared for its one solve only.
+
+A start pose that is new may still share limbs with a recent one: Adjust Pose solves from the pose the click
+before it keyed, in which only the limbs that moved differ. A limb's default limits and its start check are
+therefore also kept per limb (_limb_records), keyed on everything they are computed from (body.LimitStart.inputs
+and the settings), so a limb whose inputs are the same bit for bit gets the very same results without
+computing them.
 """
 
 from collections import OrderedDict
 
 import numpy as np
 
-from .body import CHAIN, END, FIXED, ROOT, default_limits
+from .body import CHAIN, END, FIXED, ROOT, LimitStart
 from .chain_model import ChainModel
 from .chain_types import _reach_bounds
 from .errors import SolverInputError
@@ -28,6 +34,8 @@ from .geometry import norm
 _CAPACITY = 4
 _MAX_CACHED_FRAMES = 16
 _cache = OrderedDict()
+_LIMB_CAPACITY = 32  # limb records: several start poses of a body's six limbs
+_limb_records = OrderedDict()
 
 
 class PreparedStart:
@@ -41,8 +49,8 @@ class PreparedStart:
         self._x_axes = None if bone_x_axes is None else bone_x_axes.copy()
         self._settings = settings
         self._limits = None
+        self._records_by_limb = None
         self._chains = None
-        self._start_ok = {}
 
     def chains(self):
         """({limb: start chain (F,n,3)}, {limb: reach (F,)}), read-only; the reach is the sum of the segment
@@ -65,29 +73,57 @@ class PreparedStart:
     def limits(self):
         """{limb name: LimbLimits}: the default human limits (none when the settings turn limits off)."""
         if self._limits is None:
-            s = self._settings
-            self._limits = default_limits(self.model, self._heads, self._tails, s.human_limits, self._x_axes) \
-                if s.use_limits else {}
+            self._limits = {name: record.limits for name, record in self._records().items()}
         return self._limits
+
+    def _records(self):
+        """{limb name: _LimbRecord} of the default limits, reused from _limb_records where a limb's inputs are
+        the same (none when the settings turn limits off)."""
+        if self._records_by_limb is None:
+            self._records_by_limb = {}
+            if self._settings.use_limits:
+                start = LimitStart(self.model, self._heads, self._tails, self._x_axes)
+                human = self._settings.human_limits
+                remember = self._heads.shape[0] <= _MAX_CACHED_FRAMES
+                for limb in self.model.limbs.values():
+                    key = (start.inputs(limb), human) if remember else None
+                    record = _limb_records.get(key) if remember else None
+                    if record is None:
+                        record = _LimbRecord(start.limb_limits(limb, human))
+                        if remember:
+                            _limb_records[key] = record
+                            while len(_limb_records) > _LIMB_CAPACITY:
+                                _limb_records.popitem(last=False)
+                    else:
+                        _limb_records.move_to_end(key)
+                    self._records_by_limb[limb.name] = record
+        return self._records_by_limb
 
     def start_keeps_limits(self, name, chain_settings):
         """(F,) bool: limb `name`'s start chain keeps its default limits on each frame, as the chain solve
         checks it for a start already at its target whose parent did not move (no obstacles)."""
-        ok = self._start_ok.get(name)
+        record = self._records().get(name)
+        if record is None or not record.limits.limits.any_active:
+            return np.ones(self._heads.shape[0], dtype=bool)
+        ok = record.start_ok.get(chain_settings)
         if ok is None:
-            ll = self.limits.get(name)
-            if ll is None or not ll.limits.any_active:
-                ok = np.ones(self._heads.shape[0], dtype=bool)
-            else:
-                c0 = self.chains()[0][name]
-                # Carried by an unmoved parent's rotation (the identity) as the solve carries them, so even the
-                # sign of a zero is the same.
-                still = np.broadcast_to(np.eye(3), (c0.shape[0], 3, 3))
-                limits, pdir = ll.for_chains(c0, np.arange(c0.shape[0]), still)
-                chain = ChainModel(c0.copy(), c0[:, -1].copy(), chain_settings, limits, None, pdir)
-                ok = ~chain.violations(c0, np.arange(c0.shape[0]))
-            self._start_ok[name] = ok
+            c0 = self.chains()[0][name]  # the joints the record's inputs were read from
+            # Carried by an unmoved parent's rotation (the identity) as the solve carries them, so even the sign
+            # of a zero is the same.
+            still = np.broadcast_to(np.eye(3), (c0.shape[0], 3, 3))
+            limits, pdir = record.limits.for_chains(c0, np.arange(c0.shape[0]), still)
+            chain = ChainModel(c0.copy(), c0[:, -1].copy(), chain_settings, limits, None, pdir)
+            ok = _read_only(~chain.violations(c0, np.arange(c0.shape[0])))
+            record.start_ok[chain_settings] = ok
         return ok
+
+
+class _LimbRecord:
+    """One limb's default limits at a start pose, and its start check per chain settings."""
+
+    def __init__(self, limits):
+        self.limits = limits
+        self.start_ok = {}
 
 
 def prepare(model, heads, tails, settings, bone_x_axes=None) -> PreparedStart:
@@ -110,8 +146,9 @@ def prepare(model, heads, tails, settings, bone_x_axes=None) -> PreparedStart:
 
 
 def clear():
-    """Forget every prepared start pose (timings of a first solve; tests)."""
+    """Forget every prepared start pose and limb record (timings of a first solve; tests)."""
     _cache.clear()
+    _limb_records.clear()
 
 
 def _read_only(a):

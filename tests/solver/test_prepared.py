@@ -120,3 +120,62 @@ def test_frames_sharing_a_start_pose_equal_their_solves_alone(rig):
         np.testing.assert_allclose(one.heads, batch.heads[f], atol=1e-9, rtol=0)
         np.testing.assert_allclose(one.rotations, batch.rotations[f], atol=1e-9, rtol=0)
         assert list(one.status) == list(batch.status[f])
+
+
+def _limit_arrays(ll):
+    lim = ll.limits
+    return (lim.kind, lim.cone_angle, lim.hinge_axis, lim.hinge_min, lim.hinge_max, lim.hinge_twist,
+            ll.parent_direction)
+
+
+def test_limbs_kept_from_a_recent_start_give_each_start_its_own_limits(rig, monkeypatch):
+    """Each start's default limits and start checks equal those computed afresh, while limbs whose inputs did
+    not change are taken from the start before: a straight left arm (its hinge from its forearm's X axis), then
+    only that X axis turned; without X axes (its hinge from the body's forward), then only the right hip moved
+    (which turns the forward); only the root bone turned (the pelvis' up); and the first start again."""
+    model, h, t, x = rig
+    arm = model.limbs["arm.L"]
+    upper, fore = arm.bones[-2], arm.bones[-1]
+    heads, tails = h.copy(), t.copy()
+    direction = (tails[upper] - heads[upper]) / np.linalg.norm(tails[upper] - heads[upper])
+    wrist = heads[fore] + direction * np.linalg.norm(tails[fore] - heads[fore])
+    hand_vector = tails[arm.end_bone] - heads[arm.end_bone]
+    tails[fore], heads[arm.end_bone], tails[arm.end_bone] = wrist, wrist, wrist + hand_vector
+    turned_x = x.copy()
+    turned_x[fore] = np.cross(direction, x[fore])
+    hip_moved = heads.copy()
+    hip_moved[model.limbs["leg.R"].bones[0]] += np.array([0.0, 0.05, 0.0])
+    root_turned = tails.copy()
+    root_turned[model.root] += np.array([0.05, 0.0, 0.0])
+    starts = [(heads, tails, x), (heads, tails, turned_x), (heads, tails, None), (hip_moved, tails, None),
+              (heads, root_turned, x), (heads, tails, x)]
+    computed = []
+    limb_limits = prepared.LimitStart.limb_limits
+    monkeypatch.setattr(prepared.LimitStart, "limb_limits",
+                        lambda self, limb, human: computed.append(limb.name) or limb_limits(self, limb, human))
+    adjust = AdjustSettings()
+    prepared.clear()
+    kept, fresh = [], []
+    for hh, tt, xx in starts:
+        computed.clear()
+        prep = prepared.prepare(model, hh[None], tt[None], adjust, None if xx is None else xx[None])
+        kept.append({name: _limit_arrays(ll) for name, ll in prep.limits.items()})
+        kept[-1]["ok"] = {name: prep.start_keeps_limits(name, adjust.chain) for name in model.limbs}
+        kept[-1]["computed"] = set(computed)
+    for hh, tt, xx in starts:
+        prepared.clear()
+        prep = prepared.prepare(model, hh[None], tt[None], adjust, None if xx is None else xx[None])
+        fresh.append({name: _limit_arrays(ll) for name, ll in prep.limits.items()})
+        fresh[-1]["ok"] = {name: prep.start_keeps_limits(name, adjust.chain) for name in model.limbs}
+    for k, (a, b) in enumerate(zip(kept, fresh)):
+        for name in model.limbs:
+            for u, v in zip(a[name], b[name]):
+                np.testing.assert_array_equal(u, v, err_msg=f"start {k}, {name}")
+            np.testing.assert_array_equal(a["ok"][name], b["ok"][name], err_msg=f"start {k}, {name}")
+    # Each change reached what it should, so the starts test the inputs a kept limb is matched on ...
+    assert not np.array_equal(fresh[1]["arm.L"][2], fresh[0]["arm.L"][2])  # the X axis turned the hinge
+    assert not np.array_equal(fresh[3]["arm.L"][2], fresh[2]["arm.L"][2])  # the hip turned the hinge
+    assert not np.array_equal(fresh[4]["leg.L"][6], fresh[0]["leg.L"][6])  # the root turned the pelvis' up
+    # ... and the limbs whose inputs stayed were kept, not computed again.
+    assert kept[0]["computed"] == set(model.limbs) and kept[1]["computed"] == {"arm.L"}
+    assert kept[5]["computed"] == set()
