@@ -162,7 +162,12 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
             if not moves and not scales:
                 continue
             for pair, control, step, new in moves:
+                # A bend step only turns its control, but Blender re-derives every channel from the matrix
+                # written, which lost an IK base's scale (a stretchy chain's length): that is kept as it was.
+                kept = tuple(control.scale) if pair.bends else None
                 control.matrix = Matrix(new.tolist())
+                if kept is not None:
+                    control.scale = kept
                 pending.append((pair, step))
             for control, scale in scales:
                 control.scale = scale.tolist()
@@ -177,9 +182,8 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
         if error <= tolerance or error > _STALLED * previous:
             break  # met, or a sweep no longer helps (an IK chain's own solver tolerance, a stretchy chain)
     if error > best_error:
-        # Near an IK chain's own solver precision a sweep can chase its noise and land farther off (measured
-        # on a generated rig's IK arms: elbows up to 5 mm off after a sweep that had them within 0.7 mm): keep
-        # the best.
+        # A sweep can still land farther off than one before it (a stretchy chain near its IK's precision):
+        # the controls go back to the best one.
         _set_channels(obj, best)
     return best_error
 

@@ -4,6 +4,7 @@ on the controls an animator keys; success is measured on the evaluated deform (D
 import importlib
 
 import bpy
+from mathutils import Matrix, Vector
 import numpy as np
 import pytest
 
@@ -57,6 +58,36 @@ def move_rotate_scale(rig):
     and ankles."""
     rig.location, rig.rotation_euler, rig.scale = (1.5, -2.0, 0.4), (0.0, 0.0, 1.1), (1.3, 1.3, 1.3)
     bpy.ops.fullbody_adjust.create_targets(reset=True)
+
+
+def test_turning_an_ik_chain_keeps_its_base_controls_scale(extension_module_name):
+    # A bend step turns the IK base control about the chain's axis; Blender re-derives its channels from the
+    # matrix written, which moved its scale (the chain's stretch) by up to 3e-3 on this rig.
+    control_match = importlib.import_module(f"{extension_module_name}.bridge.control_match")
+    rig = generated_rig("basic", "IK")
+    base = rig.pose.bones["upper_arm_ik.L"]
+    base.scale = (1.02, 0.97, 1.01)  # as a scale step leaves a stretchy chain's base
+    hand = rig.pose.bones["hand_ik.L"]  # the hand pulled in: a bent elbow, with a bend plane to turn
+    head = Vector(rig.pose.bones["ORG-upper_arm.L"].head)
+    pulled = hand.matrix.copy()
+    pulled.translation = head + 0.7 * (pulled.translation - head)
+    hand.matrix = pulled
+    bpy.context.view_layer.update()
+    scale = tuple(base.scale)
+    bone = np.array(rig.pose.bones["ORG-upper_arm.L"].matrix)
+    head, wrist = bone[:3, 3], np.array(rig.pose.bones["ORG-hand.L"].matrix)[:3, 3]
+    turn = np.eye(4)
+    turn[:3, :3] = np.array(Matrix.Rotation(0.3, 3, Vector(wrist - head).normalized()))
+    to_head, from_head = np.eye(4), np.eye(4)
+    to_head[:3, 3], from_head[:3, 3] = -head, head
+    pair = control_match.ControlPair("upper_arm_ik.L", "ORG-upper_arm.L", 0, end="ORG-hand.L", kind="bend",
+                                     group="arm.L")
+    desired = {"ORG-upper_arm.L": from_head @ turn @ to_head @ bone}
+    lengths = {"ORG-upper_arm.L": rig.pose.bones["ORG-upper_arm.L"].bone.length}
+    before = control_match._pair_error(rig.pose.bones, pair, desired, lengths)
+    error = control_match.match_controls(rig, bpy.context.view_layer, [pair], desired, 1e-5)
+    assert error < 0.1 * before  # the elbow turned to where it was asked ...
+    assert tuple(base.scale) == scale  # ... and the chain's stretch is as it was
 
 
 def test_control_matching_ends_on_its_best_sweep(extension_module_name, capfd, monkeypatch):
