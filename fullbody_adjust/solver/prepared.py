@@ -77,27 +77,22 @@ class PreparedStart:
         return self._limits
 
     def _records(self):
-        """{limb name: _LimbRecord} of the default limits, reused from _limb_records where a limb's inputs are
-        the same (none when the settings turn limits off)."""
+        """{limb name: _LimbRecord} of the default limits (none when the settings turn limits off)."""
         if self._records_by_limb is None:
-            self._records_by_limb = {}
-            if self._settings.use_limits:
-                start = LimitStart(self.model, self._heads, self._tails, self._x_axes)
-                human = self._settings.human_limits
-                remember = self._heads.shape[0] <= _MAX_CACHED_FRAMES
-                for limb in self.model.limbs.values():
-                    key = (start.inputs(limb), human) if remember else None
-                    record = _limb_records.get(key) if remember else None
-                    if record is None:
-                        record = _LimbRecord(start.limb_limits(limb, human))
-                        if remember:
-                            _limb_records[key] = record
-                            while len(_limb_records) > _LIMB_CAPACITY:
-                                _limb_records.popitem(last=False)
-                    else:
-                        _limb_records.move_to_end(key)
-                    self._records_by_limb[limb.name] = record
+            self._records_by_limb = self._new_records() if self._settings.use_limits else {}
         return self._records_by_limb
+
+    def _new_records(self):
+        """The limbs' records, taken from _limb_records where a limb's inputs are the same."""
+        start = LimitStart(self.model, self._heads, self._tails, self._x_axes)
+        human = self._settings.human_limits
+        remember = self._heads.shape[0] <= _MAX_CACHED_FRAMES  # as prepare(): a long range is solved once
+        out = {}
+        for limb in self.model.limbs.values():
+            make = (lambda limb=limb: _LimbRecord(start.limb_limits(limb, human)))
+            out[limb.name] = _kept(_limb_records, _LIMB_CAPACITY, (start.inputs(limb), human), make) \
+                if remember else make()
+        return out
 
     def start_keeps_limits(self, name, chain_settings):
         """(F,) bool: limb `name`'s start chain keeps its default limits on each frame, as the chain solve
@@ -134,15 +129,23 @@ def prepare(model, heads, tails, settings, bone_x_axes=None) -> PreparedStart:
         return PreparedStart(model, heads, tails, settings, x)  # a long range is solved once: not remembered
     key = (id(model), heads.shape, heads.tobytes(), tails.tobytes(),
            None if x is None else (x.shape, x.tobytes()), settings.use_limits, settings.human_limits)
-    entry = _cache.get(key)
-    if entry is not None and entry.model is model:
-        _cache.move_to_end(key)
-        return entry
-    entry = PreparedStart(model, heads, tails, settings, x)
-    _cache[key] = entry
-    while len(_cache) > _CAPACITY:
-        _cache.popitem(last=False)
-    return entry
+    return _kept(_cache, _CAPACITY, key, lambda: PreparedStart(model, heads, tails, settings, x),
+                 valid=lambda entry: entry.model is model)
+
+
+def _kept(cache, capacity, key, make, valid=None):
+    """``cache[key]`` (an OrderedDict) when it is there and ``valid`` (a keyed id() may belong to a new object),
+    now the most recently used; else ``make()``, kept under ``key``, the least recently used entries beyond
+    ``capacity`` forgotten."""
+    value = cache.get(key)
+    if value is not None and (valid is None or valid(value)):
+        cache.move_to_end(key)
+        return value
+    value = make()
+    cache[key] = value
+    while len(cache) > capacity:
+        cache.popitem(last=False)
+    return value
 
 
 def clear():
@@ -158,17 +161,11 @@ def _read_only(a):
 
 def levels_of(model):
     """The model's (levels, leaves) (_levels), computed once per model."""
-    cached = _levels_cache.get(id(model))
-    if cached is not None and cached[0] is model:
-        return cached[1]
-    levels = _levels(model)
-    _levels_cache[id(model)] = (model, levels)
-    while len(_levels_cache) > _CAPACITY:
-        _levels_cache.pop(next(iter(_levels_cache)))
-    return levels
+    return _kept(_levels_cache, _CAPACITY, id(model), lambda: (model, _levels(model)),
+                 valid=lambda entry: entry[0] is model)[1]
 
 
-_levels_cache = {}
+_levels_cache = OrderedDict()
 
 
 def _levels(model):
