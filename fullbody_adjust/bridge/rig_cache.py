@@ -1,14 +1,13 @@
 """Per-armature cache of what a click rebuilds although it depends only on the rig: the stored bone map
 (checked against the rig), the solver's BodyModel and the rest data every pose read needs.
 
-An entry is found again only while the armature's fingerprint is unchanged: bone names and parents, connect
-flags, rest heads, tails and matrices (read in bulk), the stored map's items, and whether it is a generated
-control rig (solved on its skeleton's hierarchy, control_rig). The cached values are a
-function of exactly these (a stored map that fits the rig is used as it is, the model is built from the
-names, parents and map, the rest data and a control rig's FK controls from the bones), so a hit is never
-stale. Rotation modes belong to the
-pose, not the rig: ``Rig.static`` reads them on every call. No setting of ``obj.fullbody_adjust`` other than
-the map enters the cached values. Entries are keyed by object name; a renamed or replaced object simply misses once.
+An entry is found again only while the armature's fingerprint is unchanged: bone names and parents, connect flags,
+rest heads, tails and matrices (read in bulk), the stored map's items, and whether it is a generated control rig
+(solved on its skeleton's hierarchy, control_rig). The cached values are a function of exactly these (a stored map
+that fits the rig is used as it is, the model is built from the names, parents and map, the rest data and a control
+rig's FK controls from the bones), so a hit is never stale. Rotation modes belong to the pose, not the rig:
+``Rig.static`` reads them on every call. No setting of ``obj.fullbody_adjust`` other than the map enters the cached
+values. Entries are keyed by object name; a renamed or replaced object simply misses once.
 """
 
 from collections import OrderedDict
