@@ -154,19 +154,21 @@ def test_limbs_kept_from_a_recent_start_give_each_start_its_own_limits(rig, monk
     monkeypatch.setattr(prepared.LimitStart, "limb_limits",
                         lambda self, limb, human: computed.append(limb.name) or limb_limits(self, limb, human))
     adjust = AdjustSettings()
-    prepared.clear()
-    kept, fresh = [], []
-    for hh, tt, xx in starts:
+
+    def prepared_limits(hh, tt, xx):
         computed.clear()
         prep = prepared.prepare(model, hh[None], tt[None], adjust, None if xx is None else xx[None])
-        kept.append({name: _limit_arrays(ll) for name, ll in prep.limits.items()})
-        kept[-1]["ok"] = {name: prep.start_keeps_limits(name, adjust.chain) for name in model.limbs}
-        kept[-1]["computed"] = set(computed)
-    for hh, tt, xx in starts:
+        out = {name: _limit_arrays(ll) for name, ll in prep.limits.items()}
+        out["ok"] = {name: prep.start_keeps_limits(name, adjust.chain) for name in model.limbs}
+        out["computed"] = set(computed)
+        return out
+
+    prepared.clear()
+    kept = [prepared_limits(*start) for start in starts]  # one after the other, as clicks come
+    fresh = []
+    for start in starts:
         prepared.clear()
-        prep = prepared.prepare(model, hh[None], tt[None], adjust, None if xx is None else xx[None])
-        fresh.append({name: _limit_arrays(ll) for name, ll in prep.limits.items()})
-        fresh[-1]["ok"] = {name: prep.start_keeps_limits(name, adjust.chain) for name in model.limbs}
+        fresh.append(prepared_limits(*start))
     for k, (a, b) in enumerate(zip(kept, fresh)):
         for name in model.limbs:
             for u, v in zip(a[name], b[name]):
