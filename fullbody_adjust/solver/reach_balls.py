@@ -1,11 +1,12 @@
 """Sub-base geometry (paper §5.2.1 eq. (1) and §4.2): the nearest point of an intersection of reach balls, on a
 sphere within them, and the priority variants that decide where the balls do not intersect. Vectorised over
-frames (F rows)."""
+frames (F rows); one frame goes through reach_balls_plain.py (the same bits, without numpy's per-call cost)."""
 
 from itertools import combinations
 
 import numpy as np
 
+from . import reach_balls_plain
 from .geometry import any_perpendicular, cross, dot, norm
 
 _EYE = np.eye(3)
@@ -80,6 +81,10 @@ def nearest_in_balls(points, centres, radii, active):
     sphere, the nearest point of a two-sphere circle, or a three-sphere point; the nearest feasible candidate
     wins. Returns (x (F,3), feasible (F,)): feasible False where the balls have no common point (x = points).
     A point already inside every ball is returned unchanged (bit-exact)."""
+    if len(points) == 1:
+        x, ok = reach_balls_plain.nearest_in_balls(points[0].tolist(), centres[0].tolist(), radii[0].tolist(),
+                                                   active[0].tolist())
+        return np.array([x], dtype=np.float64), np.array([ok])
     best = points.copy()
     feasible = _inside(points, centres, radii, active)
     best_d = np.where(feasible, 0.0, np.inf)
@@ -156,6 +161,11 @@ def nearest_on_sphere_in_balls(points, centre, radius, centres, radii, active):
     (F,K,3)/(F,K)/(F,K). Candidates as in nearest_in_balls with the sphere always active: the radial
     projection, the sphere's circle with each ball's boundary, the two points it shares with two boundaries.
     Returns (x, found (F,))."""
+    if len(points) == 1:
+        x, ok = reach_balls_plain.nearest_on_sphere_in_balls(points[0].tolist(), centre[0].tolist(),
+                                                             float(radius[0]), centres[0].tolist(),
+                                                             radii[0].tolist(), active[0].tolist())
+        return np.array([x], dtype=np.float64), np.array([ok])
     k = radii.shape[1]
     d = points - centre
     dn = norm(d)
