@@ -199,6 +199,11 @@ def sub_base_point(points, centres, radii, active, priorities, variant):
         others are served best effort: like solving the chains from the lowest priority to the highest, the
         point is pulled onto each dropped ball in turn (lowest first), then onto the kept intersection.
     priorities (K,): higher wins; ties keep the given order (earlier wins). Returns (x (F,3), feasible (F,))."""
+    prio = np.asarray(priorities, dtype=np.float64)
+    if len(points) == 1 and variant == "priority" and not np.isnan(prio).any():
+        x, ok = reach_balls_plain.sub_base_point_priority(points[0].tolist(), centres[0].tolist(), radii[0].tolist(),
+                                                          active[0].tolist(), prio.tolist())
+        return np.array([x], dtype=np.float64), np.array([ok])
     x, feasible = nearest_in_balls(points, centres, radii, active)
     todo = ~feasible & np.any(active, axis=1)
     if not np.any(todo):
@@ -207,11 +212,11 @@ def sub_base_point(points, centres, radii, active, priorities, variant):
     p, c, r, act = points[rows], centres[rows], radii[rows], active[rows]
     if variant in ("weighted", "fabrik"):
         proposals = project_onto_balls(p, c, r)
-        w = np.where(act, np.asarray(priorities, dtype=np.float64)[None, :] if variant == "weighted" else 1.0, 0.0)
+        w = np.where(act, prio[None, :] if variant == "weighted" else 1.0, 0.0)
         w = np.where(w.sum(axis=1, keepdims=True) > 0.0, w, act.astype(np.float64))  # all-zero priorities
         y = np.einsum("fk,fki->fi", w, proposals) / w.sum(axis=1)[:, None]
     else:
-        order = np.argsort(-np.asarray(priorities, dtype=np.float64), kind="stable")
+        order = np.argsort(-prio, kind="stable")
         kept = np.zeros_like(act)
         for k in order:
             trial = kept.copy()

@@ -166,3 +166,25 @@ def nearest_on_sphere_in_balls(p, centre, radius, centres, radii, active):
                 cands.extend(pts)
     best, best_d = _nearest_valid(p, cands, centres, radii, active)
     return best, best_d < _INF
+
+
+def sub_base_point_priority(p, centres, radii, active, priorities):
+    """reach_balls.sub_base_point for one frame with variant 'priority' (priorities a list of floats, none NaN:
+    the order is numpy's stable argsort of their negatives). Returns (x, feasible)."""
+    x, feasible = nearest_in_balls(p, centres, radii, active)
+    if feasible or not any(active):
+        return x, feasible
+    order = sorted(range(len(radii)), key=lambda k: -priorities[k])
+    kept = [False] * len(radii)
+    for k in order:
+        trial = list(kept)
+        trial[k] = trial[k] or active[k]
+        if sum(trial) <= 1:
+            kept = trial
+        elif trial != list(active) and nearest_in_balls(p, centres, radii, trial)[1]:
+            kept = trial
+    y = p
+    for k in reversed(order):
+        if active[k] and not kept[k]:
+            y = _projection(y, centres[k], radii[k])
+    return nearest_in_balls(y, centres, radii, kept)[0], False

@@ -1,11 +1,12 @@
 """One frame's nearest points (solver/reach_balls_plain.py, plain floats) against the numpy path on many frames at
 once (reach_balls.py): the same bits on every frame, also where the geometry degenerates (concentric balls,
-tangent spheres, a point on a circle's axis, collinear centres, a point at the sphere's centre, no common point)."""
+tangent spheres, a point on a circle's axis, collinear centres, a point at the sphere's centre, no common point);
+and the priority variant's sub-base point where the balls have no common point."""
 
 import numpy as np
 import pytest
 
-from fullbody_adjust.solver.reach_balls import nearest_in_balls, nearest_on_sphere_in_balls
+from fullbody_adjust.solver.reach_balls import nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point
 
 
 def _frames(k, n=400, seed=0):
@@ -62,3 +63,18 @@ def test_one_frame_gives_the_bits_of_the_numpy_path(k):
                                               active[one])
         np.testing.assert_array_equal(s[0], s_all[f], err_msg=f"nearest_on_sphere_in_balls, frame {f}")
         assert found[0] == found_all[f]
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 4, 5])
+def test_one_frame_priority_sub_base_gives_the_bits_of_the_numpy_path(k):
+    points, centres, radii, active, _, _ = _frames(k, seed=1)
+    rng = np.random.default_rng(k)
+    for priorities in (rng.choice([0.0, 1.0, 2.0], k), np.append(rng.random(k - 1), -np.inf)):
+        x_all, ok_all = sub_base_point(points, centres, radii, active, priorities, "priority")
+        if k >= 2:  # some frames have balls without a common point: the priorities decide there
+            assert not ok_all.all()
+        for f in range(len(points)):
+            one = slice(f, f + 1)
+            x, ok = sub_base_point(points[one], centres[one], radii[one], active[one], priorities, "priority")
+            np.testing.assert_array_equal(x[0], x_all[f], err_msg=f"frame {f}, priorities {priorities}")
+            assert ok[0] == ok_all[f]
