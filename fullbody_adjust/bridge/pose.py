@@ -31,7 +31,7 @@ import bpy
 import numpy as np
 from mathutils import Euler, Matrix, Vector
 
-from ..solver.geometry import affine_inverse
+from ..solver.geometry import affine_inverse, cross
 from ..solver.vocabulary import ROTATION_PROPERTY
 from .errors import AdjustError
 from .frames import step_frames
@@ -377,7 +377,7 @@ def _reachable_armature_matrices(snapshot, new_world, idx):
     y = y / _norm(y, "a bone's Y axis")[..., None]
     z = z - np.sum(z * y, axis=-1)[..., None] * y
     z = z / _norm(z, "a bone's Z axis (parallel to its Y axis)")[..., None]
-    x = np.cross(y, z)
+    x = cross(y, z)  # np.cross costs ~0.1 ms on a few bones
     scale = np.linalg.norm(snapshot.pose_matrices[:, idx, :3, :3], axis=-2)  # (F,k,3) column lengths
     armature[..., :3, :3] = np.stack([x, y, z], axis=-1) * scale[..., None, :]
     armature[..., 3, :] = (0.0, 0.0, 0.0, 1.0)
