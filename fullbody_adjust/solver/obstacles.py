@@ -146,6 +146,8 @@ def _in_box_frames(points, axes):
 def points_inside(points, boxes):
     """(...,3) points, K boxes -> (..., K) bool: point lies in the closed box."""
     p = np.asarray(points, dtype=np.float64)
+    if _few(p, boxes):
+        return _few_tests(_inside_one, boxes, p)
     mins, maxs, axes = _box_arrays(boxes, p.ndim - 1)
     q = _in_box_frames(p, axes)
     return np.all((q >= mins) & (q <= maxs), axis=-1)
@@ -156,6 +158,8 @@ def segments_cross(a, b, boxes):
     A segment with an end inside a box counts as crossing it."""
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
+    if a.shape == b.shape and _few(a, boxes):
+        return _few_tests(_crosses_one, boxes, a, b)
     a, b = np.broadcast_arrays(a, b)
     mins, maxs, axes = _box_arrays(boxes, a.ndim - 1)
     p = _in_box_frames(a, axes)
@@ -172,6 +176,53 @@ def segments_cross(a, b, boxes):
     hi = np.where(flat, np.where(in_slab, np.inf, -np.inf), hi)
     t_enter = np.maximum(np.max(lo, axis=-1), 0.0)
     t_exit = np.minimum(np.min(hi, axis=-1), 1.0)
+    return t_enter <= t_exit
+
+
+# Up to this many point-box (or segment-box) tests, plain floats: the chain solver tests one or two joints at a
+# time, where numpy's per-call cost (and np.errstate's) was most of a test (measured: the obstacle case of
+# bench/solver_speed.py spent a sixth of its solve in segments_cross). Axis-aligned boxes only.
+_FEW_TESTS = 16
+
+
+def _few(points, boxes):
+    return (boxes.axes is None and points.ndim >= 2 and points.size // 3 * len(boxes) <= _FEW_TESTS
+            and (not boxes.batched or boxes.mins.shape[0] == points.shape[0]))
+
+
+def _few_tests(test, boxes, *points):
+    """points_inside / segments_cross (test: _inside_one / _crosses_one on one point or segment and one box) in
+    plain floats: (..., K) bool. Per-problem boxes pair with the points' first axis, as _box_arrays pairs them."""
+    lead = points[0].shape[:-1]
+    rows = [p.reshape(-1, 3).tolist() for p in points]
+    mins, maxs = boxes.mins.tolist(), boxes.maxs.tolist()
+    per_problem = (len(rows[0]) // lead[0]) if boxes.batched and lead[0] else 0
+    out = []
+    for i, ends in enumerate(zip(*rows)):
+        lo, hi = (mins[i // per_problem], maxs[i // per_problem]) if per_problem else (mins, maxs)
+        out.append([test(lo[k], hi[k], *ends) for k in range(len(lo))])
+    return np.array(out, dtype=bool).reshape(lead + (len(boxes),))
+
+
+def _inside_one(lo, hi, p):
+    return lo[0] <= p[0] <= hi[0] and lo[1] <= p[1] <= hi[1] and lo[2] <= p[2] <= hi[2]
+
+
+def _crosses_one(lo, hi, a, b):
+    """segments_cross for one segment and one box, the same operations (a NaN coordinate: False, as there)."""
+    t_enter, t_exit = 0.0, 1.0
+    for j in range(3):
+        p, d = a[j], b[j] - a[j]
+        if d == 0.0:  # an axis the segment does not move along: inside the slab or nowhere
+            if not lo[j] <= p <= hi[j]:
+                return False
+            continue
+        t1, t2 = (lo[j] - p) / d, (hi[j] - p) / d
+        if t1 != t1 or t2 != t2:  # NaN: there it makes the entry or the exit NaN, and the test False
+            return False
+        if t1 > t2:
+            t1, t2 = t2, t1
+        t_enter, t_exit = max(t_enter, t1), min(t_exit, t2)
     return t_enter <= t_exit
 
 

@@ -1,0 +1,58 @@
+"""The collision tests on a few points or segments (solver/obstacles.py, plain floats) against the numpy path on
+many at once: the same answers, also on a box's faces, for segments along a face or an axis, with per-problem
+boxes and with NaN coordinates."""
+
+import numpy as np
+import pytest
+
+from fullbody_adjust.solver.obstacles import _FEW_TESTS, Boxes, points_inside, segments_cross
+
+
+def _points(rng, n, mins, maxs):
+    """n points around the boxes, many of them on a face, an edge or a corner (coordinates copied from the box)."""
+    lo, hi = mins.min(axis=-2), maxs.max(axis=-2)
+    p = rng.uniform(lo - 0.5, hi + 0.5, (n, 3))
+    snap = rng.random((n, 3)) < 0.3
+    face = np.where(rng.random((n, 3)) < 0.5, mins.reshape(-1, 3)[0], maxs.reshape(-1, 3)[0])
+    return np.where(snap, face, p)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_few_tests_answer_as_the_numpy_path(seed):
+    rng = np.random.default_rng(seed)
+    k = 1 + seed % 2
+    mins = rng.uniform(-1.0, 0.0, (k, 3))
+    boxes = Boxes(mins, mins + rng.uniform(0.2, 1.0, (k, 3)))
+    n = 600
+    a = _points(rng, n, boxes.mins, boxes.maxs)
+    b = _points(rng, n, boxes.mins, boxes.maxs)
+    b[::5, seed % 3] = a[::5, seed % 3]  # segments that do not move along an axis (on a face, or outside a slab)
+    b[::7] = a[::7]  # segments of no length
+    a[3::50, 1] = np.nan
+    assert n * k > _FEW_TESTS  # the whole arrays take the numpy path
+    inside_all, cross_all = points_inside(a, boxes), segments_cross(a, b, boxes)
+    assert inside_all.any() and not inside_all.all() and cross_all.any() and not cross_all.all()
+    assert (cross_all & ~inside_all).any()  # segments crossing a box with both ends outside it
+    for shape in ((1,), (2,), (1, 2), (2, 2)):
+        size = int(np.prod(shape))
+        assert size * k <= _FEW_TESTS
+        for start in range(0, n - size, size):
+            rows = slice(start, start + size)
+            pa, pb = a[rows].reshape(shape + (3,)), b[rows].reshape(shape + (3,))
+            np.testing.assert_array_equal(points_inside(pa, boxes), inside_all[rows].reshape(shape + (k,)))
+            np.testing.assert_array_equal(segments_cross(pa, pb, boxes), cross_all[rows].reshape(shape + (k,)))
+
+
+def test_few_tests_pair_per_problem_boxes_with_the_first_axis():
+    rng = np.random.default_rng(9)
+    problems, per = 2, 3
+    mins = rng.uniform(-1.0, 0.0, (problems, 2, 3))
+    boxes = Boxes(mins, mins + 0.8)
+    a = rng.uniform(-1.2, 1.0, (problems, per, 3))
+    b = rng.uniform(-1.2, 1.0, (problems, per, 3))
+    for p in range(problems):
+        shared = Boxes(boxes.mins[p], boxes.maxs[p])
+        many_a = np.concatenate([a[p]] * 3)  # shared boxes, enough rows for the numpy path
+        many_b = np.concatenate([b[p]] * 3)
+        np.testing.assert_array_equal(points_inside(a, boxes)[p], points_inside(many_a, shared)[:per])
+        np.testing.assert_array_equal(segments_cross(a, b, boxes)[p], segments_cross(many_a, many_b, shared)[:per])
