@@ -1,117 +1,81 @@
 """reach_balls' nearest points for one frame in plain Python floats (Adjust Pose and Live solve one frame).
 
 On one frame numpy's per-call cost is nearly all a call costs (~0.4 ms for four balls); these functions do the
-same floating-point operations in the same order as the numpy path (a three-term sum as (x0 + x1) + x2, as numpy
-adds a 3-vector's components), so they return the same bits (tests/solver/test_reach_balls_plain.py). Vectors
-are 3-tuples; a candidate that the numpy path marks invalid is not computed at all."""
+same floating-point operations in the same order as the numpy path (geometry_plain.py), so they return the same
+bits (tests/solver/test_reach_balls_plain.py). Vectors are 3-tuples; a candidate that the numpy path marks invalid
+is not computed at all."""
 
 import math
 from itertools import combinations
+
+from . import geometry_plain as g
 
 _X = (1.0, 0.0, 0.0)
 _INF = math.inf
 
 
-def _sub(a, b):
-    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
-
-
-def _add(a, b):
-    return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
-
-
-def _scaled(v, s):
-    return (v[0] * s, v[1] * s, v[2] * s)
-
-
-def _divided(v, s):
-    return (v[0] / s, v[1] / s, v[2] / s)
-
-
-def _dot(a, b):
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-def _norm(v):
-    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-
-
-def _cross(a, b):
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
-def _any_perpendicular(v):
-    """geometry.any_perpendicular: crossed with the axis of the smallest |component| (numpy's argmin: the first
-    NaN, else the first smallest)."""
-    mags = [abs(c) for c in v]
-    nans = [k for k, m in enumerate(mags) if m != m]
-    k = nans[0] if nans else mags.index(min(mags))
-    p = _cross(v, ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))[k])
-    return _divided(p, _norm(p))
-
-
 def _inside(x, centres, radii, active):
     """reach_balls._inside for one point."""
     for c, r, on in zip(centres, radii, active):
-        if on and not _norm(_sub(x, c)) <= r * (1.0 + 1e-12) + 1e-12:
+        if on and not g.norm(g.sub(x, c)) <= r * (1.0 + 1e-12) + 1e-12:
             return False
     return True
 
 
 def _projection(p, c, r):
     """project_onto_balls for one point and one ball."""
-    d = _sub(p, c)
-    dist = _norm(d)
+    d = g.sub(p, c)
+    dist = g.norm(d)
     if dist > r:
-        return _add(c, _scaled(d, r / dist))
+        return g.add(c, g.scaled(d, r / dist))
     return p
 
 
 def _circle_point(point, c1, r1, c2, r2):
     """reach_balls._circle_point for one frame; None where the numpy path marks it invalid."""
-    axis = _sub(c2, c1)
-    d = _norm(axis)
+    axis = g.sub(c2, c1)
+    d = g.norm(axis)
     if not d > 0.0:
         return None
-    u = _divided(axis, d)
+    u = g.divided(axis, d)
     a = (d * d + r1 * r1 - r2 * r2) / (2.0 * d)
     h2 = r1 * r1 - a * a
     if not h2 >= 0.0:
         return None
     h = math.sqrt(h2)
-    m = _add(c1, _scaled(u, a))
-    w = _sub(point, m)
-    w = _sub(w, _scaled(u, _dot(w, u)))
-    w = _sub(w, _scaled(u, _dot(w, u)))
-    wn = _norm(w)
-    w = _divided(w, wn) if wn > 1e-15 else _any_perpendicular(u)
-    return _add(m, _scaled(w, h))
+    m = g.add(c1, g.scaled(u, a))
+    w = g.sub(point, m)
+    w = g.sub(w, g.scaled(u, g.dot(w, u)))
+    w = g.sub(w, g.scaled(u, g.dot(w, u)))
+    wn = g.norm(w)
+    w = g.divided(w, wn) if wn > 1e-15 else g.any_perpendicular(u)
+    return g.add(m, g.scaled(w, h))
 
 
 def _sphere_triple(c1, r1, c2, r2, c3, r3):
     """reach_balls._sphere_triple for one frame: its two points, or None where the numpy path marks them
     invalid."""
-    ex_v = _sub(c2, c1)
-    d = _norm(ex_v)
+    ex_v = g.sub(c2, c1)
+    d = g.norm(ex_v)
     if not d > 0.0:
         return None
-    ex = _divided(ex_v, d)
-    v3 = _sub(c3, c1)
-    i = _dot(ex, v3)
-    ey_v = _sub(v3, _scaled(ex, i))
-    j = _norm(ey_v)
+    ex = g.divided(ex_v, d)
+    v3 = g.sub(c3, c1)
+    i = g.dot(ex, v3)
+    ey_v = g.sub(v3, g.scaled(ex, i))
+    j = g.norm(ey_v)
     if not j > 1e-12 * max(d, 1e-300):
         return None
-    ey = _divided(ey_v, j)
-    ez = _cross(ex, ey)
+    ey = g.divided(ey_v, j)
+    ez = g.cross(ex, ey)
     x = (r1 * r1 - r2 * r2 + d * d) / (2.0 * d)
     y = (r1 * r1 - r3 * r3 + i * i + j * j) / (2.0 * j) - i / j * x
     z2 = r1 * r1 - x * x - y * y
     if not z2 >= 0.0:
         return None
     z = math.sqrt(z2)
-    base = _add(_add(c1, _scaled(ex, x)), _scaled(ey, y))
-    return _add(base, _scaled(ez, z)), _sub(base, _scaled(ez, z))
+    base = g.add(g.add(c1, g.scaled(ex, x)), g.scaled(ey, y))
+    return g.add(base, g.scaled(ez, z)), g.sub(base, g.scaled(ez, z))
 
 
 def _nearest_valid(p, cands, centres, radii, active):
@@ -119,7 +83,7 @@ def _nearest_valid(p, cands, centres, radii, active):
     (best, distance), (p, inf) where none lies in every active ball."""
     best, best_d = p, _INF
     for cand in cands:
-        dist = _norm(_sub(cand, p))
+        dist = g.norm(g.sub(cand, p))
         if dist < best_d and _inside(cand, centres, radii, active):
             best, best_d = cand, dist
     return best, best_d
@@ -149,9 +113,9 @@ def nearest_in_balls(p, centres, radii, active):
 def nearest_on_sphere_in_balls(p, centre, radius, centres, radii, active):
     """reach_balls.nearest_on_sphere_in_balls for one frame (arguments as nearest_in_balls', centre a 3-tuple,
     radius a float). Returns (x, found)."""
-    d = _sub(p, centre)
-    dn = _norm(d)
-    radial = _add(centre, _scaled(d, radius / dn)) if dn > 0.0 else _add(centre, _scaled(_X, radius))
+    d = g.sub(p, centre)
+    dn = g.norm(d)
+    radial = g.add(centre, g.scaled(d, radius / dn)) if dn > 0.0 else g.add(centre, g.scaled(_X, radius))
     cands = [radial]
     k = len(radii)
     for i in range(k):

@@ -1,0 +1,101 @@
+"""geometry.py's helpers on one 3-vector or 3x3 matrix in plain Python floats, for the single-frame twins of the
+numpy paths (reach_balls_plain.py, two_bone_start_plain.py, limb_rotations_plain.py). Vectors are 3-tuples (or
+lists), matrices their rows. Each does the numpy helper's operations in its order (numpy adds a 3-vector's
+components as (x0 + x1) + x2), so it returns the same bits; the trigonometry and the matrix products call numpy's
+own routines on the one value (its arccos, sin, cos and arctan2 may round otherwise than Python's math module on
+some processors, and einsum adds its three products in an order of its own).
+
+Divisions by zero raise ZeroDivisionError where numpy would give inf or NaN: the callers then leave the frame to
+the numpy path."""
+
+import math
+
+import numpy as np
+
+from .errors import SolverInputError
+from .geometry import TINY
+
+EYE = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+
+
+def sub(a, b):
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+def add(a, b):
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
+
+
+def scaled(v, s):
+    return (v[0] * s, v[1] * s, v[2] * s)
+
+
+def divided(v, s):
+    return (v[0] / s, v[1] / s, v[2] / s)
+
+
+def dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def norm(v):
+    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+
+
+def cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def normalize(v):
+    """geometry.normalize without a fallback (SolverInputError on a zero vector)."""
+    n = norm(v)
+    if not n > TINY:
+        raise SolverInputError("cannot normalise a zero-length vector")
+    return (v[0] / n, v[1] / n, v[2] / n)
+
+
+def any_perpendicular(v):
+    """Crossed with the axis of the smallest |component| (numpy's argmin: the first NaN, else the first
+    smallest)."""
+    mags = [abs(x) for x in v]
+    nans = [k for k, x in enumerate(mags) if x != x]
+    return divided_by_norm(cross(v, EYE[nans[0] if nans else mags.index(min(mags))]))
+
+
+def divided_by_norm(v):
+    return divided(v, norm(v))
+
+
+def rotate_about_axis(v, axis, angle):
+    k = normalize(axis)
+    cos_a, sin_a = float(np.cos(angle)), float(np.sin(angle))
+    kv, along = cross(k, v), dot(k, v) * (1.0 - cos_a)
+    return (v[0] * cos_a + kv[0] * sin_a + k[0] * along, v[1] * cos_a + kv[1] * sin_a + k[1] * along,
+            v[2] * cos_a + kv[2] * sin_a + k[2] * along)
+
+
+def swing_rotation(old, new):
+    """geometry.swing_rotation (its few-rotations form): the rows of the 3x3 matrix."""
+    a, b = normalize(old), normalize(new)
+    c = dot(a, b)
+    w = sub(b, scaled(a, c))
+    s = norm(w)
+    degenerate = not s > 1e-14
+    if degenerate:
+        w = any_perpendicular(a)
+    w = sub(w, scaled(a, dot(w, a)))
+    e = divided_by_norm(w)
+    t = float(np.arctan2(0.0 if degenerate else s, c))
+    cl, st = float(np.cos(t)) - 1.0, float(np.sin(t))
+    return [[cl * (a[i] * a[j] + e[i] * e[j]) + EYE[i][j] + st * (e[i] * a[j] - a[i] * e[j]) for j in (0, 1, 2)]
+            for i in (0, 1, 2)]
+
+
+def apply_matrix(m, v):
+    """geometry.apply_matrix for one matrix and vector (its einsum)."""
+    return np.einsum("...ij,...j->...i", np.array([m]), np.array([v])).tolist()[0]
+
+
+def apply_to_points(m, points):
+    """Points (rows) through the matrix m, as einsum('bij,bkj->bki') computes them."""
+    return np.einsum("bij,bkj->bki", np.array([m]), np.array([points])).tolist()[0]
