@@ -99,3 +99,8 @@ def apply_matrix(m, v):
 def apply_to_points(m, points):
     """Points (rows) through the matrix m, as einsum('bij,bkj->bki') computes them."""
     return np.einsum("bij,bkj->bki", np.array([m]), np.array([points])).tolist()[0]
+
+
+def matmul(a, b):
+    """3x3 a @ b, as einsum('bij,bjk->bik') computes it."""
+    return np.einsum("bij,bjk->bik", np.array([a]), np.array([b])).tolist()[0]

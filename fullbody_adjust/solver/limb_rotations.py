@@ -7,10 +7,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import limb_rotations_plain
 from .geometry import any_perpendicular, apply_matrix, norm, stack_rows, swing_rotation
 from .limits import HINGE, hinge_twist_angle
 
 _EYE = np.eye(3)
+# Up to this many chains, plain floats (limb_rotations_plain.py: the same bits, without numpy's per-call cost).
+_FEW_CHAINS = 4
 
 # How far a hand or foot may turn away from where its forearm or shin carries it (its start pose relative to
 # that bone) when it takes a wanted orientation: a wrist bends about 80 degrees, an ankle about 50, so the
@@ -76,6 +79,10 @@ def _segment_rotations(start, joints, kind, axes):
         start hinge axis turned with the bone is the axis the child bends about;
       - the child segment i turns by the minimal swing in its parent's frame: relative to the parent it
         rotates about the hinge axis only, a pure hinge (an elbow or knee does not twist)."""
+    if len(start) <= _FEW_CHAINS:
+        rot = limb_rotations_plain.segment_rotations(start, joints, kind, axes)
+        if rot is not None:
+            return rot
     old = np.diff(start, axis=1)
     new = np.diff(joints, axis=1)
     rot = swing_rotation(old, new)
