@@ -1,0 +1,106 @@
+"""limits.py's joint limits on one direction in plain Python floats (the chain solver checks one or two chains'
+joints at a time when it solves one frame): the numpy path's operations in its order, the trigonometry, hypot
+and remainder numpy's own routines on one value (geometry_plain.py), so each gives the numpy path's bits
+(tests/solver/test_limits_plain.py). Vectors are 3-tuples."""
+
+import math
+
+import numpy as np
+
+from . import geometry_plain as g
+from .limits import _DEGENERATE, CONE, FREE
+
+
+def breaks_limits(points, lengths, limits, parent_dir, hinge_axes, hinge_refs):
+    """chain_model.ChainModel.violations' limit check for one chain: joints `points` (n lists of 3), segment
+    `lengths` (n-1), JointLimits `limits` (its per-joint values), joint 0's parent direction, and the chain's
+    hinge axes and references (m lists of 3). True where a joint breaks its limit beyond rounding."""
+    dirs = [g.divided_by_norm(g.divided(g.sub(points[i + 1], points[i]), lengths[i]))
+            for i in range(len(points) - 1)]
+    kind = limits.kind
+    for i in range(len(dirs)):
+        if kind[i] == FREE:
+            continue
+        parent = parent_dir if i == 0 else dirs[i - 1]
+        if kind[i] == CONE:
+            if cone_binds(parent, dirs[i], float(limits.cone_angle[i])):
+                return True
+            continue
+        axis = hinge_axes[i] if i == 0 else carry_axis(hinge_axes[i], hinge_refs[i], parent)
+        twist = None if limits.hinge_twist is None else float(limits.hinge_twist[i])
+        if apply_hinge(parent, dirs[i], axis, float(limits.hinge_min[i]), float(limits.hinge_max[i]), dirs[i],
+                       twist)[1]:
+            return True
+    return False
+
+
+def cone_binds(parent, v, angle):
+    """The binding flag of limits.apply_cone: unit v is more than `angle` from unit `parent`."""
+    c = g.dot(parent, v)
+    return float(np.arctan2(g.norm(g.sub(v, g.scaled(parent, c))), c)) > angle
+
+
+def carry_axis(axis_at_start, start_parent_dir, parent_dir):
+    return g.apply_matrix(g.swing_rotation(start_parent_dir, parent_dir), axis_at_start)
+
+
+def apply_hinge(parent, v, axis, lo, hi, fallback, twist):
+    """limits.apply_hinge for one direction: (limited direction, binding)."""
+    a, side = _hinge_frame(parent, axis)
+    if twist is not None and twist > 0.0:
+        return _apply_twisted_hinge(parent, v, a, side, lo, hi, fallback, twist)
+    x, y = g.dot(v, parent), g.dot(v, side)
+    if not _hypot(x, y) > _DEGENERATE:
+        x, y = g.dot(fallback, parent), g.dot(fallback, side)
+        if not _hypot(x, y) > _DEGENERATE:
+            x, y = 1.0, 0.0
+    theta = _clamp_angle(float(np.arctan2(y, x)), lo, hi)
+    limited = g.add(g.scaled(parent, float(np.cos(theta))), g.scaled(side, float(np.sin(theta))))
+    return limited, g.norm(g.sub(limited, v)) > 1e-12
+
+
+def _apply_twisted_hinge(parent, v, a, side, lo, hi, fallback, twist):
+    x, y, z = g.dot(v, parent), g.dot(v, side), g.dot(v, a)
+    r, phi = _hypot(y, z), float(np.arctan2(z, y))
+    if not _hypot(x, r * float(np.cos(phi - _clip(phi, twist)))) > _DEGENERATE:
+        x, y2, z2 = g.dot(fallback, parent), g.dot(fallback, side), g.dot(fallback, a)
+        r, phi = _hypot(y2, z2), float(np.arctan2(z2, y2))
+        if not _hypot(x, r * float(np.cos(phi - _clip(phi, twist)))) > _DEGENERATE:
+            x, r, phi = 1.0, 0.0, 0.0
+    best = best_dot = None
+    for wanted in (phi, phi - math.pi if phi > 0.0 else phi + math.pi):
+        tau = _clip(wanted, twist)
+        theta = _clamp_angle(float(np.arctan2(r * float(np.cos(phi - tau)), x)), lo, hi)
+        sin_t = float(np.sin(theta))
+        plane = g.add(g.scaled(side, float(np.cos(tau))), g.scaled(a, float(np.sin(tau))))
+        cand = g.add(g.scaled(parent, float(np.cos(theta))), g.scaled(plane, sin_t))
+        c = g.dot(cand, v)
+        if best is None:
+            best, best_dot = cand, c
+        elif c > best_dot:
+            best = cand
+    return best, g.norm(g.sub(best, v)) > 1e-12
+
+
+def _hinge_frame(parent, axis):
+    a = g.sub(axis, g.scaled(parent, g.dot(axis, parent)))
+    if not g.norm(a) > _DEGENERATE:
+        a = g.any_perpendicular(parent)
+    a = g.divided_by_norm(g.sub(a, g.scaled(parent, g.dot(a, parent))))
+    return a, g.cross(a, parent)
+
+
+def _clamp_angle(theta, lo, hi):
+    if lo <= theta <= hi:
+        return theta
+    to_lo = abs(float(np.remainder(theta - lo + math.pi, 2 * math.pi)) - math.pi)
+    to_hi = abs(float(np.remainder(theta - hi + math.pi, 2 * math.pi)) - math.pi)
+    return lo if to_lo <= to_hi else hi
+
+
+def _clip(angle, twist):
+    return min(max(angle, -twist), twist)
+
+
+def _hypot(x, y):
+    return float(np.hypot(x, y))
