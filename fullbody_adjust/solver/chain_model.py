@@ -104,6 +104,10 @@ class ChainModel(ObstacleResponse, TwoBoneFinish):
 
     def _limit(self, i, rows, parent, dirs, fallback):
         """Apply joint i's limit to unit dirs (b,3) or (b,c,3). Returns (dirs, binding (b,...))."""
+        if dirs.ndim == 2 and len(rows) <= _FEW_CHAINS:
+            out = self._plain_limit(i, rows, parent, dirs, fallback)
+            if out is not None:
+                return out
         kind = self.limits.kind[i]
         extra = dirs.ndim - 2
         expand = (lambda a: a.reshape(a.shape[:1] + (1,) * extra + a.shape[1:]))
@@ -121,11 +125,34 @@ class ChainModel(ObstacleResponse, TwoBoneFinish):
         it. A cone is symmetric; for a hinge the angle from child to parent is clamped to [-max, -min], about
         the axis carried by the proposed parent direction. Only steers the proposal the backward pass starts
         from: the backward pass enforces the limits exactly."""
+        if len(rows) <= _FEW_CHAINS:
+            out = self._plain_limit(j, rows, child, dirs, fallback, reverse=True)
+            if out is not None:
+                return out[0]
         if self.limits.kind[j] == CONE:
             return apply_cone(child, dirs, self.limits.cone_angle[j], fallback)[0]
         axis = carry_axis(self.hinge_axes[rows, j], self.hinge_refs[rows, j], dirs)
         return apply_hinge(child, dirs, axis, -self.limits.hinge_max[j], -self.limits.hinge_min[j], fallback,
                            self.limits.hinge_twist[j])[0]
+
+    def _plain_limit(self, i, rows, parent, dirs, fallback, reverse=False):
+        """_limit (reverse: _limit_reverse) of a few rows' directions (b,3) in plain floats (limits_plain.py: the
+        same bits); None where plain floats cannot take a row (the numpy path answers then)."""
+        hinge = self.limits.kind[i] == HINGE
+        out, binding = [], []
+        try:
+            for r, p, v, fb in zip(rows.tolist(), parent.tolist(), dirs.tolist(), fallback.tolist()):
+                axis = None
+                if hinge:
+                    axis = self.hinge_axes[r, i].tolist()
+                    if reverse or i > 0:  # carried by the proposed parent direction, or by the parent
+                        axis = limits_plain.carry_axis(axis, self.hinge_refs[r, i].tolist(), v if reverse else p)
+                u, bind = limits_plain.limit(self.limits, i, p, v, fb, axis, reverse)
+                out.append(u)
+                binding.append(bind)
+        except ZeroDivisionError:
+            return None
+        return np.array(out, dtype=np.float64).reshape(dirs.shape), np.array(binding, dtype=bool)
 
     # -- passes -----------------------------------------------------------------------------------------
 

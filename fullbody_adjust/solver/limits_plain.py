@@ -22,22 +22,49 @@ def breaks_limits(points, lengths, limits, parent_dir, hinge_axes, hinge_refs):
         if kind[i] == FREE:
             continue
         parent = parent_dir if i == 0 else dirs[i - 1]
-        if kind[i] == CONE:
-            if cone_binds(parent, dirs[i], float(limits.cone_angle[i])):
-                return True
-            continue
-        axis = hinge_axes[i] if i == 0 else carry_axis(hinge_axes[i], hinge_refs[i], parent)
-        twist = None if limits.hinge_twist is None else float(limits.hinge_twist[i])
-        if apply_hinge(parent, dirs[i], axis, float(limits.hinge_min[i]), float(limits.hinge_max[i]), dirs[i],
-                       twist)[1]:
+        axis = None if kind[i] == CONE else hinge_axes[i] if i == 0 else carry_axis(hinge_axes[i], hinge_refs[i],
+                                                                                   parent)
+        if limit(limits, i, parent, dirs[i], dirs[i], axis)[1]:
             return True
     return False
 
 
+def limit(limits, i, parent, v, fallback, axis, reverse=False):
+    """Joint i's limit (JointLimits `limits`) on unit direction v of its segment, as chain_model.ChainModel.
+    _limit applies it (reverse: as _limit_reverse does, `parent` then the child's direction and the hinge range
+    mirrored); `axis` the hinge axis carried to where it applies. Returns (direction, binding)."""
+    if limits.kind[i] == CONE:
+        return apply_cone(parent, v, float(limits.cone_angle[i]), fallback)
+    lo, hi = float(limits.hinge_min[i]), float(limits.hinge_max[i])
+    if reverse:
+        lo, hi = -hi, -lo
+    twist = None if limits.hinge_twist is None else float(limits.hinge_twist[i])
+    return apply_hinge(parent, v, axis, lo, hi, fallback, twist)
+
+
 def cone_binds(parent, v, angle):
     """The binding flag of limits.apply_cone: unit v is more than `angle` from unit `parent`."""
+    return _cone(parent, v, angle)[0]
+
+
+def _cone(parent, v, angle):
     c = g.dot(parent, v)
-    return float(np.arctan2(g.norm(g.sub(v, g.scaled(parent, c))), c)) > angle
+    w = g.sub(v, g.scaled(parent, c))
+    wn = g.norm(w)
+    return float(np.arctan2(wn, c)) > angle, w, wn
+
+
+def apply_cone(parent, v, angle, fallback):
+    """limits.apply_cone for one direction: (limited direction, binding)."""
+    over, w, wn = _cone(parent, v, angle)
+    if not over:
+        return v, False
+    if not wn > _DEGENERATE:
+        w = g.sub(fallback, g.scaled(parent, g.dot(fallback, parent)))
+        if not g.norm(w) > _DEGENERATE:
+            w = g.any_perpendicular(parent)
+    e = g.divided_by_norm(g.sub(w, g.scaled(parent, g.dot(w, parent))))
+    return g.add(g.scaled(parent, float(np.cos(angle))), g.scaled(e, float(np.sin(angle)))), True
 
 
 def carry_axis(axis_at_start, start_parent_dir, parent_dir):

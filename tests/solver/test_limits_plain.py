@@ -6,7 +6,7 @@ limit check of a few chains (plain) against its numpy check."""
 import numpy as np
 import pytest
 
-from fullbody_adjust.solver import limits_plain
+from fullbody_adjust.solver import chain_model, limits_plain
 from fullbody_adjust.solver.chain_model import ChainModel
 from fullbody_adjust.solver.chain_types import ChainSettings
 from fullbody_adjust.solver.limits import CONE, FREE, HINGE, JointLimits, apply_cone, apply_hinge, carry_axis
@@ -52,12 +52,44 @@ def test_hinge_directions_and_binding_as_the_numpy_path(twist, lo, hi):
         assert binds == binding[k]
 
 
-def test_cone_binding_as_the_numpy_path():
+def test_cone_directions_and_binding_as_the_numpy_path():
+    """Also a direction against the parent, whose fallback (or, that too along the parent, any perpendicular)
+    sets the plane it is turned back in."""
     rng = np.random.default_rng(5)
-    parent, v, _, _ = _directions(rng, 400)
-    _, over = apply_cone(parent, v, 1.1, v)
+    parent, v, _, fallback = _directions(rng, 400)
+    fallback[4::20] = parent[4::20]
+    limited, over = apply_cone(parent, v, 1.1, fallback)
     assert over.any() and not over.all()
-    assert [limits_plain.cone_binds(tuple(p), tuple(d), 1.1) for p, d in zip(parent, v)] == over.tolist()
+    for k in range(len(v)):
+        one, binds = limits_plain.apply_cone(tuple(parent[k]), tuple(v[k]), 1.1, tuple(fallback[k]))
+        np.testing.assert_array_equal(one, limited[k], err_msg=f"direction {k}")
+        assert binds == over[k] == limits_plain.cone_binds(tuple(parent[k]), tuple(v[k]), 1.1)
+
+
+@pytest.mark.parametrize("reverse", [False, True])
+def test_the_chain_solvers_limit_steps_on_a_few_rows_as_on_many(monkeypatch, reverse):
+    """ChainModel._limit and _limit_reverse (the passes' steps: hinge axes carried from the start pose) on 1-4
+    rows in plain floats give the numpy path's directions and flags."""
+    rng = np.random.default_rng(11 + reverse)
+    kind = np.array([CONE, HINGE, HINGE, CONE])
+    m, b = len(kind), 4
+    limits = JointLimits(kind=kind, cone_angle=np.full(m, 0.8), hinge_min=np.full(m, -0.2), hinge_max=np.full(m, 2.0),
+                         hinge_twist=np.array([0.0, 0.0, 0.35, 0.0]), hinge_axis=_unit(rng, m))
+    for _ in range(40):
+        start = np.concatenate([np.zeros((b, 1, 3)), np.cumsum(_unit(rng, b * m).reshape(b, m, 3), axis=1)], axis=1)
+        model = ChainModel(start, start[:, -1], ChainSettings(), limits, None, _unit(rng, b))
+        parent, dirs, fallback = _unit(rng, b), _unit(rng, b), _unit(rng, b)
+        rows = np.arange(b)
+        for i in range(1, m):
+            step = (lambda *a: (model._limit_reverse(*a), None)) if reverse else model._limit
+            with monkeypatch.context() as numpy_path:
+                numpy_path.setattr(chain_model, "_FEW_CHAINS", 0)
+                expected, expected_binding = step(i, rows, parent, dirs, fallback)
+            for few in (rows[:1], rows[1:3], rows):
+                got, binding = step(i, few, parent[few], dirs[few], fallback[few])
+                np.testing.assert_array_equal(got, expected[few])
+                if not reverse:
+                    np.testing.assert_array_equal(binding, expected_binding[few])
 
 
 @pytest.mark.parametrize("kind", [(CONE, CONE, HINGE), (CONE, HINGE, HINGE), (HINGE, FREE, CONE)])
