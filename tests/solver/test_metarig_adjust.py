@@ -28,7 +28,9 @@ def _frames(rig, targets, boxes, **kwargs):
                          metarig.PRIORITIES, obstacles=boxes, bone_x_axes=np.repeat(x[None], n, 0), **kwargs)
 
 
-offsets = arrays(np.float64, (3, 2, 3), elements=st.floats(-0.25, 0.25))
+# Six frames: their stacked limbs (12 rows) take the numpy path, one frame alone the plain-float one (a few rows:
+# reach_balls_plain, two_bone_start_plain, limits_plain, limb_rotations_plain, trunk_curl_plain).
+offsets = arrays(np.float64, (6, 2, 3), elements=st.floats(-0.25, 0.25))
 
 
 @settings(deadline=None, max_examples=12)
@@ -36,10 +38,10 @@ offsets = arrays(np.float64, (3, 2, 3), elements=st.floats(-0.25, 0.25))
 def test_a_pose_solved_alone_equals_its_row_of_a_batch_within_1e9(rig, kind, hand_offsets):
     model, h, t, x = rig
     base, boxes = metarig.case(model, h, t, kind)
-    targets = np.repeat(base[None], 3, 0)
-    targets[:, :2] += hand_offsets  # three frames, both hands moved differently on each; feet planted
+    targets = np.repeat(base[None], len(hand_offsets), 0)
+    targets[:, :2] += hand_offsets  # both hands moved differently on each frame; feet planted
     batch = _frames(rig, targets, boxes)
-    for f in range(3):
+    for f in range(len(targets)):
         one = adjust_pose(model, h, t, targets[f], metarig.EFFECTORS, metarig.PRIORITIES, obstacles=boxes,
                           bone_x_axes=x)
         np.testing.assert_allclose(one.heads, batch.heads[f], atol=1e-9, rtol=0)
