@@ -1,9 +1,11 @@
 """geometry.py's helpers on one 3-vector or 3x3 matrix in plain Python floats, for the single-frame twins of the
-numpy paths (reach_balls_plain.py, two_bone_start_plain.py, limb_rotations_plain.py). Vectors are 3-tuples (or
-lists), matrices their rows. Each does the numpy helper's operations in its order (numpy adds a 3-vector's
-components as (x0 + x1) + x2), so it returns the same bits; the trigonometry and the matrix products call numpy's
-own routines on the one value (its arccos, sin, cos and arctan2 may round otherwise than Python's math module on
-some processors, and einsum adds its three products in an order of its own).
+numpy paths (reach_balls_plain.py, two_bone_start_plain.py, limits_plain.py, limb_rotations_plain.py,
+trunk_curl_plain.py). Vectors are 3-tuples (or lists), matrices their rows. Each does the numpy helper's operations
+in its order (numpy adds a 3-vector's components as (x0 + x1) + x2), so it returns the same bits. The trigonometry
+and the matrix products call numpy's own routines on the one value instead of Python's math module: numpy may use
+its own SIMD implementations of arccos, sin, cos and arctan2 on some processors, and einsum adds its three products
+in an order of its own. That a call on one value rounds as numpy's call on many does is what the twins' tests
+check, on every run (numpy 1.26 and 2.5 on x86-64 with AVX2 here).
 
 Divisions by zero raise ZeroDivisionError where numpy would give inf or NaN: the callers then leave the frame to
 the numpy path."""
