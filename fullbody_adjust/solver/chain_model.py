@@ -1,19 +1,20 @@
 """The batch-first numpy chain solver: B chains (B, n, 3) with joint limits and obstacles, each problem leaving
-the active set when it converges, so a problem's result does not depend on what else is in the batch."""
+the active set when it converges, so a problem's result does not depend on what else is in the batch. A few
+problems' joint limits are applied in plain floats (limits_plain.py), with the same bits."""
 
 import numpy as np
 
+from . import limits_plain
 from .chain_finish import _MIN_FINISH_TWIST, TwoBoneFinish
 from .chain_obstacles import ObstacleResponse
 from .chain_types import (_COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL, ChainBatchResult, _final_status,
                           _reach_bounds, _segment_lengths)
 from .errors import SolverInputError
-from . import limits_plain
 from .geometry import any_perpendicular, cross, norm
 from .limits import CONE, FREE, HINGE, JointLimits, apply_cone, apply_hinge, carry_axis
 from .obstacles import as_boxes, points_inside, segments_cross
 
-# Up to this many problems, the limit check of a pose is done in plain floats (limits_plain.py).
+# Up to this many problems, the passes' limit steps and the limit check run in plain floats (limits_plain.py).
 _FEW_CHAINS = 4
 
 
