@@ -14,7 +14,8 @@ from .geometry import any_perpendicular, cross, norm
 from .limits import CONE, FREE, HINGE, JointLimits, apply_cone, apply_hinge, carry_axis
 from .obstacles import as_boxes, points_inside, segments_cross
 
-# Up to this many problems, the passes' limit steps and the limit check run in plain floats (limits_plain.py).
+# Up to this many problems, the limit steps (of the passes and of the limit check) run in plain floats
+# (limits_plain.py).
 _FEW_CHAINS = 4
 
 
@@ -284,35 +285,16 @@ class ChainModel(ObstacleResponse, TwoBoneFinish):
         it does not ignore."""
         bad = np.zeros(len(rows), dtype=bool)
         if self.limits is not None:
-            plain = self._plain_limit_violations(P, rows) if len(rows) <= _FEW_CHAINS else None
-            bad = plain if plain is not None else self._limit_violations(P, rows)
+            lengths = self.lengths[rows]
+            dirs = (P[:, 1:] - P[:, :-1]) / lengths[..., None]
+            dirs = dirs / norm(dirs)[..., None]
+            for i in np.nonzero(self.limits.kind != FREE)[0]:
+                parent = self.parent_dirs[rows] if i == 0 else dirs[:, i - 1]
+                bad |= self._limit(i, rows, parent, dirs[:, i], dirs[:, i])[1]
         if self.boxes is not None:
             inside, crossing = self.penetration_counts(P, rows)
             bad |= (inside + crossing) > 0
         return bad
-
-    def _limit_violations(self, P, rows):
-        """(b,) problems `rows` whose pose P (b,n,3) breaks a joint limit beyond rounding."""
-        bad = np.zeros(len(rows), dtype=bool)
-        lengths = self.lengths[rows]
-        dirs = (P[:, 1:] - P[:, :-1]) / lengths[..., None]
-        dirs = dirs / norm(dirs)[..., None]
-        for i in np.nonzero(self.limits.kind != FREE)[0]:
-            parent = self.parent_dirs[rows] if i == 0 else dirs[:, i - 1]
-            bad |= self._limit(i, rows, parent, dirs[:, i], dirs[:, i])[1]
-        return bad
-
-    def _plain_limit_violations(self, P, rows):
-        """_limit_violations on a few problems in plain floats (limits_plain.py: the same answers); None where
-        plain floats cannot take a chain (a zero-length direction): the numpy check answers then."""
-        pd = self.parent_dirs[rows].tolist() if self.parent_dirs is not None else [None] * len(rows)
-        try:
-            return np.array([limits_plain.breaks_limits(points, lengths, self.limits, parent, axes, refs)
-                             for points, lengths, parent, axes, refs in
-                             zip(P.tolist(), self.lengths[rows].tolist(), pd, self.hinge_axes[rows].tolist(),
-                                 self.hinge_refs[rows].tolist())], dtype=bool)
-        except ZeroDivisionError:
-            return None
 
     def _iterate(self, P, rows, force):
         """FABRIK iterations on problems `rows`, in place on P (B,n,3). Rows whose end is already within

@@ -4,12 +4,11 @@ matrix products numpy's own routines on one value (geometry_plain.py), so each r
 (tests/solver/test_limb_rotations_plain.py). Returns None where plain floats would divide by zero (a segment of
 zero length): the numpy path then answers."""
 
-import math
-
 import numpy as np
 
 from . import geometry_plain as g
-from .limits import _DEGENERATE, HINGE
+from . import limits_plain
+from .limits import HINGE
 
 
 def segment_rotations(start, joints, kind, axes):
@@ -33,24 +32,11 @@ def _chain(start, joints, kind, axes):
         if kind[i] != HINGE:
             continue
         parent, child = g.divided_by_norm(new[i - 1]), g.divided_by_norm(new[i])
-        tau = _hinge_twist_angle(parent, child, g.apply_matrix(rot[i - 1], axes[i]))
+        tau = limits_plain.hinge_twist_angle(parent, child, g.apply_matrix(rot[i - 1], axes[i]))
         rot[i - 1] = g.matmul(_rotation_about(parent, tau), rot[i - 1])
         if i + 1 >= len(kind) or kind[i + 1] != HINGE:
             rot[i] = g.matmul(g.swing_rotation(g.apply_matrix(rot[i - 1], old[i]), new[i]), rot[i - 1])
     return rot
-
-
-def _hinge_twist_angle(parent, child, axis):
-    """limits.hinge_twist_angle for one joint (its _hinge_frame inlined)."""
-    a = g.sub(axis, g.scaled(parent, g.dot(axis, parent)))
-    if not g.norm(a) > _DEGENERATE:
-        a = g.any_perpendicular(parent)
-    a = g.divided_by_norm(g.sub(a, g.scaled(parent, g.dot(a, parent))))
-    side = g.cross(a, parent)
-    y, z = g.dot(child, side), g.dot(child, a)
-    phi = float(np.arctan2(z, y))
-    plane = phi - math.pi if phi > math.pi / 2 else (phi + math.pi if phi <= -math.pi / 2 else phi)
-    return plane if float(np.hypot(y, z)) > _DEGENERATE else 0.0
 
 
 def _rotation_about(k, angle):

@@ -1,32 +1,15 @@
-"""limits.py's joint limits on one direction in plain Python floats (the chain solver checks one or two chains'
-joints at a time when it solves one frame): the numpy path's operations in its order, the trigonometry, hypot
-and remainder numpy's own routines on one value (geometry_plain.py), so each gives the numpy path's bits
-(tests/solver/test_limits_plain.py). Vectors are 3-tuples."""
+"""limits.py's joint limits on one direction in plain Python floats (the chain solver limits one or two chains'
+joints at a time when it solves one frame, and the segment rotations written out turn by the hinge twist): the
+numpy path's operations in its order, the trigonometry, hypot and remainder numpy's own routines on one value
+(geometry_plain.py), so each gives the numpy path's bits (tests/solver/test_limits_plain.py). Vectors are
+3-tuples."""
 
 import math
 
 import numpy as np
 
 from . import geometry_plain as g
-from .limits import _DEGENERATE, CONE, FREE
-
-
-def breaks_limits(points, lengths, limits, parent_dir, hinge_axes, hinge_refs):
-    """chain_model.ChainModel.violations' limit check for one chain: joints `points` (n lists of 3), segment
-    `lengths` (n-1), JointLimits `limits` (its per-joint values), joint 0's parent direction, and the chain's
-    hinge axes and references (m lists of 3). True where a joint breaks its limit beyond rounding."""
-    dirs = [g.divided_by_norm(g.divided(g.sub(points[i + 1], points[i]), lengths[i]))
-            for i in range(len(points) - 1)]
-    kind = limits.kind
-    for i in range(len(dirs)):
-        if kind[i] == FREE:
-            continue
-        parent = parent_dir if i == 0 else dirs[i - 1]
-        axis = None if kind[i] == CONE else hinge_axes[i] if i == 0 else carry_axis(hinge_axes[i], hinge_refs[i],
-                                                                                   parent)
-        if limit(limits, i, parent, dirs[i], dirs[i], axis)[1]:
-            return True
-    return False
+from .limits import _DEGENERATE, CONE
 
 
 def limit(limits, i, parent, v, fallback, axis, reverse=False):
@@ -40,11 +23,6 @@ def limit(limits, i, parent, v, fallback, axis, reverse=False):
         lo, hi = -hi, -lo
     twist = None if limits.hinge_twist is None else float(limits.hinge_twist[i])
     return apply_hinge(parent, v, axis, lo, hi, fallback, twist)
-
-
-def cone_binds(parent, v, angle):
-    """The binding flag of limits.apply_cone: unit v is more than `angle` from unit `parent`."""
-    return _cone(parent, v, angle)[0]
 
 
 def _cone(parent, v, angle):
@@ -73,7 +51,7 @@ def carry_axis(axis_at_start, start_parent_dir, parent_dir):
 
 def apply_hinge(parent, v, axis, lo, hi, fallback, twist):
     """limits.apply_hinge for one direction: (limited direction, binding)."""
-    a, side = _hinge_frame(parent, axis)
+    a, side = hinge_frame(parent, axis)
     if twist is not None and twist > 0.0:
         return _apply_twisted_hinge(parent, v, a, side, lo, hi, fallback, twist)
     x, y = g.dot(v, parent), g.dot(v, side)
@@ -109,7 +87,17 @@ def _apply_twisted_hinge(parent, v, a, side, lo, hi, fallback, twist):
     return best, g.norm(g.sub(best, v)) > 1e-12
 
 
-def _hinge_frame(parent, axis):
+def hinge_twist_angle(parent, child, axis):
+    """limits.hinge_twist_angle for one joint."""
+    a, side = hinge_frame(parent, axis)
+    y, z = g.dot(child, side), g.dot(child, a)
+    phi = float(np.arctan2(z, y))
+    plane = phi - math.pi if phi > math.pi / 2 else (phi + math.pi if phi <= -math.pi / 2 else phi)
+    return plane if _hypot(y, z) > _DEGENERATE else 0.0
+
+
+def hinge_frame(parent, axis):
+    """limits._hinge_frame for one joint: (unit axis perpendicular to the parent, the side of positive bend)."""
     a = g.sub(axis, g.scaled(parent, g.dot(axis, parent)))
     if not g.norm(a) > _DEGENERATE:
         a = g.any_perpendicular(parent)

@@ -10,7 +10,6 @@ from itertools import combinations
 
 from . import geometry_plain as g
 
-_X = (1.0, 0.0, 0.0)
 _INF = math.inf
 
 
@@ -115,7 +114,7 @@ def nearest_on_sphere_in_balls(p, centre, radius, centres, radii, active):
     radius a float). Returns (x, found)."""
     d = g.sub(p, centre)
     dn = g.norm(d)
-    radial = g.add(centre, g.scaled(d, radius / dn)) if dn > 0.0 else g.add(centre, g.scaled(_X, radius))
+    radial = g.add(centre, g.scaled(d, radius / dn)) if dn > 0.0 else g.add(centre, g.scaled(g.EYE[0], radius))
     cands = [radial]
     k = len(radii)
     for i in range(k):

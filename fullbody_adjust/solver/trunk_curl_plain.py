@@ -4,6 +4,10 @@ own routines on one value (geometry_plain.py), so each row gets the numpy path's
 (tests/solver/test_trunk_curl_plain.py). The secant steps stop per row as there: a row's steps never depend on
 the others. Where plain floats would divide by zero, the numpy path answers."""
 
+import operator
+from functools import reduce
+from itertools import accumulate
+
 import numpy as np
 
 from . import geometry_plain as g
@@ -29,25 +33,10 @@ def curl_chord(chains, targets, shares):
 
 def _chord(chain, target, shares):
     segments = [g.sub(chain[i + 1], chain[i]) for i in range(len(chain) - 1)]
-    turns = _cumulative(shares)
+    turns = list(accumulate(shares))  # numpy's cumsum: from the first, in order
     axis = _bend_axis(chain, target)
     alpha = _pointing_alpha(chain, target, segments, axis, turns)
-    return g.norm(_summed(_bent(segments, axis, alpha, turns)))
-
-
-def _cumulative(values):
-    out, total = [], None
-    for v in values:
-        total = v if total is None else total + v
-        out.append(total)
-    return out
-
-
-def _summed(vectors):
-    total = vectors[0]
-    for v in vectors[1:]:
-        total = g.add(total, v)
-    return total
+    return g.norm(reduce(g.add, _bent(segments, axis, alpha, turns)))
 
 
 def _bent(segments, axis, alpha, turns):
@@ -69,18 +58,11 @@ def _pointing_alpha(chain, target, segments, axis, turns):
     to_target = g.sub(target, chain[0])
 
     def turned(alpha):
-        end = _summed(_bent(segments, axis, alpha, turns))
+        end = reduce(g.add, _bent(segments, axis, alpha, turns))
         return float(np.arctan2(g.dot(axis, g.cross(end0, end)), g.dot(end0, end)))
 
     phi = float(np.arctan2(g.dot(axis, g.cross(end0, to_target)), g.dot(end0, to_target)))
-    return _secant(turned, phi, 0.0, phi / (_summed_floats(turns) / len(turns)), _SETTLED)
-
-
-def _summed_floats(values):
-    total = values[0]
-    for v in values[1:]:
-        total = total + v
-    return total
+    return _secant(turned, phi, 0.0, phi / (reduce(operator.add, turns) / len(turns)), _SETTLED)
 
 
 def _secant(f, goal, a0, a1, settled):

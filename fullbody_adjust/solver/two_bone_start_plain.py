@@ -62,7 +62,7 @@ def _reach(chain, target, a, c, m):
 
 def _reach_turn(cos_now, cos_max, arm, to_t, dist):
     """The turn about joint 0 (rows of a 3x3 matrix) that brings the target within the two segments' reach."""
-    t_dir = tuple(x / max(dist, 1e-300) for x in to_t)
+    t_dir = g.divided(to_t, max(dist, 1e-300))
     angle_now = float(np.arccos(min(max(cos_now, -1.0), 1.0)))
     angle_ok = float(np.arccos(min(max(cos_max, -1.0), 1.0)))
     side = g.cross(t_dir, arm)
@@ -81,22 +81,21 @@ def _bend(chain, target, axis, pole, a, c, m):
     to_target = g.sub(target, pivot)
     dist = g.norm(to_target)
     d = min(max(dist, abs(a - c)), a + c)
-    dt = tuple(x / max(dist, 1e-300) for x in to_target)
+    dt = g.divided(to_target, max(dist, 1e-300))
     if pole is not None and math.isfinite(pole[0]):
         toward = g.cross(g.sub(pole, pivot), dt)
         if g.norm(toward) > 1e-9 * max(dist, 1e-300):
             axis = toward
-    along = g.dot(axis, dt)
-    n = tuple(x - along * y for x, y in zip(axis, dt))
+    n = g.sub(axis, g.scaled(dt, g.dot(axis, dt)))
     n_len = g.norm(n)
     ok = n_len > 1e-9
-    n = tuple(x / n_len for x in n) if ok else g.EYE[0]
+    n = g.divided(n, n_len) if ok else g.EYE[0]
     cos_alpha = min(max((a * a + d * d - c * c) / (2.0 * a * max(d, 1e-300)), -1.0), 1.0)
     upper = g.rotate_about_axis(dt, n, -float(np.arccos(cos_alpha)))
     elbow = g.add(pivot, g.scaled(upper, a))
     lower = g.sub(target, elbow)
     ln = g.norm(lower)
-    lower = tuple(x / max(ln, 1e-300) for x in lower) if ln > 1e-300 else upper
+    lower = g.divided(lower, max(ln, 1e-300)) if ln > 1e-300 else upper
     if not (ok and dist > 0.0):
         return chain
     return chain[:m - 1] + [elbow, g.add(elbow, g.scaled(lower, c))]
