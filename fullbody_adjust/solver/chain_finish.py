@@ -6,13 +6,14 @@ import math
 
 import numpy as np
 
-from .geometry import any_perpendicular, cross, dot, norm, outward_angles
+from .geometry import cross, dot, norm, outward_angles, unit_or_perpendicular
 from .limits import CONE, FREE, HINGE, apply_cone, apply_hinge, carry_axis
 
 # Two-segment finish (ChainModel._two_bone_finish): swivel angles of the middle joint around the pivot ->
 # target line, from FABRIK's proposal outward (0, +d, -d, +2d, ...), and the least hinge twist range that
 # leaves an interval of them to pick from (a twist-free hinge fits one swivel angle, never a sample).
 _SWIVEL_ANGLES = outward_angles(48)
+_SWIVEL_COS, _SWIVEL_SIN = np.cos(_SWIVEL_ANGLES), np.sin(_SWIVEL_ANGLES)
 _MIN_FINISH_TWIST = math.radians(5)
 
 
@@ -52,10 +53,9 @@ class TwoBoneFinish:
         w = w - dot(w, e)[:, None] * e
         wn = norm(w)
         ok = wn > 1e-12 * a
-        e1 = np.where(ok[:, None], w / np.where(ok, wn, 1.0)[:, None], any_perpendicular(e))
+        e1 = unit_or_perpendicular(w, wn, ok, e)
         e2 = cross(e, e1)
-        ring = np.cos(_SWIVEL_ANGLES)[None, :, None] * e1[:, None] \
-            + np.sin(_SWIVEL_ANGLES)[None, :, None] * e2[:, None]
+        ring = _SWIVEL_COS[None, :, None] * e1[:, None] + _SWIVEL_SIN[None, :, None] * e2[:, None]
         E = centre[:, None] + rho[:, None, None] * ring  # (h,K,3)
         u = (E - S[:, None]) / a[:, None, None]
         u = u / norm(u)[..., None]

@@ -3,7 +3,7 @@ segment crosses one, is moved to the nearest clear point (ObstacleResponse._avoi
 
 import numpy as np
 
-from .geometry import any_perpendicular, cross, dot, norm, outward_angles
+from .geometry import cross, dot, norm, outward_angles, unit_or_perpendicular
 from .obstacles import points_inside, segments_cross
 
 # Obstacle response candidates (see _avoid for which one is taken).
@@ -18,6 +18,16 @@ _CIRCLE_ANGLES = outward_angles(_CIRCLE_SAMPLES)
 # of radius D around the anchor, by increasing angle from the unconstrained direction (the smallest change
 # to what FABRIK asked for), azimuths ordered from the reference side.
 _SPHERE_POLAR = np.radians([5, 10, 15, 20, 30, 40, 50, 60, 75, 90, 105, 120, 135, 150, 165, 180])
+# Their cosines and sines, computed once: the coefficients of the ring axes e1, e2 (circle) and of the axis,
+# e1, e2 (sphere: every polar angle with every azimuth, polar-major), and each candidate's place in the
+# preference order as a fraction below 1.
+_CIRCLE_COS, _CIRCLE_SIN = np.cos(_CIRCLE_ANGLES), np.sin(_CIRCLE_ANGLES)
+_POLAR = np.repeat(_SPHERE_POLAR, _CIRCLE_SAMPLES)
+_AZIMUTH = np.tile(_CIRCLE_ANGLES, _SPHERE_POLAR.size)
+_SPHERE_AXIS, _SPHERE_E1, _SPHERE_E2 = (
+    np.cos(_POLAR), np.sin(_POLAR) * np.cos(_AZIMUTH), np.sin(_POLAR) * np.sin(_AZIMUTH))
+_CANDIDATES = _CIRCLE_SAMPLES * (1 + _SPHERE_POLAR.size)
+_ORDER = np.arange(_CANDIDATES) / _CANDIDATES
 
 
 class ObstacleResponse:
@@ -75,17 +85,14 @@ class ObstacleResponse:
         w = w - dot(w, nvec)[:, None] * nvec
         wn = norm(w)
         ok = wn > 1e-12 * L
-        e1 = np.where(ok[:, None], w / np.where(ok, wn, 1.0)[:, None], any_perpendicular(nvec))
+        e1 = unit_or_perpendicular(w, wn, ok, nvec)
         e2 = cross(nvec, e1)
-        cos_c, sin_c = np.cos(_CIRCLE_ANGLES), np.sin(_CIRCLE_ANGLES)
-        ring = cos_c[None, :, None] * e1[:, None, :] + sin_c[None, :, None] * e2[:, None, :]  # (h,24,3)
+        ring = _CIRCLE_COS[None, :, None] * e1[:, None, :] + _CIRCLE_SIN[None, :, None] * e2[:, None, :]  # (h,24,3)
         circle_pts = center[:, None, :] + rho[:, None, None] * ring
         circle_dirs = (circle_pts - a[:, None, :]) / L[:, None, None]
-        polar = np.repeat(_SPHERE_POLAR, _CIRCLE_SAMPLES)
-        azim = np.tile(_CIRCLE_ANGLES, _SPHERE_POLAR.size)
-        sphere_dirs = (np.cos(polar)[None, :, None] * nvec[:, None, :]
-                       + (np.sin(polar) * np.cos(azim))[None, :, None] * e1[:, None, :]
-                       + (np.sin(polar) * np.sin(azim))[None, :, None] * e2[:, None, :])
+        sphere_dirs = (_SPHERE_AXIS[None, :, None] * nvec[:, None, :]
+                       + _SPHERE_E1[None, :, None] * e1[:, None, :]
+                       + _SPHERE_E2[None, :, None] * e2[:, None, :])
         dirs = np.concatenate([circle_dirs, sphere_dirs], axis=1)
         dirs = dirs / norm(dirs)[..., None]
         if limit_fn is not None:
@@ -105,7 +112,7 @@ class ObstacleResponse:
         #   position, circle and sphere alike: every circle point is `dis` away, a needlessly large jump for
         #   a segment that only grazes a box, and the smallest correction keeps FABRIK converging.
         never = score == np.iinfo(np.int64).max
-        order = np.broadcast_to(np.arange(score.shape[1]) / score.shape[1], score.shape)
+        order = np.broadcast_to(_ORDER, score.shape)
         deviation = norm(pts - p[:, None, :]) / (2.0 * L[:, None])  # < 1: never outweighs a penetration
         tiebreak = np.where(inside[h].any(axis=1)[:, None], order, deviation)
         key = np.where(never, np.inf, score + 0.5 * tiebreak)

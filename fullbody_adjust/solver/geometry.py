@@ -64,6 +64,13 @@ def any_perpendicular(v):
     return p / norm(p)[..., None]
 
 
+def unit_or_perpendicular(w, wn, ok, v):
+    """Rows (b,3): w / wn where ok (b,), else any_perpendicular(v) (the fallback only built when needed)."""
+    if ok.all():
+        return w / wn[:, None]
+    return np.where(ok[:, None], w / np.where(ok, wn, 1.0)[:, None], any_perpendicular(v))
+
+
 def swing_rotation(old_dirs, new_dirs):
     """Minimal rotation matrices (...,3,3) taking the directions old_dirs to new_dirs (need not be unit).
 

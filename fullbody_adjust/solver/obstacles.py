@@ -10,6 +10,12 @@ import numpy as np
 
 from .errors import SolverInputError
 
+# The ufuncs' own reductions: np.all/np.max/np.min are these behind a Python wrapper that cost about as much
+# again on the chain solver's small arrays.
+_ALL_REDUCE = np.logical_and.reduce
+_MAX_REDUCE = np.maximum.reduce
+_MIN_REDUCE = np.minimum.reduce
+
 
 @dataclass(frozen=True)
 class Boxes:
@@ -150,7 +156,7 @@ def points_inside(points, boxes):
         return _few_tests(_inside_one, boxes, p)
     mins, maxs, axes = _box_arrays(boxes, p.ndim - 1)
     q = _in_box_frames(p, axes)
-    return np.all((q >= mins) & (q <= maxs), axis=-1)
+    return _ALL_REDUCE((q >= mins) & (q <= maxs), axis=-1)
 
 
 def segments_cross(a, b, boxes):
@@ -160,7 +166,8 @@ def segments_cross(a, b, boxes):
     b = np.asarray(b, dtype=np.float64)
     if a.shape == b.shape and _few(a, boxes):
         return _few_tests(_crosses_one, boxes, a, b)
-    a, b = np.broadcast_arrays(a, b)
+    if a.shape != b.shape:
+        a, b = np.broadcast_arrays(a, b)
     mins, maxs, axes = _box_arrays(boxes, a.ndim - 1)
     p = _in_box_frames(a, axes)
     d = _in_box_frames(b, axes) - p
@@ -170,12 +177,13 @@ def segments_cross(a, b, boxes):
         t2 = (maxs - p) / d
     lo = np.minimum(t1, t2)
     hi = np.maximum(t1, t2)
-    # An axis the segment does not move along: inside the slab -> no constraint, outside -> empty interval.
-    in_slab = (p >= mins) & (p <= maxs)
-    lo = np.where(flat, np.where(in_slab, -np.inf, np.inf), lo)
-    hi = np.where(flat, np.where(in_slab, np.inf, -np.inf), hi)
-    t_enter = np.maximum(np.max(lo, axis=-1), 0.0)
-    t_exit = np.minimum(np.min(hi, axis=-1), 1.0)
+    if flat.any():
+        # An axis the segment does not move along: inside the slab -> no constraint, outside -> empty interval.
+        in_slab = (p >= mins) & (p <= maxs)
+        lo = np.where(flat, np.where(in_slab, -np.inf, np.inf), lo)
+        hi = np.where(flat, np.where(in_slab, np.inf, -np.inf), hi)
+    t_enter = np.maximum(_MAX_REDUCE(lo, axis=-1), 0.0)
+    t_exit = np.minimum(_MIN_REDUCE(hi, axis=-1), 1.0)
     return t_enter <= t_exit
 
 

@@ -7,7 +7,7 @@ from itertools import combinations
 import numpy as np
 
 from . import reach_balls_plain
-from .geometry import any_perpendicular, cross, dot, norm
+from .geometry import cross, dot, norm, unit_or_perpendicular
 
 _EYE = np.eye(3)
 # Relative slack of "inside a ball" tests on computed points (their rounding is ~1e-16 relative).
@@ -48,7 +48,7 @@ def _circle_point(point, c1, r1, c2, r2):
     w = w - dot(w, u)[:, None] * u
     wn = norm(w)
     # On the axis every circle point is equally near: take a deterministic one.
-    w = np.where((wn > 1e-15)[:, None], w / np.where(wn > 1e-15, wn, 1.0)[:, None], any_perpendicular(u))
+    w = unit_or_perpendicular(w, wn, wn > 1e-15, u)
     return m + h[:, None] * w, ok
 
 
