@@ -299,7 +299,7 @@ class _Problem(SubBasePlacement, LimbPlacement):
                 # while its base moves by more than the reach margin: its best effort cannot gain more.
                 worth = np.where(fixable[n], changed, turn[n] > self.settings.reach_margin * self.reach_eff[n])
                 retry |= far[n] & worth
-            if not np.any(retry):
+            if not retry.any():
                 break
             r = np.nonzero(retry)[0]
             offsets = {n: turned[n][r] for n in upper}
@@ -376,6 +376,6 @@ def _frames_array(a, label, shape):
         raise SolverInputError(f"{label} must have shape (F,{shape[0]},{shape[1]}), got {arr.shape}")
     if arr.shape[0] == 0:
         raise SolverInputError(f"{label} have no frames")
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         raise SolverInputError(f"{label} have NaN/inf")
     return arr

@@ -83,7 +83,7 @@ def solve_chain_batch(positions, targets, *, settings=ChainSettings(), limits=No
     t = np.asarray(targets, dtype=np.float64)
     if t.shape != (p.shape[0], 3):
         raise SolverInputError(f"targets must have shape ({p.shape[0]},3), got {t.shape}")
-    if not np.all(np.isfinite(t)):
+    if not np.isfinite(t).all():
         raise SolverInputError("target has NaN/inf")
     model = ChainModel(p, t, settings, limits, obstacles, parent_directions)
     return model.solve(p)
@@ -101,7 +101,7 @@ def _as_chains(positions, batched):
         raise SolverInputError(f"positions must have shape {'(B,n,3)' if batched else '(n,3)'}, got {p.shape}")
     if p.shape[-2] < 2:
         raise SolverInputError("a chain needs at least 2 joints")
-    if not np.all(np.isfinite(p)):
+    if not np.isfinite(p).all():
         raise SolverInputError("positions have NaN/inf")
     return p
 
@@ -110,7 +110,7 @@ def _as_vector(v, name):
     v = np.asarray(v, dtype=np.float64)
     if v.shape != (3,):
         raise SolverInputError(f"{name} must have shape (3,), got {v.shape}")
-    if not np.all(np.isfinite(v)):
+    if not np.isfinite(v).all():
         raise SolverInputError(f"{name} has NaN/inf")
     return v
 

@@ -82,7 +82,7 @@ class ChainModel(ObstacleResponse, TwoBoneFinish):
             if not np.all(np.isfinite(pd)):
                 raise SolverInputError("parent_direction has NaN/inf")
             pn = norm(pd)
-            if np.any(pn <= 1e-12):
+            if (pn <= 1e-12).any():
                 raise SolverInputError("parent_direction has zero length")
             self.parent_dirs = pd / pn[:, None]
         if self.limits is not None and self.limits.kind[0] != FREE and self.parent_dirs is None:

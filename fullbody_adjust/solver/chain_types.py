@@ -83,7 +83,7 @@ def _segment_lengths(p):
     seg = p[..., 1:, :] - p[..., :-1, :]
     lengths = norm(seg)
     short = lengths <= MIN_SEGMENT_LENGTH
-    if np.any(short):
+    if short.any():
         raise SolverInputError(f"segment {int(np.nonzero(short)[-1][0])} has zero length")
     return lengths
 

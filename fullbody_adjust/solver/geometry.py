@@ -30,7 +30,7 @@ def norm(v):
 def cross(a, b):
     """Row-wise cross product; np.cross is several times slower for small arrays."""
     a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out = np.empty(a.shape if a.shape == b.shape else np.broadcast_shapes(a.shape, b.shape))
     out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
     out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
     out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
@@ -43,14 +43,14 @@ def normalize(v, fallback=None):
     v = np.asarray(v, dtype=np.float64)
     n = norm(v)
     zero = ~(n > TINY)
-    if not np.any(zero):
+    if not zero.any():
         return v / n[..., None]
     if fallback is None:
         raise SolverInputError("cannot normalise a zero-length vector")
     fb = np.broadcast_to(np.asarray(fallback, dtype=np.float64), v.shape)
     safe = np.where(zero[..., None], fb, v)
     n = norm(safe)
-    if np.any(~(n > TINY)):
+    if (~(n > TINY)).any():
         raise SolverInputError("cannot normalise a zero-length vector (fallback is zero too)")
     return safe / n[..., None]
 
@@ -88,7 +88,7 @@ def swing_rotation(old_dirs, new_dirs):
     w = b - c[..., None] * a
     s = norm(w)
     degenerate = ~(s > 1e-14)
-    if np.any(degenerate):
+    if degenerate.any():
         w = np.where(degenerate[..., None], any_perpendicular(a), w)
     w = w - dot(w, a)[..., None] * a
     e2 = w / norm(w)[..., None]

@@ -110,18 +110,18 @@ class LimbPlacement:
             for j, p, role, name, k in limb_bones:
                 if role == ROOT:
                     heads[:, j] = H0[:, j] + delta  # x + 0.0 == x: an unmoved root stays bit-exact
-                    moved[:, j] = np.any(delta != 0.0, axis=1)
+                    moved[:, j] = (delta != 0.0).any(axis=1)
                 elif role == CHAIN:
                     ls = solves[name]
                     s = ls.solved
-                    if np.any(s):
+                    if s.any():
                         heads[s, j] = ls.joints[s, k]
                         rot[s, j] = ls.segment_rotations(self.chain0[name], self.limits.get(name))[s, k]
                         moved[s, j] = True
                 else:
                     ls = solves[name]
                     s = ls.solved
-                    if np.any(s):
+                    if s.any():
                         # Hands, feet and the head keep their world orientation on a solved limb.
                         heads[s, j] = ls.joints[s, -1]
                         rot[s, j] = _EYE
@@ -131,7 +131,7 @@ class LimbPlacement:
                         rot[w, j] = end_rotation(self.end_turns[name][w], rot[w, p], T0[w, j] - H0[w, j])
                         moved[w, j] = True
         _carry(heads, rot, moved, H0, *self.prepared.leaves)  # fingers, face...: on their nearest placed ancestor
-        tails = np.where(moved[..., None], heads + apply_matrix(rot, T0 - H0), T0) if np.any(moved) else T0.copy()
+        tails = np.where(moved[..., None], heads + apply_matrix(rot, T0 - H0), T0) if moved.any() else T0.copy()
         return heads, tails, rot, solves
 
     def _solve_limbs(self, starts):

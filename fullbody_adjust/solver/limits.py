@@ -148,7 +148,7 @@ class JointLimits:
 
     @property
     def any_active(self):
-        return bool(np.any(self.kind != FREE))
+        return bool((self.kind != FREE).any())
 
     def per_joint_key(self):
         """The limits every problem of a batch shares (kinds, cone angles, hinge ranges and twists), as a

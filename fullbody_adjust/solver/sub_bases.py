@@ -75,13 +75,13 @@ class SubBasePlacement:
             lean_r = chord
         else:
             lean, ok_lean = nearest_on_sphere_in_balls(pref, trunk_base, lean_r, centres, radii, active)
-        if np.all(ok_lean):
+        if ok_lean.all():
             return lean, ok_lean
         bend, ok_bend = nearest_in_balls(
             pref, np.concatenate([centres, trunk_base[:, None]], axis=1),
             np.concatenate([radii, trunk_r[:, None]], axis=1),
             np.concatenate([active, np.ones((len(rows), 1), dtype=bool)], axis=1))
-        if np.all(ok_lean | ok_bend):
+        if (ok_lean | ok_bend).all():
             return np.where(ok_lean[:, None], lean, bend), ok_lean
         arms_only, _ = sub_base_point(pref, centres, radii, active, prio, self.settings.variant)
         out = np.where(ok_bend[:, None], bend, arms_only)
@@ -138,12 +138,12 @@ class SubBasePlacement:
         if need_root.any():
             n = np.nonzero(need_root)[0]
             delta[n] = self._root_delta(rows[n], np.zeros((n.size, 3)), sc_star[n] - base0[n], need_sc[n])
-        moved_root = np.any(delta != 0.0, axis=1)
+        moved_root = (delta != 0.0).any(axis=1)
 
         # A root moved for the feet carries the SC along if the arms still reach from there; else the SC goes
         # to the nearest point (to where it was carried) from which they do.
         carried = ~need_sc & any_upper & moved_root
-        if np.any(carried):
+        if carried.any():
             sc_c = sc0 + delta
             need_c = carried & ~self._in_reach(upper, rows, {n: sc_c + offsets[n] for n in upper})
             if need_c.any():
@@ -173,7 +173,7 @@ class SubBasePlacement:
             # remaining error, as far as the feet allow. Not past obstacles: a blocked trunk stays.
             err = sc_star[solve] - res.positions[:, -1]
             late = (norm(err) > self.settings.chain.tolerance) & np.isin(res.status, ("limited", "max_iterations"))
-            if np.any(late):
+            if late.any():
                 s2 = solve[late]
                 d2 = self._root_delta(rows[s2], delta[s2] + err[late], np.zeros((s2.size, 3)),
                                       np.zeros(s2.size, dtype=bool))
