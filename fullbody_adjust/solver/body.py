@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import hinge_axis_plain
 from .errors import SolverInputError
 from .geometry import any_perpendicular, apply_matrix, cross, dot, norm, normalize
 from .limits import CONE, HINGE, JointLimits
@@ -32,6 +33,9 @@ from .vocabulary import EFFECTORS, GROUPS, REQUIRED_GROUPS, SINGLE_BONE_GROUPS
 # Chain groups ("limbs"), in the order Algorithm 1 solves them: trunk, then arms (and head), then legs.
 LIMB_NAMES = ("trunk", "arm.L", "arm.R", "head", "leg.L", "leg.R")
 LIMB_OF_EFFECTOR = {"hand.L": "arm.L", "hand.R": "arm.R", "foot.L": "leg.L", "foot.R": "leg.R", "head": "head"}
+# Up to this many frames the default hinge axes are computed in plain floats (hinge_axis_plain): a click's new
+# start pose computes them for the limbs it moved, where numpy's per-call cost was most of the time.
+_FEW_FRAMES = 4
 _MIN_BONES = {"trunk": 1, "arm.L": 2, "arm.R": 2, "leg.L": 2, "leg.R": 2, "head": 1}
 
 # Roles of bones in the propagation pass (adjust.py): how a bone's new head and rotation are found.
@@ -409,7 +413,8 @@ class LimitStart:
         cone = np.full(m, math.pi)
         lo = np.full(m, -math.pi)
         hi = np.full(m, math.pi)
-        axes = np.tile(np.array([0.0, 0.0, 1.0]), (n_frames, m, 1))
+        axes = np.zeros((n_frames, m, 3))
+        axes[..., 2] = 1.0
         parent_dir = None
 
         def set_cone(i, angle):
@@ -458,6 +463,10 @@ def _hinge_axis(parent_seg, child_seg, bend_side, x_axis, bent_angle):
     A clearly bent start pose defines the hinge plane (axis = parent x child); a nearly straight one takes
     the bone's X axis (if given; sign matched to the heuristic) or the body-frame heuristic
     axis = parent x bend_side (elbows bend forward, knees backward)."""
+    if parent_seg.shape[0] <= _FEW_FRAMES:
+        axes = hinge_axis_plain.hinge_axes(parent_seg, child_seg, bend_side, x_axis, bent_angle)
+        if axes is not None:
+            return axes
     u = normalize(parent_seg)
     heuristic = cross(u, normalize(bend_side))
     weak = norm(heuristic) < 0.3  # limb nearly along the bend side: fall back to any perpendicular

@@ -68,11 +68,11 @@ class JointLimits:
         for name, arr in (("hinge_axis", axis), ("hinge_reference", ref)):
             if arr is not None and arr.shape != (m, 3) and not (arr.ndim == 3 and arr.shape[1:] == (m, 3)):
                 raise SolverInputError(f"joint limits: {name} must be ({m},3) or (B,{m},3), got {arr.shape}")
-        if np.any((kind < FREE) | (kind > HINGE)):
+        if ((kind < FREE) | (kind > HINGE)).any():
             raise SolverInputError("joint limits: kind must be FREE=0, CONE=1 or HINGE=2")
         for name, arr in (("cone_angle", cone), ("hinge_axis", axis), ("hinge_min", lo), ("hinge_max", hi),
                           ("hinge_twist", twist), ("hinge_reference", ref)):
-            if arr is not None and not np.all(np.isfinite(arr)):
+            if arr is not None and not np.isfinite(arr).all():
                 raise SolverInputError(f"joint limits: {name} has NaN/inf")
         for i in np.nonzero(kind == CONE)[0]:
             if not 0.0 <= cone[i] <= math.pi:
@@ -80,11 +80,11 @@ class JointLimits:
         for i in np.nonzero(kind == HINGE)[0]:
             if not -math.pi <= lo[i] <= hi[i] <= math.pi:
                 raise SolverInputError(f"joint {i}: hinge range must satisfy -pi <= min <= max <= pi")
-            if np.any(norm(axis[..., i, :]) <= 1e-12):
+            if (norm(axis[..., i, :]) <= 1e-12).any():
                 raise SolverInputError(f"joint {i}: hinge axis has zero length")
             if not 0.0 <= twist[i] < math.pi / 2:
                 raise SolverInputError(f"joint {i}: hinge twist must be in [0, pi/2)")
-            if ref is not None and i > 0 and np.any(norm(ref[..., i, :]) <= 1e-12):
+            if ref is not None and i > 0 and (norm(ref[..., i, :]) <= 1e-12).any():
                 raise SolverInputError(f"joint {i}: hinge reference direction has zero length")
         for arr in (kind, cone, axis, lo, hi, twist) + (() if ref is None else (ref,)):
             arr.setflags(write=False)
