@@ -29,10 +29,6 @@ def bone_limits(pose_bone):
     orientation in its parent's). AdjustError (one line) for a constraint range that is empty."""
     if not pose_bone.constraints and not any(getattr(pose_bone, name) for name in _IK_SETTINGS):
         return _NO_LIMITS  # most bones, on every Live update: no need for their rest orientation
-    bone = pose_bone.bone
-    rest = bone.matrix_local.to_3x3().normalized()
-    if bone.parent is not None:
-        rest = bone.parent.matrix_local.to_3x3().normalized().inverted() @ rest
     locked = tuple(getattr(pose_bone, f"lock_ik_{a}") for a in "xyz")
     ranges = [(getattr(pose_bone, f"ik_min_{a}"), getattr(pose_bone, f"ik_max_{a}"))
               if getattr(pose_bone, f"use_ik_limit_{a}") else None for a in "xyz"]
@@ -52,6 +48,12 @@ def bone_limits(pose_bone):
                     raise AdjustError(f"Bone '{pose_bone.name}': the {AXES[k]} range of Limit Rotation "
                                       f"'{con.name}' and the bone's other {AXES[k]} limits do not overlap")
             ranges[k] = (lo, hi)
+    if not any(locked) and all(r is None for r in ranges):
+        return _NO_LIMITS  # constraints of other kinds only (a control rig's bones): the rest orientation unread
+    bone = pose_bone.bone
+    rest = bone.matrix_local.to_3x3().normalized()
+    if bone.parent is not None:
+        rest = bone.parent.matrix_local.to_3x3().normalized().inverted() @ rest
     return BoneLimitSpec(locked, tuple(ranges), np.array(rest, dtype=np.float64))
 
 
