@@ -179,7 +179,7 @@ def apply_channels(obj, channels):
             if prop not in CHANNEL_SIZES or value.shape != (CHANNEL_SIZES[prop],):
                 raise ValueError(f"apply_channels: bone '{name}': {prop} needs {CHANNEL_SIZES.get(prop, '?')} "
                                  f"values, got shape {value.shape}")
-            if not np.all(np.isfinite(value)):
+            if not np.isfinite(value).all():
                 raise ValueError(f"apply_channels: bone '{name}': {prop} has NaN/inf")
             if prop.startswith("rotation_") and ROTATION_PROPERTY[pose_bone.rotation_mode] != prop:
                 raise ValueError(f"apply_channels: bone '{name}' rotates in mode {pose_bone.rotation_mode}, "
@@ -188,7 +188,7 @@ def apply_channels(obj, channels):
     for pose_bone, prop, value in writes:
         if prop.startswith("rotation_"):
             value = continuous_rotation(prop, pose_bone.rotation_mode, value, np.array(getattr(pose_bone, prop)))
-        setattr(pose_bone, prop, tuple(float(v) for v in value))
+        setattr(pose_bone, prop, value.tolist())
 
 
 def continuous_rotation(prop, mode, value, reference):
@@ -387,7 +387,7 @@ def _reachable_armature_matrices(snapshot, new_world, idx):
 def _head_moved(bone, local, location, current, rest, pose_matrix, parent_kwargs, tolerance):
     """Whether keeping the bone's current location would leave its head off the requested one, compared in
     armature space (location is in the parent's possibly scaled space)."""
-    if np.array_equal(np.asarray(location), current):
+    if tuple(location) == tuple(current.tolist()):  # np.array_equal costs several times more
         return False
     kept = local.copy()
     kept.translation = Vector(current)
