@@ -40,7 +40,7 @@ from .limb_placement import LimbPlacement
 from .limb_rotations import LimbSolve, chest_rotation
 from .limits import FREE
 from .obstacles import Boxes
-from .prepared import prepare
+from .prepared import group_bones, prepare
 from .reach_balls import nearest_in_balls, project_onto_balls, sub_base_point
 from .sub_bases import SubBasePlacement
 
@@ -316,45 +316,36 @@ class _Problem(SubBasePlacement, LimbPlacement):
 
     def _result(self, heads, tails, rotations, solves) -> AdjustBatchResult:
         model, F = self.model, self.F
-        E = len(self.effectors)
         tol = self.settings.chain.tolerance
-        residuals = np.full((F, E), np.nan)
-        status = np.full((F, E), UNCONSTRAINED, dtype=object)
-        reasons = np.full((F, E), "no target on this frame", dtype=object)
+        # Every effector at once (F,E): each limb's end against its target.
+        names = [LIMB_OF_EFFECTOR[e] for e in self.effectors]
+        act = self.active_e
+        pos = heads[:, [model.limbs[name].end_bone for name in names]]
+        res = norm(pos - np.where(act[..., None], self.targets, 0.0))
+        residuals = np.where(act, res, np.nan)
+        met = act & (res <= tol)
+        st = np.stack([solves[name].status for name in names], axis=1).astype(object)
+        why = np.stack([solves[name].reason for name in names], axis=1).astype(object)
+        # Met by its chain, then moved (cannot happen with rigid propagation).
+        moved_off = act & ~met & (st == "reached")
+        st[moved_off] = "unreachable"
+        why[moved_off] = "moved off its target after the chain solve"
         trunk = solves["trunk"]
-        for k, e in enumerate(self.effectors):
-            name = LIMB_OF_EFFECTOR[e]
-            limb = model.limbs[name]
-            act = self.active_e[:, k]
-            pos = heads[:, limb.end_bone]
-            res = norm(pos - np.where(act[:, None], self.targets[:, k], 0.0))
-            residuals[act, k] = res[act]
-            ls = solves[name]
-            rows = np.nonzero(act)[0]
-            met = res[rows] <= tol
-            st = np.array(ls.status[rows], dtype=object)
-            why = np.array(ls.reason[rows], dtype=object)
-            # Met by its chain, then moved (cannot happen with rigid propagation).
-            moved_off = ~met & (st == "reached")
-            st[moved_off] = "unreachable"
-            why[moved_off] = "moved off its target after the chain solve"
-            if limb.hub == "sc":
-                t_st = np.asarray(trunk.status)[rows]
-                by_trunk = ~met & (st == "unreachable") & np.asarray(trunk.solved)[rows] \
-                    & ((t_st == "blocked") | (t_st == "limited"))
-                for i in np.nonzero(by_trunk)[0]:
-                    f = rows[i]
-                    st[i], why[i] = trunk.status[f], f"the trunk could not bring the SC into reach: {trunk.reason[f]}"
-            st[met] = "reached"
-            why[met & np.array([not r for r in why], dtype=bool)] = "reached"
-            status[rows, k] = st
-            reasons[rows, k] = why
+        t_st = np.asarray(trunk.status)
+        trunk_stuck = np.asarray(trunk.solved) & ((t_st == "blocked") | (t_st == "limited"))
+        on_sc = np.array([model.limbs[name].hub == "sc" for name in names])
+        by_trunk = act & ~met & (st == "unreachable") & on_sc & trunk_stuck[:, None]
+        for f, k in zip(*np.nonzero(by_trunk)):
+            st[f, k], why[f, k] = trunk.status[f], f"the trunk could not bring the SC into reach: {trunk.reason[f]}"
+        st[met] = "reached"
+        why[met & (why == "")] = "reached"
+        status = np.where(act, st, UNCONSTRAINED)
+        reasons = np.where(act, why, "no target on this frame")
         moved = np.zeros((F, len(GROUPS)), dtype=bool)
         bone_moved = ((heads != self.H0) | (tails != self.T0)).any(axis=2)  # (F,J)
-        for g, name in enumerate(GROUPS):
-            bones = list(model.groups.get(name, ()))
-            if bones:
-                moved[:, g] = bone_moved[:, bones].any(axis=1)
+        columns, bones, starts = group_bones(model)
+        if columns.size:
+            moved[:, columns] = np.logical_or.reduceat(bone_moved[:, bones], starts, axis=1)
         chest = model.groups["trunk"][-1]
         sc_disp = norm(tails[:, chest] - self.T0[:, chest])
         root_disp = norm(heads[:, model.root] - self.H0[:, model.root])

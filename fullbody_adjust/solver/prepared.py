@@ -30,6 +30,7 @@ from .chain_model import ChainModel
 from .chain_types import _reach_bounds
 from .errors import SolverInputError
 from .geometry import norm
+from .vocabulary import GROUPS
 
 _CAPACITY = 4
 _MAX_CACHED_FRAMES = 16
@@ -166,6 +167,24 @@ def levels_of(model):
 
 
 _levels_cache = OrderedDict()
+
+
+def group_bones(model):
+    """(columns, bones, starts) of the model's GROUPS that have bones: their columns in GROUPS, their bones
+    concatenated in that order and where each group's run starts, for one np.logical_or.reduceat over a (F,J)
+    mask per frame and group; computed once per model."""
+    return _kept(_groups_cache, _CAPACITY, id(model), lambda: (model, _group_bones(model)),
+                 valid=lambda entry: entry[0] is model)[1]
+
+
+_groups_cache = OrderedDict()
+
+
+def _group_bones(model):
+    columns = [g for g, name in enumerate(GROUPS) if model.groups.get(name)]
+    runs = [model.groups[GROUPS[g]] for g in columns]
+    starts = np.cumsum([0] + [len(run) for run in runs[:-1]])
+    return np.array(columns, dtype=np.int64), np.array([b for run in runs for b in run], dtype=np.int64), starts
 
 
 def _levels(model):
