@@ -12,6 +12,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from fullbody_adjust.solver.adjust import AdjustSettings, adjust_frames, adjust_pose
+from fullbody_adjust.solver.body import HumanLimits
 from fullbody_adjust.solver.obstacles import points_inside, segments_cross
 from tests.helpers import metarig
 
@@ -103,3 +104,27 @@ def test_a_box_where_the_forearm_would_go_is_avoided(rig):
     assert not points_inside(joints, boxes).any()
     assert not segments_cross(joints[:-1], joints[1:], boxes).any()
 
+
+
+def test_a_hand_the_held_trunk_cannot_bring_into_reach_reports_the_trunk(rig):
+    """A spine held nearly straight (2 and 1 degree cones) and a hand target to the side that only a bending trunk
+    would bring into reach: the trunk's chain ends limited, and a hand left short says so, with the trunk's status
+    (on the batch's frames as when each pose is solved alone)."""
+    model, h, t, x = rig
+    height = float(np.ptp(np.concatenate([h, t])[:, 2]))
+    stiff = AdjustSettings(human_limits=HumanLimits(lumbar=np.radians(2.0), spine=np.radians(1.0)))
+    base, _ = metarig.case(model, h, t, "near")
+    targets = np.repeat(base[None], 3, axis=0)
+    side = np.array([[-0.36, 0.53, 0.065], [0.51, 0.56, -0.285], [0.36, 0.51, -0.034]])  # in body heights
+    targets[:, 0] = h[model.root] + side * height
+    batch = _frames(rig, targets, None, settings=stiff)
+    tol = stiff.chain.tolerance
+    by_trunk = np.char.startswith(batch.reasons, "the trunk could not bring the SC into reach: ")
+    assert by_trunk[:, :2].any(axis=1).all() and not by_trunk[:, 2:].any()  # hands only, on every frame
+    assert np.all(batch.status[by_trunk] == "limited") and np.all(batch.residuals[by_trunk] > tol)
+    assert np.all(batch.sc_displacement > 0.0)
+    for f in range(len(targets)):
+        alone = adjust_pose(model, h, t, targets[f], metarig.EFFECTORS, metarig.PRIORITIES, bone_x_axes=x,
+                            settings=stiff)
+        np.testing.assert_array_equal(alone.status, batch.status[f])
+        np.testing.assert_array_equal(alone.reasons, batch.reasons[f])
