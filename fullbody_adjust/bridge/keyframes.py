@@ -189,18 +189,28 @@ def merge_keys(fcurve, frames, values):
         fcurve.update()
 
 
+_FEW_KEYS = 16
+
+
 def _replace_one_key(fcurve, points, count, frame, value):
     """merge_keys for one frame that already has a key, on an F-Curve in frame order (as fcurve.update()
     leaves it): that key alone is rewritten, the same way (its handles move with it). Clicks key one frame,
     and rewriting every key of every curve costs more than the solve's keys are worth. False (nothing
     written) when the general path is needed."""
     co = _get(points, "co", count, 2, np.float32)
-    existing = co[:, 0].astype(np.float64)
-    if count > 1 and not np.all(existing[1:] > existing[:-1]):
-        return False
-    distance = np.abs(existing - frame)
-    at = int(np.argmin(distance))
-    if not distance[at] < SAME_FRAME:
+    if count <= _FEW_KEYS:  # a curve keyed on a few frames: plain floats, numpy's per-call cost was most of it
+        existing = co[:, 0].tolist()
+        if not all(a < b for a, b in zip(existing, existing[1:])):
+            return False
+        at = min(range(count), key=lambda i: abs(existing[i] - frame))
+        distance = abs(existing[at] - frame)
+    else:
+        existing = co[:, 0].astype(np.float64)
+        if not np.all(existing[1:] > existing[:-1]):
+            return False
+        at = int(np.argmin(np.abs(existing - frame)))
+        distance = abs(existing[at] - frame)
+    if not distance < SAME_FRAME:
         return False
     key = points[at]
     delta = value - float(co[at, 1])

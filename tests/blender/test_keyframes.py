@@ -174,6 +174,38 @@ def test_keys_on_other_frames_and_bones_are_kept_and_same_frame_replaced(rig):
     np.testing.assert_allclose(evaluated_values(rig, 10, "a", "location"), [1, 2, 3], atol=1e-6)
 
 
+@pytest.mark.parametrize("frame", [1, 10, 20])
+def test_one_frame_keyed_again_rewrites_that_key_alone(rig, frame):
+    """A click keys one frame: on curves keyed at 1, 10 and 20 only the key at that frame takes the new value,
+    its free handles moving with it; the other keys keep their frames and values. A frame between keys is
+    added as a new key."""
+    keyed_rig(rig)
+    for fc in animating_fcurves(rig):
+        if fc.data_path == path("a", "location"):
+            point = next(p for p in fc.keyframe_points if p.co.x == frame)
+            point.handle_left_type = point.handle_right_type = "FREE"
+    before = fcurves_of(rig)
+    location = np.array([[7.0, -8.0, 9.0]])
+    key_bones_frames(rig, ["a"], [frame], {"a": {"location": location}})
+    after = fcurves_of(rig)
+    for key, curve in before.items():
+        if key[0] != path("a", "location"):
+            assert_same_curve(after[key], curve)
+            continue
+        new = after[key]
+        at = list(curve["co"][:, 0]).index(frame)
+        delta = np.float32(location[0, key[1]]) - curve["co"][at, 1]
+        assert new["co"][at, 1] == np.float32(location[0, key[1]])
+        for handle in ("left", "right"):
+            np.testing.assert_allclose(new[handle][at], curve[handle][at] + [0.0, delta], atol=1e-5)
+        others = np.arange(len(curve["co"])) != at
+        np.testing.assert_array_equal(new["co"][others], curve["co"][others])
+        np.testing.assert_array_equal(new["interpolation"], curve["interpolation"])
+    key_bones_frames(rig, ["a"], [frame + 4], {"a": {"location": location}})
+    np.testing.assert_array_equal(fcurves_of(rig)[(path("a", "location"), 0)]["co"][:, 0],
+                                  sorted([1, 10, 20, frame + 4]))
+
+
 def test_keying_the_same_frame_twice_replaces_the_key(rig):
     set_pose(rig, 0)
     key_bones(rig, ["c"], 3, channels=("rotation",))
