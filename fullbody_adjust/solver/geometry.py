@@ -11,6 +11,8 @@ from .errors import SolverInputError
 TINY = 1e-300
 _EYE = np.eye(3)
 _ADD_REDUCE = np.add.reduce
+# Above this many products dot sums its three columns as slices (measured: from a few hundred rows on).
+_SUMMED_BY_SLICES = 600
 # Up to this many rotations swing_rotation builds them from outer products (fewer numpy calls); beyond, entry
 # by entry (less memory traffic on large batches).
 _FEW_ROTATIONS = 256
@@ -18,8 +20,12 @@ _FEW_ROTATIONS = 256
 
 def dot(a, b):
     """Row-wise dot product (...,3)·(...,3) -> (...). Summed in order, (x0 + x1) + x2, so batched and single
-    calls round the same (numpy adds a three-element last axis in order; einsum does not always)."""
-    return _ADD_REDUCE(np.multiply(a, b), axis=-1)
+    calls round the same (numpy adds a three-element last axis in order; einsum does not always). On many rows
+    the sum is written out: a reduction over a last axis of 3 costs several times more there."""
+    p = np.multiply(a, b)
+    if p.size > _SUMMED_BY_SLICES:
+        return (p[..., 0] + p[..., 1]) + p[..., 2]
+    return _ADD_REDUCE(p, axis=-1)
 
 
 def norm(v):

@@ -10,12 +10,6 @@ import numpy as np
 
 from .errors import SolverInputError
 
-# The ufuncs' own reductions: np.all/np.max/np.min are these behind a Python wrapper that cost about as much
-# again on the chain solver's small arrays.
-_ALL_REDUCE = np.logical_and.reduce
-_MAX_REDUCE = np.maximum.reduce
-_MIN_REDUCE = np.minimum.reduce
-
 
 @dataclass(frozen=True)
 class Boxes:
@@ -156,7 +150,8 @@ def points_inside(points, boxes):
         return _few_tests(_inside_one, boxes, p)
     mins, maxs, axes = _box_arrays(boxes, p.ndim - 1)
     q = _in_box_frames(p, axes)
-    return _ALL_REDUCE((q >= mins) & (q <= maxs), axis=-1)
+    within = (q >= mins) & (q <= maxs)
+    return within[..., 0] & within[..., 1] & within[..., 2]
 
 
 def segments_cross(a, b, boxes):
@@ -182,8 +177,10 @@ def segments_cross(a, b, boxes):
         in_slab = (p >= mins) & (p <= maxs)
         lo = np.where(flat, np.where(in_slab, -np.inf, np.inf), lo)
         hi = np.where(flat, np.where(in_slab, np.inf, -np.inf), hi)
-    t_enter = np.maximum(_MAX_REDUCE(lo, axis=-1), 0.0)
-    t_exit = np.minimum(_MIN_REDUCE(hi, axis=-1), 1.0)
+    # Over the three axes by elementwise max/min of their slices: a reduction over a last axis of 3 costs
+    # several times more on the obstacle response's hundreds of candidates.
+    t_enter = np.maximum(np.maximum(np.maximum(lo[..., 0], lo[..., 1]), lo[..., 2]), 0.0)
+    t_exit = np.minimum(np.minimum(np.minimum(hi[..., 0], hi[..., 1]), hi[..., 2]), 1.0)
     return t_enter <= t_exit
 
 
