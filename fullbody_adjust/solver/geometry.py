@@ -157,8 +157,14 @@ def cross_components(u, v):
 def affine_inverse(m):
     """Inverses of affine matrices (…,4,4) (last row 0 0 0 1), in closed form: numpy's batched inv is
     several times slower for many small matrices. Computed entry by entry on contiguous component arrays
-    (adjugate rows = cross products of the columns, over the determinant)."""
+    (adjugate rows = cross products of the columns, over the determinant). One matrix in plain floats, the same
+    operations (numpy's per-call cost was most of it; a singular one goes the numpy way, to inf or NaN)."""
     m = np.asarray(m, dtype=np.float64)
+    if m.size == 16:
+        try:
+            return np.array(_affine_inverse_one(m.reshape(4, 4).tolist())).reshape(m.shape)
+        except ZeroDivisionError:
+            pass
     a = [[np.ascontiguousarray(m[..., i, j]) for j in range(3)] for i in range(3)]
     col = [[a[0][j], a[1][j], a[2][j]] for j in range(3)]
     rows = [cross_components(col[1], col[2]), cross_components(col[2], col[0]), cross_components(col[0], col[1])]
@@ -172,3 +178,12 @@ def affine_inverse(m):
         out[..., i, 3] = -(inv[i][0] * t[0] + inv[i][1] * t[1] + inv[i][2] * t[2])
     out[..., 3, 3] = 1.0
     return out
+
+
+def _affine_inverse_one(m):
+    col = [[m[0][j], m[1][j], m[2][j]] for j in range(3)]
+    rows = [cross_components(col[1], col[2]), cross_components(col[2], col[0]), cross_components(col[0], col[1])]
+    det = col[0][0] * rows[0][0] + col[0][1] * rows[0][1] + col[0][2] * rows[0][2]
+    inv = [[rows[i][j] / det for j in range(3)] for i in range(3)]
+    return [[*inv[i], -(inv[i][0] * m[0][3] + inv[i][1] * m[1][3] + inv[i][2] * m[2][3])] for i in range(3)] \
+        + [[0.0, 0.0, 0.0, 1.0]]

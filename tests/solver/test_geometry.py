@@ -84,3 +84,20 @@ def test_affine_inverse_inverts_object_transforms():
     inverse = affine_inverse(matrices)
     np.testing.assert_allclose(inverse @ matrices, np.broadcast_to(np.eye(4), matrices.shape), atol=1e-12)
     np.testing.assert_allclose(inverse, np.linalg.inv(matrices), rtol=1e-10, atol=1e-12)
+
+
+def test_one_affine_inverse_equals_its_row_of_a_batch_bit_for_bit():
+    """A single matrix takes the plain-float path, a batch the numpy one: the same operations, the same bits; a
+    singular matrix gives what the batch gives (inf or NaN), not an error."""
+    rng = np.random.default_rng(8)
+    matrices = np.zeros((200, 4, 4))
+    matrices[:, :3, :] = rng.normal(size=(200, 3, 4)) * rng.uniform(1e-3, 1e3, (200, 1, 1))
+    matrices[:, 3, 3] = 1.0
+    matrices[7, :3, 2] = 0.0  # singular
+    matrices[9, :3, 1] = matrices[9, :3, 0]  # singular
+    with np.errstate(divide="ignore", invalid="ignore"):
+        batch = affine_inverse(matrices)
+        for k in range(len(matrices)):
+            np.testing.assert_array_equal(affine_inverse(matrices[k]), batch[k], err_msg=f"matrix {k}")
+            np.testing.assert_array_equal(affine_inverse(matrices[k:k + 1]), batch[k:k + 1])
+    assert not np.isfinite(batch[[7, 9]]).all()
