@@ -31,6 +31,7 @@ import numpy as np
 from ..solver.vocabulary import REQUIRED_GROUPS
 from .bone_map import GROUP_LABELS, BoneMap, MappingError
 from .mapping_detection import REPORT_ORDER, NotFound, detect, detect_map, missing_message
+from .pose import parent_indices
 from .preset_matching import preset_maps
 from .rig_description import RigDescription, side_of_name
 
@@ -75,8 +76,7 @@ def describe_armature(obj):
     bones = obj.data.bones
     n = len(bones)
     names = tuple(b.name for b in bones)
-    index = {name: i for i, name in enumerate(names)}
-    parents = [index[b.parent.name] if b.parent is not None else -1 for b in bones]
+    parents = parent_indices(bones, names)
     if _is_control_rig(obj):
         parents = _control_rig().skeleton_parents(names, parents)
     heads = np.empty(n * 3, dtype=np.float32)

@@ -207,6 +207,13 @@ def continuous_rotation(prop, mode, value, reference):
 # --- reading --------------------------------------------------------------------------------------------
 
 
+def parent_indices(bones, names):
+    """Each of an armature's ``bones`` (``names``: theirs, in order) as its parent's index, -1 for a root. One RNA
+    read of each bone's parent: a Live update reads them all to know the rig has not changed."""
+    index = {name: i for i, name in enumerate(names)}
+    return [-1 if (parent := bone.parent) is None else index[parent.name] for bone in bones]
+
+
 def read_static(obj):
     """What a PoseSnapshot holds of the rig besides the pose: bone names, parents, connect flags, rotation
     modes and rest matrices."""
@@ -220,8 +227,7 @@ def read_static(obj):
         # Blender keeps both in the same (depth-first) order; the snapshot relies on it.
         raise AdjustError(f"Armature '{obj.name}': pose bones out of step with its bones (enter and leave "
                           f"edit mode to rebuild the pose)")
-    index = {name: i for i, name in enumerate(names)}
-    parents = np.array([index[bone.parent.name] if bone.parent else -1 for bone in bones], dtype=int)
+    parents = np.array(parent_indices(bones, names), dtype=int)
     if np.any(parents >= np.arange(count)):
         raise AdjustError(f"Armature '{obj.name}': a bone is listed before its parent")
     return {

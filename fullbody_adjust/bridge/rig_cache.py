@@ -105,9 +105,5 @@ def _fingerprint(obj):
         bones.foreach_get(prop, buffer)
         arrays.append(buffer.tobytes())
     stored = tuple((item.group, item.bone) for item in obj.fullbody_adjust.bone_map)
-    return (tuple(bones.keys()), tuple(_parents(bones)), *arrays, stored, control_rig.is_generated_rigify(obj))
-
-
-def _parents(bones):
-    index = {name: i for i, name in enumerate(bones.keys())}
-    return [index[bone.parent.name] if bone.parent is not None else -1 for bone in bones]
+    names = tuple(bones.keys())
+    return (names, tuple(pose.parent_indices(bones, names)), *arrays, stored, control_rig.is_generated_rigify(obj))
