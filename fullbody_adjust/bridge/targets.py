@@ -13,6 +13,7 @@ from typing import NamedTuple
 import bpy
 import numpy as np
 
+from ..solver.geometry import norm
 from ..solver.vocabulary import DEFAULT_PRIORITY, EFFECTORS
 from .errors import AdjustError
 from .frames import step_frames
@@ -200,7 +201,7 @@ def _enabled_targets(obj, scene, skip_missing=False):
 
 def _world_matrix(effector, target, depsgraph, frame=None, what="Target"):
     world = np.array(target.evaluated_get(depsgraph).matrix_world, dtype=np.float64)
-    if not np.all(np.isfinite(world[:3, 3])):
+    if not np.isfinite(world[:3, 3]).all():
         where = "" if frame is None else f" at frame {frame:g}"
         raise AdjustError(f"{what} '{target.name}' for {effector} has a non-finite location{where}")
     return world
@@ -221,7 +222,7 @@ def _pole_position(effector, pole, depsgraph, frame=None):
 def _rotation_part(world):
     """World rotation of a 4x4 matrix with its scale removed (orthonormal columns)."""
     linear = world[:3, :3]
-    norms = np.linalg.norm(linear, axis=0)
+    norms = norm(linear.T)  # the columns' lengths, as np.linalg.norm(axis=0) sums them
     return linear / np.where(norms > 0.0, norms, 1.0)
 
 
