@@ -14,6 +14,7 @@ import numpy as np
 from ..solver import Boxes, ChainSettings, SolverInputError
 from ..solver.adjust import AdjustSettings, adjust_frames as solve_frames
 from ..solver.body import CHAIN, END, ROOT
+from ..solver.geometry import norm
 from ..solver.obstacles import penetrations
 from . import control_rig, frames as frames_module, ik_limits, keyframes, mapping, obstacles, pose, rig_cache, targets
 from .control_match import control_channels
@@ -251,7 +252,7 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
         world_effectors = _effector_positions(model, heads, np.eye(4)[None])
     else:
         world_effectors = _effector_positions(model, result.heads, snapshot.matrix_world)
-    residuals = np.linalg.norm(world_effectors - world_targets, axis=-1)
+    residuals = norm(world_effectors - world_targets)
     inside, crossing = _penetrations(model, result.heads, result.tails, boxes)
     return Outcome(frames=np.asarray(frames, dtype=np.float64), effectors=tuple(targets.EFFECTORS),
                    residuals=residuals, status=result.status, reasons=result.reasons, moved_bones=names,
@@ -296,7 +297,7 @@ def _in_armature_units(settings, matrix_world):
     """``settings`` (world units) for a solve in armature space: the tolerance shrunk by the largest object
     scale, so a target met in armature space is met in the world; the obstacle margin grown by the smallest,
     so the clearance kept in the world is at least the margin."""
-    scales = np.linalg.norm(matrix_world[:, :3, :3], axis=-2)  # (F,3): the object's axis scales per frame
+    scales = norm(np.swapaxes(matrix_world[:, :3, :3], -1, -2))  # (F,3): the object's axis scales per frame
     chain = settings.chain
     chain = replace(chain, tolerance=chain.tolerance / float(scales.max()), margin=chain.margin / float(scales.min()))
     return replace(settings, chain=chain)
@@ -357,8 +358,8 @@ def _check_target_distances(obj, world_targets, snapshot):
     """A target further from the rig than _FAR times its size is an error, not a goal: Blender's float32
     positions cannot place anything that far to better than a tenth of the rig (typing inf into a location
     field stores the largest float, 3.4e38)."""
-    distance = np.linalg.norm(world_targets - snapshot.heads[:, :1], axis=-1)  # (F,E), NaN: no target
-    far = np.nonzero(np.any(distance > _FAR * _size(snapshot.heads), axis=0))[0]
+    distance = norm(world_targets - snapshot.heads[:, :1])  # (F,E), NaN: no target
+    far = np.nonzero((distance > _FAR * _size(snapshot.heads)).any(axis=0))[0]
     if len(far):
         effector = targets.EFFECTORS[far[0]]
         name = next(s.target.name for s in obj.fullbody_adjust.targets if s.enabled and s.effector == effector)
@@ -406,7 +407,7 @@ def _priorities(obj):
 def _check_object_scale(obj, snapshot):
     """A mirrored or flattened object transform (on some frame, or through a parent) cannot be solved in."""
     det = np.linalg.det(snapshot.matrix_world[:, :3, :3])
-    if np.any(det <= 0.0):
+    if (det <= 0.0).any():
         frame = snapshot.frame[int(np.argmax(det <= 0.0))]
         raise AdjustError(f"Armature '{obj.name}' has a negative or zero scale at frame {frame:g}: "
                           f"fix its scale first")
@@ -419,9 +420,9 @@ def _check_driven_bones(model, snapshot):
     needed = driven.copy()
     needed[snapshot.parents[driven & (snapshot.parents >= 0)]] = True
     needed = np.nonzero(needed)[0]  # only these are measured (a fraction of a full rig's bones)
-    axis_scales = np.linalg.norm(snapshot.pose_matrices[:, needed, :3, :3], axis=-2)  # (F,k,3)
+    axis_scales = norm(np.swapaxes(snapshot.pose_matrices[:, needed, :3, :3], -1, -2))  # (F,k,3)
     flat = (axis_scales.min(axis=-1) <= _FLAT) | (snapshot.lengths[:, needed] <= _FLAT * _size(snapshot.heads))
-    bad = needed[np.any(flat, axis=0)]
+    bad = needed[flat.any(axis=0)]
     if len(bad):
         raise AdjustError(f"Bone '{snapshot.names[bad[0]]}' has zero length or scale (scaled to 0 in Pose Mode?): "
                           f"fix it before adjusting")
@@ -463,8 +464,8 @@ def _bones_to_write(model, snapshot, result, keep_hands, oriented):
     driven = np.nonzero(driven)[0]  # only these are measured (a fraction of a full rig's bones)
     turn = np.abs(result.rotations[:, driven] - np.eye(3)).max(axis=(-1, -2))  # (F,k)
     old_heads = snapshot.pose_matrices[..., :3, 3]
-    shift = np.linalg.norm(result.heads[:, driven] - old_heads[:, driven], axis=-1) / _size(old_heads)
-    return driven[np.any((turn > _MOVED) | (shift > _MOVED), axis=0)]
+    shift = norm(result.heads[:, driven] - old_heads[:, driven]) / _size(old_heads)
+    return driven[((turn > _MOVED) | (shift > _MOVED)).any(axis=0)]
 
 
 def _effector_positions(model, heads, matrix_world):

@@ -31,7 +31,7 @@ import bpy
 import numpy as np
 from mathutils import Euler, Matrix, Vector
 
-from ..solver.geometry import affine_inverse, cross
+from ..solver.geometry import affine_inverse, cross, dot, norm
 from ..solver.vocabulary import ROTATION_PROPERTY
 from .errors import AdjustError
 from .frames import step_frames
@@ -381,10 +381,10 @@ def _reachable_armature_matrices(snapshot, new_world, idx):
     y = linear[..., :, 1]
     z = linear[..., :, 2]
     y = y / _norm(y, "a bone's Y axis")[..., None]
-    z = z - np.sum(z * y, axis=-1)[..., None] * y
+    z = z - dot(z, y)[..., None] * y
     z = z / _norm(z, "a bone's Z axis (parallel to its Y axis)")[..., None]
     x = cross(y, z)  # np.cross costs ~0.1 ms on a few bones
-    scale = np.linalg.norm(snapshot.pose_matrices[:, idx, :3, :3], axis=-2)  # (F,k,3) column lengths
+    scale = norm(np.swapaxes(snapshot.pose_matrices[:, idx, :3, :3], -1, -2))  # (F,k,3) column lengths
     armature[..., :3, :3] = np.stack([x, y, z], axis=-1) * scale[..., None, :]
     armature[..., 3, :] = (0.0, 0.0, 0.0, 1.0)
     return armature
@@ -454,7 +454,7 @@ def _apply(matrix, vectors):
 
 
 def _norm(v, what):
-    n = np.linalg.norm(v, axis=-1)
-    if np.any(n < 1e-12):
+    n = norm(v)
+    if (n < 1e-12).any():
         raise ValueError(f"new_world: {what} has zero length")
     return n
