@@ -57,24 +57,15 @@ class TwoBoneFinish:
         e2 = cross(e, e1)
         ring = _SWIVEL_COS[None, :, None] * e1[:, None] + _SWIVEL_SIN[None, :, None] * e2[:, None]
         E = centre[:, None] + rho[:, None, None] * ring  # (h,K,3)
-        u = (E - S[:, None]) / a[:, None, None]
-        u = u / norm(u)[..., None]
         v = T[:, None] - E
         v = v / norm(v)[..., None]
-        ok = np.ones(E.shape[:2], dtype=bool)
-        if self.limits.kind[j] != FREE:
-            if j == 0:
-                parent = self.parent_dirs[rows[h]]
-            else:
-                parent = P[h, j] - P[h, j - 1]
-                parent = parent / norm(parent)[:, None]
-            ok &= ~self._limit(j, rows[h], parent, u, u[:, 0])[1]
         k = j + 1
         wrist = E + c[:, None, None] * v
-        # The checks are ANDed: once no candidate is left the others are skipped. The boxes come before the
-        # middle joint's limit: where a finish fails among obstacles, the lower segment's box test is what
-        # fails it (every failing finish of bench/solver_speed.py's obstacle case and of three jittered copies
-        # of it), and it costs less.
+        ok = np.ones(E.shape[:2], dtype=bool)
+        # The checks are ANDed: once no candidate is left the others are skipped. The boxes come first: where a
+        # finish fails among obstacles, the lower segment's box test is what fails it (every failing finish of
+        # bench/solver_speed.py's obstacle case and of three jittered copies of it), and it costs less than
+        # the limits.
         if self.boxes is not None:
             boxes = self.boxes.select(rows[h])
             for seg, (p0, p1) in ((j, (S[:, None], E)), (k, (E, wrist))):
@@ -85,17 +76,36 @@ class TwoBoneFinish:
                     boxes, np.broadcast_to(p0, p1.shape), p1,
                     None if ign_joint is None else ign_joint[:, None], None if ign_seg is None else ign_seg[:, None])
                 ok &= ~(inside.any(axis=-1) | crossing.any(axis=-1))
-        if ok.any() and self.limits.kind[k] == CONE:
-            ok &= ~apply_cone(u, v, self.limits.cone_angle[k], v)[1]
-        elif ok.any() and self.limits.kind[k] == HINGE:
-            axis = carry_axis(self.hinge_axes[rows[h], k][:, None], self.hinge_refs[rows[h], k][:, None], u)
-            ok &= ~apply_hinge(u, v, axis, self.limits.hinge_min[k], self.limits.hinge_max[k], v,
-                               self.limits.hinge_twist[k])[1]
+        if ok.any():
+            ok &= self._limits_hold(rows[h], P[h], E, S, a, v)
         pick = np.argmax(ok, axis=1)
         found = ok[np.arange(h.size), pick]
         finished[h] = found
         middle[h] = E[np.arange(h.size), pick]
         end[h] = wrist[np.arange(h.size), pick]
         return finished, middle, end
+
+    def _limits_hold(self, rows, P, E, S, a, v):
+        """(h,K) bool: the pivot joint n-3 (toward the middle joints E from the pivot S, segment length a) and the
+        middle joint n-2 (toward the target along the unit v) keep their limits, for the finish candidates of
+        problems `rows` (P their poses)."""
+        j, k = self.n - 3, self.n - 2
+        u = (E - S[:, None]) / a[:, None, None]
+        u = u / norm(u)[..., None]
+        ok = np.ones(E.shape[:2], dtype=bool)
+        if self.limits.kind[j] != FREE:
+            if j == 0:
+                parent = self.parent_dirs[rows]
+            else:
+                parent = P[:, j] - P[:, j - 1]
+                parent = parent / norm(parent)[:, None]
+            ok &= ~self._limit(j, rows, parent, u, u[:, 0])[1]
+        if ok.any() and self.limits.kind[k] == CONE:
+            ok &= ~apply_cone(u, v, self.limits.cone_angle[k], v)[1]
+        elif ok.any() and self.limits.kind[k] == HINGE:
+            axis = carry_axis(self.hinge_axes[rows, k][:, None], self.hinge_refs[rows, k][:, None], u)
+            ok &= ~apply_hinge(u, v, axis, self.limits.hinge_min[k], self.limits.hinge_max[k], v,
+                               self.limits.hinge_twist[k])[1]
+        return ok
 
     # -- solve -------------------------------------------------------------------------------------------------
