@@ -4,7 +4,7 @@ segment crosses one, is moved to the nearest clear point (ObstacleResponse._avoi
 import numpy as np
 
 from .geometry import cross, dot, norm, outward_angles, unit_or_perpendicular
-from .obstacles import points_inside, segments_cross
+from .obstacles import penetrates_few, points_inside, segments_cross
 
 # Obstacle response candidates (see _avoid for which one is taken).
 # The paper's circle (sphere(anchor, D) ∩ sphere(pos_i, dis)): every point is at distance dis from pos_i, so
@@ -60,9 +60,11 @@ class ObstacleResponse:
         _CIRCLE_ANGLES / _SPHERE_POLAR. Returns (positions, responded (b,), failed (b,))."""
         boxes = self.boxes.select(rows)
         ign_joint, ign_seg = self._ignored(rows, joint, segment)
+        b = cand.shape[0]
+        if penetrates_few(anchor, cand, boxes, ign_joint, ign_seg) is False:  # the common case, without arrays
+            return cand, np.zeros(b, dtype=bool), np.zeros(b, dtype=bool)
         inside, crossing = self._violations(boxes, anchor, cand, ign_joint, ign_seg)
         hit = inside.any(axis=1) | crossing.any(axis=1)
-        b = cand.shape[0]
         if not hit.any():
             return cand, hit, np.zeros(b, dtype=bool)
         h = np.nonzero(hit)[0]

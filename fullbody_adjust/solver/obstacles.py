@@ -209,6 +209,26 @@ def _few_tests(test, boxes, *points):
     return np.array(out, dtype=bool).reshape(lead + (len(boxes),))
 
 
+def penetrates_few(anchors, points, boxes, ignore_point=None, ignore_segment=None):
+    """Whether any of the points (b,3) lies in, or any segment anchor -> point meets, a box it does not ignore
+    (ignore_point, ignore_segment: (b,K) bool or None), in plain floats: True or False; None when the tests are
+    too many or the boxes oriented (points_inside and segments_cross answer then). The obstacle response asks
+    this of one or two joints at a time, nearly always to hear no."""
+    if boxes.axes is not None or points.shape[0] * len(boxes) > _FEW_TESTS:
+        return None
+    mins, maxs = boxes.mins.tolist(), boxes.maxs.tolist()
+    skip_point = None if ignore_point is None else ignore_point.tolist()
+    skip_segment = None if ignore_segment is None else ignore_segment.tolist()
+    for r, (a, p) in enumerate(zip(anchors.tolist(), points.tolist())):
+        lo, hi = (mins[r], maxs[r]) if boxes.batched else (mins, maxs)
+        for k in range(len(lo)):
+            if (skip_point is None or not skip_point[r][k]) and _inside_one(lo[k], hi[k], p):
+                return True
+            if (skip_segment is None or not skip_segment[r][k]) and _crosses_one(lo[k], hi[k], a, p):
+                return True
+    return False
+
+
 def _inside_one(lo, hi, p):
     return lo[0] <= p[0] <= hi[0] and lo[1] <= p[1] <= hi[1] and lo[2] <= p[2] <= hi[2]
 

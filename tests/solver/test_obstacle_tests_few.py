@@ -5,7 +5,7 @@ boxes and with NaN coordinates."""
 import numpy as np
 import pytest
 
-from fullbody_adjust.solver.obstacles import _FEW_TESTS, Boxes, points_inside, segments_cross
+from fullbody_adjust.solver.obstacles import _FEW_TESTS, Boxes, penetrates_few, points_inside, segments_cross
 
 
 def _points(rng, n, mins, maxs):
@@ -56,3 +56,36 @@ def test_few_tests_pair_per_problem_boxes_with_the_first_axis():
         many_b = np.concatenate([b[p]] * 3)
         np.testing.assert_array_equal(points_inside(a, boxes)[p], points_inside(many_a, shared)[:per])
         np.testing.assert_array_equal(segments_cross(a, b, boxes)[p], segments_cross(many_a, many_b, shared)[:per])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_penetrates_few_answers_as_the_numpy_tests_with_what_each_row_ignores(seed):
+    """The obstacle response's first question (does a joint lie in, or its segment meet, a box it does not
+    ignore?) in plain floats against points_inside / segments_cross on all rows at once, row by row and a few rows
+    at a time: shared and per-problem boxes, rows ignoring some boxes for the joint or the segment (or both),
+    segments along a face, NaN."""
+    rng = np.random.default_rng(20 + seed)
+    k, n = 1 + seed % 2, 800
+    mins = rng.uniform(-1.0, 0.0, (k, 3))
+    maxs = mins + rng.uniform(0.2, 1.0, (k, 3))
+    a, b = _points(rng, n, mins, maxs), _points(rng, n, mins, maxs)
+    b[::5, seed % 3] = a[::5, seed % 3]
+    a[3::50, 1] = np.nan
+    ign_point, ign_seg = rng.random((n, k)) < 0.4, rng.random((n, k)) < 0.4
+    batched = seed >= 2
+    if batched:  # each problem its own boxes, shifted
+        shift = rng.uniform(-0.3, 0.3, (n, 1, 3))
+        boxes = Boxes(mins[None] + shift, maxs[None] + shift)
+    else:
+        boxes = Boxes(mins, maxs)
+    inside, crossing = points_inside(b, boxes), segments_cross(a, b, boxes)
+    hit = ((inside & ~ign_point) | (crossing & ~ign_seg)).any(axis=-1)
+    assert hit.any() and not hit.all() and (inside & ign_point & ign_seg).any()
+    for size in (1, _FEW_TESTS // k):
+        for start in range(0, n, size):
+            rows = np.arange(start, min(start + size, n))
+            sub = boxes.select(rows) if batched else boxes
+            assert penetrates_few(a[rows], b[rows], sub, ign_point[rows], ign_seg[rows]) == hit[rows].any(), rows
+            assert penetrates_few(a[rows], b[rows], sub) == (inside[rows] | crossing[rows]).any(), rows
+    rows = np.arange(_FEW_TESTS // k + 1)
+    assert penetrates_few(a[rows], b[rows], boxes.select(rows) if batched else boxes) is None  # numpy's turn
