@@ -189,6 +189,7 @@ def merge_keys(fcurve, frames, values):
         fcurve.update()
 
 
+# Up to this many keys on a curve, _replace_one_key finds the key in plain floats (a click's curves); numpy beyond.
 _FEW_KEYS = 16
 
 
@@ -198,7 +199,7 @@ def _replace_one_key(fcurve, points, count, frame, value):
     and rewriting every key of every curve costs more than the solve's keys are worth. False (nothing
     written) when the general path is needed."""
     co = _get(points, "co", count, 2, np.float32)
-    if count <= _FEW_KEYS:  # a curve keyed on a few frames: plain floats, numpy's per-call cost was most of it
+    if count <= _FEW_KEYS:  # numpy's per-call cost was most of a click's keying
         existing = co[:, 0].tolist()
         if not all(a < b for a, b in zip(existing, existing[1:])):
             return False

@@ -7,7 +7,8 @@ is a different key.
 
   - the limbs' start chains and their reach;
   - the default human limits of every limb (body.default_limits);
-  - the model's hierarchy levels (the order the top-down pass visits the bones in);
+  - the model's hierarchy levels (the order the top-down pass visits the bones in) and its groups' bones (which
+    groups a result moved), once per model;
   - per limb, whether its start chain keeps its default limits (the check a chain solve runs before it
     returns a start pose that already meets its target untouched).
 
