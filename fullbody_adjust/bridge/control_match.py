@@ -107,12 +107,7 @@ def _bend_step(pose_bones, pair, desired, lengths):
     if min(g.norm(now), g.norm(want)) <= 1e-9 * length:
         return None  # a straight chain has no bend plane to turn
     angle = math.atan2(g.dot(g.cross(now, want), axis), g.dot(now, want))
-    # Rodrigues' rotation by `angle` about `axis`, about the base: x -> R (x - base) + base.
-    c, s = math.cos(angle), math.sin(angle)
-    x, y, z = axis
-    turn = ((c + x * x * (1 - c), x * y * (1 - c) - z * s, x * z * (1 - c) + y * s),
-            (y * x * (1 - c) + z * s, c + y * y * (1 - c), y * z * (1 - c) - x * s),
-            (z * x * (1 - c) - y * s, z * y * (1 - c) + x * s, c + z * z * (1 - c)))
+    turn = g.rotation_about(axis, angle)  # about the base: x -> R (x - base) + base
     shift = [b - g.dot(row, base) for row, b in zip(turn, base)]
     return np.array([[*turn[0], shift[0]], [*turn[1], shift[1]], [*turn[2], shift[2]], [0.0, 0.0, 0.0, 1.0]])
 

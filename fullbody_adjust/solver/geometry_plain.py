@@ -76,6 +76,13 @@ def rotate_about_axis(v, axis, angle):
             v[2] * cos_a + kv[2] * sin_a + k[2] * along)
 
 
+def rotation_about(k, angle):
+    """limb_rotations._rotation_about for one unit axis k (Rodrigues): the rows of c I + s [k]x + (1 - c) k k'."""
+    c, s = float(np.cos(angle)), float(np.sin(angle))
+    kx = ((0.0, -k[2], k[1]), (k[2], 0.0, -k[0]), (-k[1], k[0], 0.0))
+    return [[c * EYE[i][j] + s * kx[i][j] + (1.0 - c) * (k[i] * k[j]) for j in (0, 1, 2)] for i in (0, 1, 2)]
+
+
 def swing_rotation(old, new):
     """geometry.swing_rotation (its few-rotations form): the rows of the 3x3 matrix."""
     a, b = normalize(old), normalize(new)

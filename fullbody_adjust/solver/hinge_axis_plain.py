@@ -8,6 +8,7 @@ import math
 import numpy as np
 
 from . import geometry_plain as g
+from .errors import SolverInputError
 from .geometry import TINY
 
 
@@ -27,34 +28,26 @@ def _hinge_axis(parent, child, side, x_axis, bent_angle):
     if not all(math.isfinite(c) for c in (*parent, *child, *side, *(x_axis or ()))):
         return None
     try:
-        u = _unit(parent)
-        heuristic = g.cross(u, _unit(side))
+        u = g.normalize(parent)
+        heuristic = g.cross(u, g.normalize(side))
         if g.norm(heuristic) < 0.3:  # limb nearly along the bend side
             heuristic = g.any_perpendicular(u)
-        axis = _unit(heuristic)
+        axis = g.normalize(heuristic)
         if x_axis is not None:
             x = g.sub(x_axis, g.scaled(u, g.dot(x_axis, u)))
             ok = g.norm(x) > 1e-6
-            x = _unit(x if ok else axis)
+            x = g.normalize(x if ok else axis)
             if g.dot(x, axis) < 0.0:
                 x = (-x[0], -x[1], -x[2])
             if ok:
                 axis = x
-        v = _unit(child)
+        v = g.normalize(child)
         bend = g.cross(u, v)
         angle = float(np.arctan2(g.norm(bend), g.dot(u, v)))
-        bend_axis = _unit(bend) if g.norm(bend) > TINY else _unit(axis)  # geometry.normalize's fallback
+        bend_axis = g.normalize(bend) if g.norm(bend) > TINY else g.normalize(axis)  # geometry.normalize's fallback
         agree = g.dot(bend_axis, axis)
         if angle > 1e-3 and abs(agree) >= 0.5:
             axis = (-bend_axis[0], -bend_axis[1], -bend_axis[2]) if agree < 0.0 else bend_axis
-        return _unit(bend_axis if angle > bent_angle else axis)
-    except ZeroDivisionError:
+        return g.normalize(bend_axis if angle > bent_angle else axis)
+    except (ZeroDivisionError, SolverInputError):  # a vector of no length: the numpy path raises or falls back
         return None
-
-
-def _unit(v):
-    """geometry.normalize of one vector, None-free: ZeroDivisionError (the numpy path's case) for no length."""
-    n = g.norm(v)
-    if not n > TINY:
-        raise ZeroDivisionError
-    return g.divided(v, n)

@@ -33,14 +33,9 @@ def _chain(start, joints, kind, axes):
             continue
         parent, child = g.divided_by_norm(new[i - 1]), g.divided_by_norm(new[i])
         tau = limits_plain.hinge_twist_angle(parent, child, g.apply_matrix(rot[i - 1], axes[i]))
-        rot[i - 1] = g.matmul(_rotation_about(parent, tau), rot[i - 1])
+        rot[i - 1] = g.matmul(g.rotation_about(parent, tau), rot[i - 1])
         if i + 1 >= len(kind) or kind[i + 1] != HINGE:
             rot[i] = g.matmul(g.swing_rotation(g.apply_matrix(rot[i - 1], old[i]), new[i]), rot[i - 1])
     return rot
 
 
-def _rotation_about(k, angle):
-    """limb_rotations._rotation_about for one unit axis: the rows of c I + s [k]x + (1 - c) k k'."""
-    c, s = float(np.cos(angle)), float(np.sin(angle))
-    kx = ((0.0, -k[2], k[1]), (k[2], 0.0, -k[0]), (-k[1], k[0], 0.0))
-    return [[c * g.EYE[i][j] + s * kx[i][j] + (1.0 - c) * (k[i] * k[j]) for j in (0, 1, 2)] for i in (0, 1, 2)]
