@@ -35,7 +35,7 @@ import numpy as np
 from .adjust_types import UNCONSTRAINED, VARIANTS, AdjustBatchResult, AdjustResult, AdjustSettings
 from .body import GROUPS, LIMB_OF_EFFECTOR, BodyModel, LimbLimits
 from .errors import SolverInputError
-from .geometry import apply_matrix, norm
+from .geometry import all_set, any_set, apply_matrix, norm
 from .limb_placement import LimbPlacement
 from .limb_rotations import LimbSolve, chest_rotation
 from .limits import FREE
@@ -204,7 +204,7 @@ class _Problem(SubBasePlacement, LimbPlacement):
                 unset = np.isnan(rows).all(axis=1)
                 if np.any(~np.isfinite(rows) & ~unset[:, None]):
                     raise SolverInputError(f"{label} for {e} have NaN/inf (all NaN for none)")
-                if e != "head" and not unset.all():
+                if e != "head" and not all_set(unset):
                     store[LIMB_OF_EFFECTOR[e]] = given[:, k]
 
     def _subset(self, rows):
@@ -289,7 +289,7 @@ class _Problem(SubBasePlacement, LimbPlacement):
                 far[n] = trunk_solved & self.limb_active[n] & out_of_reach
                 turn[n] = norm(turned[n] - placed_with[n])
                 changed |= turn[n] > tol
-            if not any((far[n] & changed).any() for n in upper):
+            if not any(any_set(far[n] & changed) for n in upper):
                 break
             if fixable is None:  # the same on every pass: it depends on the start offsets only
                 fixable = self._fixable(upper, offsets0)
@@ -299,7 +299,7 @@ class _Problem(SubBasePlacement, LimbPlacement):
                 # while its base moves by more than the reach margin: its best effort cannot gain more.
                 worth = np.where(fixable[n], changed, turn[n] > self.settings.reach_margin * self.reach_eff[n])
                 retry |= far[n] & worth
-            if not retry.any():
+            if not any_set(retry):
                 break
             r = np.nonzero(retry)[0]
             offsets = {n: turned[n][r] for n in upper}
@@ -367,6 +367,6 @@ def _frames_array(a, label, shape):
         raise SolverInputError(f"{label} must have shape (F,{shape[0]},{shape[1]}), got {arr.shape}")
     if arr.shape[0] == 0:
         raise SolverInputError(f"{label} have no frames")
-    if not np.isfinite(arr).all():
+    if not all_set(np.isfinite(arr)):
         raise SolverInputError(f"{label} have NaN/inf")
     return arr

@@ -37,6 +37,7 @@ from .chain_model import ChainModel
 from .chain_plain import _solve_plain
 from .chain_types import STATUSES, ChainBatchResult, ChainResult, ChainSettings
 from .errors import SolverInputError
+from .geometry import all_set
 from .limits import JointLimits
 from .obstacles import as_boxes
 
@@ -83,7 +84,7 @@ def solve_chain_batch(positions, targets, *, settings=ChainSettings(), limits=No
     t = np.asarray(targets, dtype=np.float64)
     if t.shape != (p.shape[0], 3):
         raise SolverInputError(f"targets must have shape ({p.shape[0]},3), got {t.shape}")
-    if not np.isfinite(t).all():
+    if not all_set(np.isfinite(t)):
         raise SolverInputError("target has NaN/inf")
     model = ChainModel(p, t, settings, limits, obstacles, parent_directions)
     return model.solve(p)
@@ -101,7 +102,7 @@ def _as_chains(positions, batched):
         raise SolverInputError(f"positions must have shape {'(B,n,3)' if batched else '(n,3)'}, got {p.shape}")
     if p.shape[-2] < 2:
         raise SolverInputError("a chain needs at least 2 joints")
-    if not np.isfinite(p).all():
+    if not all_set(np.isfinite(p)):
         raise SolverInputError("positions have NaN/inf")
     return p
 
@@ -110,7 +111,7 @@ def _as_vector(v, name):
     v = np.asarray(v, dtype=np.float64)
     if v.shape != (3,):
         raise SolverInputError(f"{name} must have shape (3,), got {v.shape}")
-    if not np.isfinite(v).all():
+    if not all_set(np.isfinite(v)):
         raise SolverInputError(f"{name} has NaN/inf")
     return v
 

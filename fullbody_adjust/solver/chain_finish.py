@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from .geometry import cross, dot, norm, outward_angles, unit_or_perpendicular
+from .geometry import any_set, cross, dot, norm, outward_angles, unit_or_perpendicular
 from .limits import CONE, FREE, HINGE, apply_cone, apply_hinge, carry_axis
 
 # Two-segment finish (ChainModel._two_bone_finish): swivel angles of the middle joint around the pivot ->
@@ -69,14 +69,14 @@ class TwoBoneFinish:
         if self.boxes is not None:
             boxes = self.boxes.select(rows[h])
             for seg, (p0, p1) in ((j, (S[:, None], E)), (k, (E, wrist))):
-                if not ok.any():
+                if not any_set(ok):
                     break
                 ign_joint, ign_seg = self._ignored(rows[h], seg + 1, seg)
                 inside, crossing = self._violations(
                     boxes, np.broadcast_to(p0, p1.shape), p1,
                     None if ign_joint is None else ign_joint[:, None], None if ign_seg is None else ign_seg[:, None])
                 ok &= ~(inside.any(axis=-1) | crossing.any(axis=-1))
-        if ok.any():
+        if any_set(ok):
             ok &= self._limits_hold(rows[h], P[h], E, S, a, v)
         pick = np.argmax(ok, axis=1)
         found = ok[np.arange(h.size), pick]
@@ -100,9 +100,9 @@ class TwoBoneFinish:
                 parent = P[:, j] - P[:, j - 1]
                 parent = parent / norm(parent)[:, None]
             ok &= ~self._limit(j, rows, parent, u, u[:, 0])[1]
-        if ok.any() and self.limits.kind[k] == CONE:
+        if any_set(ok) and self.limits.kind[k] == CONE:
             ok &= ~apply_cone(u, v, self.limits.cone_angle[k], v)[1]
-        elif ok.any() and self.limits.kind[k] == HINGE:
+        elif any_set(ok) and self.limits.kind[k] == HINGE:
             axis = carry_axis(self.hinge_axes[rows, k][:, None], self.hinge_refs[rows, k][:, None], u)
             ok &= ~apply_hinge(u, v, axis, self.limits.hinge_min[k], self.limits.hinge_max[k], v,
                                self.limits.hinge_twist[k])[1]

@@ -10,7 +10,7 @@ from .chain_obstacles import ObstacleResponse
 from .chain_types import (_COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL, ChainBatchResult, _final_status,
                           _reach_bounds, _segment_lengths)
 from .errors import SolverInputError
-from .geometry import any_perpendicular, cross, norm
+from .geometry import any_perpendicular, any_set, cross, norm
 from .limits import CONE, FREE, HINGE, JointLimits, apply_cone, apply_hinge, carry_axis
 from .obstacles import as_boxes, points_inside, segments_cross
 
@@ -82,7 +82,7 @@ class ChainModel(ObstacleResponse, TwoBoneFinish):
             if not np.all(np.isfinite(pd)):
                 raise SolverInputError("parent_direction has NaN/inf")
             pn = norm(pd)
-            if (pn <= 1e-12).any():
+            if any_set(pn <= 1e-12):
                 raise SolverInputError("parent_direction has zero length")
             self.parent_dirs = pd / pn[:, None]
         if self.limits is not None and self.limits.kind[0] != FREE and self.parent_dirs is None:
@@ -172,7 +172,7 @@ class ChainModel(ObstacleResponse, TwoBoneFinish):
             L = lengths[:, i]
             dn = norm(d)
             bad = ~(dn > L * _COINCIDENT)
-            if bad.any():
+            if any_set(bad):
                 d = np.where(bad[:, None], prev[:, i] - prev[:, i + 1], d)
                 dn = norm(d)
             if self.limits is not None and i < self.n - 2 and self.limits.kind[i + 1] != FREE:
@@ -218,7 +218,7 @@ class ChainModel(ObstacleResponse, TwoBoneFinish):
             L = lengths[:, i]
             dn = norm(d)
             bad = ~(dn > L * _COINCIDENT)
-            if bad.any():
+            if any_set(bad):
                 d = np.where(bad[:, None], prev[:, i + 1] - prev[:, i], d)
                 dn = norm(d)
             limit_fn = None
@@ -336,7 +336,7 @@ class ChainModel(ObstacleResponse, TwoBoneFinish):
             now_stalled = (res > tol) & (moved < stall)
             free = now_stalled & (nudges[act] < _NUDGES) & (iterations[act] < s.max_iterations) \
                 & ~binding & ~responded
-            if free.any():
+            if any_set(free):
                 self._nudge(P, active[free], nudges, act[free])
                 now_stalled &= ~free
             if constrained:
@@ -438,9 +438,9 @@ class ChainModel(ObstacleResponse, TwoBoneFinish):
                 if inside[j] or crossing[j]:
                     notes.append(f"could not avoid obstacles: {inside[j]} joints inside, "
                                  f"{crossing[j]} segments crossing")
-                if self.ignore_end[j].any():
+                if any_set(self.ignore_end[j]):
                     notes.append("target inside obstacle")
-                if self.ignore_base[j].any():
+                if any_set(self.ignore_base[j]):
                     notes.append("base inside obstacle")
                 if notes:
                     st, why = "blocked", "; ".join(notes + [why])

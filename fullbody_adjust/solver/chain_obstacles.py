@@ -3,7 +3,7 @@ segment crosses one, is moved to the nearest clear point (ObstacleResponse._avoi
 
 import numpy as np
 
-from .geometry import cross, dot, norm, outward_angles, unit_or_perpendicular
+from .geometry import any_set, cross, dot, norm, outward_angles, unit_or_perpendicular
 from .obstacles import penetrates_few, points_inside, segments_cross
 
 # Obstacle response candidates (see _avoid for which one is taken).
@@ -65,7 +65,7 @@ class ObstacleResponse:
             return cand, np.zeros(b, dtype=bool), np.zeros(b, dtype=bool)
         inside, crossing = self._violations(boxes, anchor, cand, ign_joint, ign_seg)
         hit = inside.any(axis=1) | crossing.any(axis=1)
-        if not hit.any():
+        if not any_set(hit):
             return cand, hit, np.zeros(b, dtype=bool)
         h = np.nonzero(hit)[0]
         a, p, L, r = anchor[h], cand[h], lengths[h], ref[h]

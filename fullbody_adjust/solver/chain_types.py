@@ -6,7 +6,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import SolverInputError
-from .geometry import norm
+from .geometry import any_set, norm
 
 STATUSES = ("reached", "unreachable", "blocked", "limited", "max_iterations")
 
@@ -83,7 +83,7 @@ def _segment_lengths(p):
     seg = p[..., 1:, :] - p[..., :-1, :]
     lengths = norm(seg)
     short = lengths <= MIN_SEGMENT_LENGTH
-    if short.any():
+    if any_set(short):
         raise SolverInputError(f"segment {int(np.nonzero(short)[-1][0])} has zero length")
     return lengths
 

@@ -9,7 +9,7 @@ import numpy as np
 from .body import CHAIN, ROOT
 from .chain import solve_chain_batch
 from .chain_types import ChainBatchResult, _final_status
-from .geometry import apply_matrix, norm, stack_rows
+from .geometry import any_set, apply_matrix, norm, stack_rows
 from .limb_rotations import _EYE, LimbSolve, end_rotation, set_segment_rotations
 from .limits import HINGE, JointLimits, carry_axis
 from .obstacles import points_inside, segments_cross
@@ -114,14 +114,14 @@ class LimbPlacement:
                 elif role == CHAIN:
                     ls = solves[name]
                     s = ls.solved
-                    if s.any():
+                    if any_set(s):
                         heads[s, j] = ls.joints[s, k]
                         rot[s, j] = ls.segment_rotations(self.chain0[name], self.limits.get(name))[s, k]
                         moved[s, j] = True
                 else:
                     ls = solves[name]
                     s = ls.solved
-                    if s.any():
+                    if any_set(s):
                         # Hands, feet and the head keep their world orientation on a solved limb.
                         heads[s, j] = ls.joints[s, -1]
                         rot[s, j] = _EYE
@@ -131,7 +131,7 @@ class LimbPlacement:
                         rot[w, j] = end_rotation(self.end_turns[name][w], rot[w, p], T0[w, j] - H0[w, j])
                         moved[w, j] = True
         _carry(heads, rot, moved, H0, *self.prepared.leaves)  # fingers, face...: on their nearest placed ancestor
-        tails = np.where(moved[..., None], heads + apply_matrix(rot, T0 - H0), T0) if moved.any() else T0.copy()
+        tails = np.where(moved[..., None], heads + apply_matrix(rot, T0 - H0), T0) if any_set(moved) else T0.copy()
         return heads, tails, rot, solves
 
     def _solve_limbs(self, starts):
@@ -176,7 +176,7 @@ class LimbPlacement:
         reason = np.full(F, "", dtype=object)
         rows = np.nonzero(solved)[0]
         untouched = self._untouched_start(name, rows, parent_moved)
-        if untouched.any():
+        if any_set(untouched):
             # The chain solve's status of a start at its target within reach: reached in 0 iterations.
             done = rows[untouched]
             status[done], reason[done] = _final_status(True, True, 0.0, 1.0, 0.0, False, 0, False, False)
@@ -193,18 +193,18 @@ class LimbPlacement:
         within the limb's limits and, with obstacles, every joint and segment and the target outside every
         box), known from the prepared start pose without building a chain solve."""
         keep = ~parent_moved[rows]
-        if not keep.any():
+        if not any_set(keep):
             return keep
         c0, target = self.chain0[name][rows], self.limb_target[name][rows]
         keep &= (norm(c0[:, -1] - target) <= self.settings.chain.tolerance) \
             & ~(norm(target - c0[:, 0]) > self.reach[name][rows])
-        if keep.any() and self.obstacles is not None:
+        if any_set(keep) and self.obstacles is not None:
             # Clear of every box, the chain solve finds nothing to respond to and nothing to note.
             boxes = self.obstacles.select(rows)
             keep &= ~points_inside(c0, boxes).any(axis=(1, 2)) & ~points_inside(target, boxes).any(axis=1) \
                 & ~segments_cross(c0[:, :-1], c0[:, 1:], boxes).any(axis=(1, 2))
         ll = self.limits.get(name)
-        if keep.any() and ll is not None and ll.limits.any_active:
+        if any_set(keep) and ll is not None and ll.limits.any_active:
             if not self.default_limits:  # the caller's limits, or a re-solve's subset: a chain solve checks them
                 return np.zeros(rows.size, dtype=bool)
             keep &= self.prepared.start_keeps_limits(name, self.settings.chain)[rows]
@@ -249,7 +249,7 @@ def _carry(heads, rot, moved, H0, bones, carriers):
     rotation about its head, the same rotation; where a carrier did not move, a bone stays as initialised."""
     if bones.size:
         mc = moved[:, carriers]
-        if mc.any():
+        if any_set(mc):
             h = heads[:, carriers] + apply_matrix(rot[:, carriers], H0[:, bones] - H0[:, carriers])
             heads[:, bones] = np.where(mc[..., None], h, H0[:, bones])
             rot[:, bones] = rot[:, carriers]

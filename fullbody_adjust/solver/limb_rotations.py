@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import limb_rotations_plain
-from .geometry import any_perpendicular, apply_matrix, norm, stack_rows, swing_rotation
+from .geometry import any_perpendicular, any_set, apply_matrix, norm, stack_rows, swing_rotation
 from .limits import HINGE, hinge_twist_angle
 
 _EYE = np.eye(3)
@@ -54,7 +54,7 @@ def set_segment_rotations(solves, starts, limits):
     kind = axes = None
     if limits[0] is not None:
         kind = limits[0].limits.kind
-        if (kind[1:] == HINGE).any():
+        if any_set(kind[1:] == HINGE):
             axes = stack_rows([_frame_axes(ll.limits.hinge_axis, f) for ll, f in zip(limits, frames)])
     rot = _segment_rotations(stack_rows([s[f] for s, f in zip(starts, frames)]),
                              stack_rows([ls.joints[f] for ls, f in zip(solves, frames)]), kind, axes)
@@ -111,7 +111,7 @@ def end_rotation(wanted, carried, direction, max_swing=END_SWING):
     cos = np.einsum("bi,bi->b", want, ride) / (norm(want) * norm(ride))
     angle = np.arccos(np.clip(cos, -1.0, 1.0))
     over = angle > max_swing
-    if not over.any():
+    if not any_set(over):
         return wanted
     out = wanted.copy()
     # Slerp from the carried direction toward the wanted one by the allowed fraction; a wanted direction right

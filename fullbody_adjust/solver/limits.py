@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .errors import SolverInputError
-from .geometry import any_perpendicular, apply_matrix, cross, dot, norm, normalize, swing_rotation
+from .geometry import any_perpendicular, any_set, apply_matrix, cross, dot, norm, normalize, swing_rotation
 
 FREE, CONE, HINGE = 0, 1, 2
 
@@ -148,7 +148,7 @@ class JointLimits:
 
     @property
     def any_active(self):
-        return bool((self.kind != FREE).any())
+        return any_set(self.kind != FREE)
 
     def per_joint_key(self):
         """The limits every problem of a batch shares (kinds, cone angles, hinge ranges and twists), as a
@@ -197,7 +197,7 @@ def apply_cone(parent, v, angle, fallback):
     wn = norm(w)
     # atan2 of the perpendicular and parallel parts resolves small angles; cos alone only to ~1e-8 rad.
     over = np.arctan2(wn, c) > angle
-    if not over.any() and v.shape == over.shape + (3,):
+    if not any_set(over) and v.shape == over.shape + (3,):
         return v, over  # nothing to clamp (the common case inside FABRIK's iterations)
     bad = ~(wn > _DEGENERATE)
     if np.any(bad):

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import SolverInputError
+from .geometry import any_set
 
 
 @dataclass(frozen=True)
@@ -172,7 +173,7 @@ def segments_cross(a, b, boxes):
         t2 = (maxs - p) / d
     lo = np.minimum(t1, t2)
     hi = np.maximum(t1, t2)
-    if flat.any():
+    if any_set(flat):
         # An axis the segment does not move along: inside the slab -> no constraint, outside -> empty interval.
         in_slab = (p >= mins) & (p <= maxs)
         lo = np.where(flat, np.where(in_slab, -np.inf, np.inf), lo)

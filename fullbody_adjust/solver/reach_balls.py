@@ -7,7 +7,7 @@ from itertools import combinations
 import numpy as np
 
 from . import reach_balls_plain
-from .geometry import cross, dot, norm, unit_or_perpendicular
+from .geometry import any_set, cross, dot, norm, unit_or_perpendicular
 
 _EYE = np.eye(3)
 # Relative slack of "inside a ball" tests on computed points (their rounding is ~1e-16 relative).
@@ -200,7 +200,7 @@ def sub_base_point(points, centres, radii, active, priorities, variant):
         point is pulled onto each dropped ball in turn (lowest first), then onto the kept intersection.
     priorities (K,): higher wins; ties keep the given order (earlier wins). Returns (x (F,3), feasible (F,))."""
     prio = np.asarray(priorities, dtype=np.float64)
-    if len(points) == 1 and variant == "priority" and not np.isnan(prio).any():
+    if len(points) == 1 and variant == "priority" and not any_set(np.isnan(prio)):
         x, ok = reach_balls_plain.sub_base_point_priority(points[0].tolist(), centres[0].tolist(), radii[0].tolist(),
                                                           active[0].tolist(), prio.tolist())
         return np.array([x], dtype=np.float64), np.array([ok])

@@ -4,7 +4,7 @@ settings)."""
 
 import numpy as np
 
-from .geometry import norm
+from .geometry import all_set, any_set, norm
 from .obstacles import penetrations
 from .reach_balls import nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point
 from .trunk_curl import curl_start
@@ -75,13 +75,13 @@ class SubBasePlacement:
             lean_r = chord
         else:
             lean, ok_lean = nearest_on_sphere_in_balls(pref, trunk_base, lean_r, centres, radii, active)
-        if ok_lean.all():
+        if all_set(ok_lean):
             return lean, ok_lean
         bend, ok_bend = nearest_in_balls(
             pref, np.concatenate([centres, trunk_base[:, None]], axis=1),
             np.concatenate([radii, trunk_r[:, None]], axis=1),
             np.concatenate([active, np.ones((len(rows), 1), dtype=bool)], axis=1))
-        if (ok_lean | ok_bend).all():
+        if all_set(ok_lean | ok_bend):
             return np.where(ok_lean[:, None], lean, bend), ok_lean
         arms_only, _ = sub_base_point(pref, centres, radii, active, prio, self.settings.variant)
         out = np.where(ok_bend[:, None], bend, arms_only)
@@ -126,7 +126,7 @@ class SubBasePlacement:
         # Placed only on the frames that need it (every step of a placement is row by row).
         sc_star = sc0.copy()
         leaned = np.zeros(b, dtype=bool)
-        if need_sc.any():
+        if any_set(need_sc):
             n = np.nonzero(need_sc)[0]
             sc_star[n], leaned[n] = self._place_sc(rows[n], sc0[n], base0[n], _rows_of(offsets, n))
 
@@ -135,7 +135,7 @@ class SubBasePlacement:
         trunk_ok = ~need_sc | (norm(sc_star - base0) <= self.reach["trunk"][rows])
         need_root = ~(self._in_reach(legs, rows, {n: self.chain0[n][rows, 0] for n in legs}) & trunk_ok)
         delta = np.zeros((b, 3))
-        if need_root.any():
+        if any_set(need_root):
             n = np.nonzero(need_root)[0]
             delta[n] = self._root_delta(rows[n], np.zeros((n.size, 3)), sc_star[n] - base0[n], need_sc[n])
         moved_root = (delta != 0.0).any(axis=1)
@@ -143,10 +143,10 @@ class SubBasePlacement:
         # A root moved for the feet carries the SC along if the arms still reach from there; else the SC goes
         # to the nearest point (to where it was carried) from which they do.
         carried = ~need_sc & any_upper & moved_root
-        if carried.any():
+        if any_set(carried):
             sc_c = sc0 + delta
             need_c = carried & ~self._in_reach(upper, rows, {n: sc_c + offsets[n] for n in upper})
-            if need_c.any():
+            if any_set(need_c):
                 n = np.nonzero(need_c)[0]
                 sc_star[n], leaned[n] = self._place_sc(rows[n], sc_c[n], base0[n] + delta[n], _rows_of(offsets, n))
                 need_sc = need_sc | need_c
@@ -173,7 +173,7 @@ class SubBasePlacement:
             # remaining error, as far as the feet allow. Not past obstacles: a blocked trunk stays.
             err = sc_star[solve] - res.positions[:, -1]
             late = (norm(err) > self.settings.chain.tolerance) & np.isin(res.status, ("limited", "max_iterations"))
-            if late.any():
+            if any_set(late):
                 s2 = solve[late]
                 d2 = self._root_delta(rows[s2], delta[s2] + err[late], np.zeros((s2.size, 3)),
                                       np.zeros(s2.size, dtype=bool))

@@ -30,6 +30,7 @@ from .chain import ChainSettings, solve_chain
 from .chain_model import ChainModel
 from .chain_types import _STALL
 from .errors import SolverInputError
+from .geometry import any_set
 from .obstacles import as_boxes, points_inside, segments_cross
 
 STRATEGIES = ("centroid", "weighted", "sequential")
@@ -297,13 +298,13 @@ def _result(tree, start, X, iterations, history, notes, settings, obstacles, str
             if j == tree.root:
                 continue
             ins = inside[j] & ~ignore_end.get(j, nothing)
-            if ins.any():
+            if any_set(ins):
                 bad_joint[j] = True
         for s, (a, j) in enumerate(tree.segments):
             cr = crossing[s] & ~ignore_end.get(int(j), nothing)
             if a == tree.root:
                 cr = cr & ~ignore_root
-            if cr.any():
+            if any_set(cr):
                 bad_seg[int(j)] = True
     status, reasons = [], []
     for e, r in zip(tree.effectors, residuals):

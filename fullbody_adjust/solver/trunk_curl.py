@@ -12,7 +12,7 @@ which already meets the target, so it has only the joint limits and the obstacle
 
 import numpy as np
 
-from .geometry import any_perpendicular, cross, dot, norm, rotate_about_axis, swing_rotation
+from .geometry import any_perpendicular, any_set, cross, dot, norm, rotate_about_axis, swing_rotation
 
 # Secant steps on the bend angle (the end's direction, then the chord): both are smooth in the angle and the
 # first guess is close, so a few steps leave far less than the chain tolerance; they stop once every row is
@@ -50,7 +50,7 @@ def _secant(f, goal, a0, a1, settled):
     f0, f1 = f(a0), f(a1)
     for _ in range(_STEPS):
         moving = np.abs(f1 - goal) > settled
-        if not moving.any():
+        if not any_set(moving):
             break
         slope = f1 - f0
         ok = moving & (np.abs(slope) > 1e-15)

@@ -4,7 +4,8 @@ two-bone solution in the plane of the start hinge axis (see limb_placement.LimbP
 import numpy as np
 
 from . import two_bone_start_plain
-from .geometry import any_perpendicular, apply_matrix, cross, dot, norm, rotate_about_axis, swing_rotation
+from .geometry import (any_perpendicular, any_set, apply_matrix, cross, dot, norm, rotate_about_axis,
+                       swing_rotation)
 
 _EYE = np.eye(3)
 # Up to this many chains, plain floats (two_bone_start_plain.py: the same bits, without numpy's per-call cost).
@@ -59,7 +60,7 @@ def two_bone_start(start, targets, axis, pole=None):
     d = np.clip(norm(to_target), np.abs(a - c), a + c)
     dt = to_target / np.maximum(norm(to_target), 1e-300)[:, None]
     given = None if pole is None else np.isfinite(pole[:, 0])
-    if given is not None and given.any():
+    if given is not None and any_set(given):
         # The elbow lands at cos(alpha) dt + sin(alpha) (dt x n): toward the pole's side when n = w x dt.
         toward = cross(np.where(given[:, None], pole - pivot, 0.0), dt)
         use = given & (norm(toward) > 1e-9 * np.maximum(norm(to_target), 1e-300))
