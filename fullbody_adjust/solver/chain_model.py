@@ -10,7 +10,7 @@ from .chain_obstacles import ObstacleResponse
 from .chain_types import (_COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL, ChainBatchResult, _final_status,
                           _reach_bounds, _segment_lengths)
 from .errors import SolverInputError
-from .geometry import any_perpendicular, any_set, cross, norm
+from .geometry import all_set, any_perpendicular, any_set, cross, norm
 from .limits import CONE, FREE, HINGE, JointLimits, apply_cone, apply_hinge, carry_axis
 from .obstacles import as_boxes, points_inside, segments_cross
 
@@ -29,6 +29,12 @@ def _nudge_directions(v, first, k):
         return p
     q = cross(v, p)
     return q / norm(q)[:, None]
+
+
+def _per_problem(a, b, m):
+    """Per-joint vectors a (m,3) or (b,m,3) as (b,m,3); as they are when they are so already (a solver's own
+    limits carry per-problem arrays), without numpy's broadcast_to cost on every chain solve."""
+    return a if a.shape == (b, m, 3) else np.broadcast_to(a, (b, m, 3))
 
 
 class ChainModel(ObstacleResponse, TwoBoneFinish):
@@ -60,7 +66,7 @@ class ChainModel(ObstacleResponse, TwoBoneFinish):
             axes = self.limits.hinge_axis
             if axes.ndim == 3 and axes.shape[0] != self.B:
                 raise SolverInputError(f"per-problem hinge axes have batch size {axes.shape[0]}, expected {self.B}")
-            self.hinge_axes = np.broadcast_to(axes, (self.B, m, 3))
+            self.hinge_axes = _per_problem(axes, self.B, m)
             # The analytic two-segment finish needs a swivel range to pick from: not a hinge whose plane is fixed.
             self._finishes = self.n >= 3 and (self.limits.kind[m - 1] != HINGE
                                               or self.limits.hinge_twist[m - 1] >= _MIN_FINISH_TWIST)
@@ -72,14 +78,14 @@ class ChainModel(ObstacleResponse, TwoBoneFinish):
                 if ref.ndim == 3 and ref.shape[0] != self.B:
                     raise SolverInputError(
                         f"per-problem hinge references have batch size {ref.shape[0]}, expected {self.B}")
-                ref = np.broadcast_to(ref, (self.B, m, 3))
+                ref = _per_problem(ref, self.B, m)
                 self.hinge_refs = ref / np.maximum(norm(ref), 1e-300)[..., None]
         self.parent_dirs = None
         if parent_directions is not None:
             pd = np.asarray(parent_directions, dtype=np.float64)
             if pd.shape != (self.B, 3):
                 raise SolverInputError(f"parent_directions must have shape ({self.B},3), got {pd.shape}")
-            if not np.all(np.isfinite(pd)):
+            if not all_set(np.isfinite(pd)):
                 raise SolverInputError("parent_direction has NaN/inf")
             pn = norm(pd)
             if any_set(pn <= 1e-12):
@@ -140,21 +146,40 @@ class ChainModel(ObstacleResponse, TwoBoneFinish):
     def _plain_limit(self, i, rows, parent, dirs, fallback, reverse=False):
         """_limit (reverse: _limit_reverse) of a few rows' directions (b,3) in plain floats (limits_plain.py: the
         same bits); None where plain floats cannot take a row (the numpy path answers then)."""
-        hinge = self.limits.kind[i] == HINGE
         out, binding = [], []
         try:
             for r, p, v, fb in zip(rows.tolist(), parent.tolist(), dirs.tolist(), fallback.tolist()):
-                axis = None
-                if hinge:
-                    axis = self.hinge_axes[r, i].tolist()
-                    if reverse or i > 0:  # carried by the proposed parent direction, or by the parent
-                        axis = limits_plain.carry_axis(axis, self.hinge_refs[r, i].tolist(), v if reverse else p)
-                u, bind = limits_plain.limit(self.limits, i, p, v, fb, axis, reverse)
+                u, bind = self._plain_limit_one(i, r, p, v, fb, reverse)
                 out.append(u)
                 binding.append(bind)
         except ZeroDivisionError:
             return None
         return np.array(out, dtype=np.float64).reshape(dirs.shape), np.array(binding, dtype=bool)
+
+    def _plain_limit_one(self, i, r, parent, v, fallback, reverse=False):
+        """_plain_limit of problem r's one direction v (3-vectors as lists). ZeroDivisionError where numpy would
+        divide by zero."""
+        axis = None
+        if self.limits.kind[i] == HINGE:
+            axis = self.hinge_axes[r, i].tolist()
+            if reverse or i > 0:  # carried by the proposed parent direction, or by the parent
+                axis = limits_plain.carry_axis(axis, self.hinge_refs[r, i].tolist(), v if reverse else parent)
+        return limits_plain.limit(self.limits, i, parent, v, fallback, axis, reverse)
+
+    def _plain_binding(self, rows, dirs):
+        """violations' limit test of a few problems `rows` with unit segment directions dirs (b,n-1,3), in plain
+        floats (the same bits as the numpy path): one conversion of the directions for every joint, instead of
+        one per joint. None where plain floats cannot take a row."""
+        joints = np.nonzero(self.limits.kind != FREE)[0].tolist()
+        parents = None if self.parent_dirs is None else self.parent_dirs[rows].tolist()
+        bad = []
+        try:
+            for k, (r, d) in enumerate(zip(rows.tolist(), dirs.tolist())):
+                bad.append(any(self._plain_limit_one(i, r, parents[k] if i == 0 else d[i - 1], d[i], d[i])[1]
+                               for i in joints))
+        except ZeroDivisionError:
+            return None
+        return np.array(bad, dtype=bool)
 
     # -- passes -----------------------------------------------------------------------------------------
 
@@ -288,9 +313,13 @@ class ChainModel(ObstacleResponse, TwoBoneFinish):
             lengths = self.lengths[rows]
             dirs = (P[:, 1:] - P[:, :-1]) / lengths[..., None]
             dirs = dirs / norm(dirs)[..., None]
-            for i in np.nonzero(self.limits.kind != FREE)[0]:
-                parent = self.parent_dirs[rows] if i == 0 else dirs[:, i - 1]
-                bad |= self._limit(i, rows, parent, dirs[:, i], dirs[:, i])[1]
+            plain = self._plain_binding(rows, dirs) if len(rows) <= _FEW_CHAINS else None
+            if plain is not None:
+                bad |= plain
+            else:
+                for i in np.nonzero(self.limits.kind != FREE)[0]:
+                    parent = self.parent_dirs[rows] if i == 0 else dirs[:, i - 1]
+                    bad |= self._limit(i, rows, parent, dirs[:, i], dirs[:, i])[1]
         if self.boxes is not None:
             inside, crossing = self.penetration_counts(P, rows)
             bad |= (inside + crossing) > 0
