@@ -231,7 +231,7 @@ class _Problem(SubBasePlacement, LimbPlacement):
         result.status, result.reasons = result.status.astype(object), result.reasons.astype(object)
         tol = self.settings.chain.tolerance
         for _ in range(self.settings.limit_passes):
-            held = np.isin(result.status, ("limited", "max_iterations")) & (result.residuals > tol)
+            held = ((result.status == "limited") | (result.status == "max_iterations")) & (result.residuals > tol)
             if not self.settings.help_held_limbs:
                 # Rule (i) read literally: a limb's reach is cut only where its sub-base already had to move.
                 for k, e in enumerate(self.effectors):

@@ -93,7 +93,8 @@ class LimbPlacement:
         model, F, H0, T0 = self.model, self.F, self.H0, self.T0
         J = len(model.names)
         heads = H0.copy()
-        rot = np.broadcast_to(_EYE, (F, J, 3, 3)).copy()
+        rot = np.empty((F, J, 3, 3))
+        rot[...] = _EYE
         moved = np.zeros((F, J), dtype=bool)
         solves = {"trunk": trunk}
 

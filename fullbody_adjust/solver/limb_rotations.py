@@ -48,7 +48,8 @@ def set_segment_rotations(solves, starts, limits):
     paid once for all of them."""
     frames = [np.nonzero(ls.solved)[0] for ls in solves]
     for ls in solves:
-        ls.rotations = np.broadcast_to(_EYE, ls.joints.shape[:2] + (3, 3))[:, 1:].copy()
+        ls.rotations = np.empty((ls.joints.shape[0], ls.joints.shape[1] - 1, 3, 3))
+        ls.rotations[...] = _EYE
     if not any(f.size for f in frames):
         return
     kind = axes = None

@@ -172,7 +172,8 @@ class SubBasePlacement:
             # Paper §5.2.1: when the trunk cannot bring the SC there (joint limits), the pelvis moves by the
             # remaining error, as far as the feet allow. Not past obstacles: a blocked trunk stays.
             err = sc_star[solve] - res.positions[:, -1]
-            late = (norm(err) > self.settings.chain.tolerance) & np.isin(res.status, ("limited", "max_iterations"))
+            late = (norm(err) > self.settings.chain.tolerance) \
+                & ((res.status == "limited") | (res.status == "max_iterations"))
             if any_set(late):
                 s2 = solve[late]
                 d2 = self._root_delta(rows[s2], delta[s2] + err[late], np.zeros((s2.size, 3)),
