@@ -4,9 +4,11 @@ problems' joint limits are applied in plain floats (limits_plain.py), with the s
 
 import numpy as np
 
+from . import geometry_plain as g
 from . import limits_plain
 from .chain_finish import _MIN_FINISH_TWIST, TwoBoneFinish
 from .chain_obstacles import ObstacleResponse
+from .chain_settled import SettledChains
 from .chain_types import (_COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL, ChainBatchResult, _final_status,
                           _reach_bounds, _segment_lengths)
 from .errors import SolverInputError
@@ -37,7 +39,7 @@ def _per_problem(a, b, m):
     return a if a.shape == (b, m, 3) else np.broadcast_to(a, (b, m, 3))
 
 
-class ChainModel(ObstacleResponse, TwoBoneFinish):
+class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains):
     """Per-solve constant data of B chains and the two FABRIK passes on any subset of them.
 
     Built from the start positions: segment lengths and directions, limits (per joint), obstacles, and the
@@ -166,20 +168,24 @@ class ChainModel(ObstacleResponse, TwoBoneFinish):
                 axis = limits_plain.carry_axis(axis, self.hinge_refs[r, i].tolist(), v if reverse else parent)
         return limits_plain.limit(self.limits, i, parent, v, fallback, axis, reverse)
 
-    def _plain_binding(self, rows, dirs):
-        """violations' limit test of a few problems `rows` with unit segment directions dirs (b,n-1,3), in plain
-        floats (the same bits as the numpy path): one conversion of the directions for every joint, instead of
-        one per joint. None where plain floats cannot take a row."""
-        joints = np.nonzero(self.limits.kind != FREE)[0].tolist()
-        parents = None if self.parent_dirs is None else self.parent_dirs[rows].tolist()
-        bad = []
+    def _plain_binding(self, P, rows):
+        """violations' limit test of a few problems `rows` with poses P (b,n,3) in plain floats (the same bits as
+        the numpy path); None where plain floats cannot take a row."""
+        limited = np.nonzero(self.limits.kind != FREE)[0].tolist()
+        parents = None if self.parent_dirs is None else self.parent_dirs.tolist()
         try:
-            for k, (r, d) in enumerate(zip(rows.tolist(), dirs.tolist())):
-                bad.append(any(self._plain_limit_one(i, r, parents[k] if i == 0 else d[i - 1], d[i], d[i])[1]
-                               for i in joints))
+            return np.array([self._breaks_limits(r, chain, lengths, parents, limited) for r, chain, lengths
+                             in zip(rows.tolist(), P.tolist(), self.lengths[rows].tolist())], dtype=bool)
         except ZeroDivisionError:
             return None
-        return np.array(bad, dtype=bool)
+
+    def _breaks_limits(self, r, chain, lengths, parents, limited):
+        """The limit test of problem r's pose ``chain`` (lists) in plain floats: segment directions as violations
+        computes them, each limited joint's binding (ZeroDivisionError where numpy would divide by zero)."""
+        dirs = [g.divided(g.sub(b, a), length) for a, b, length in zip(chain, chain[1:], lengths)]
+        dirs = [g.divided(d, g.norm(d)) for d in dirs]
+        return any(self._plain_limit_one(i, r, parents[r] if i == 0 else dirs[i - 1], dirs[i], dirs[i])[1]
+                   for i in limited)
 
     # -- passes -----------------------------------------------------------------------------------------
 
@@ -310,13 +316,13 @@ class ChainModel(ObstacleResponse, TwoBoneFinish):
         it does not ignore."""
         bad = np.zeros(len(rows), dtype=bool)
         if self.limits is not None:
-            lengths = self.lengths[rows]
-            dirs = (P[:, 1:] - P[:, :-1]) / lengths[..., None]
-            dirs = dirs / norm(dirs)[..., None]
-            plain = self._plain_binding(rows, dirs) if len(rows) <= _FEW_CHAINS else None
+            plain = self._plain_binding(P, rows) if len(rows) <= _FEW_CHAINS else None
             if plain is not None:
                 bad |= plain
             else:
+                lengths = self.lengths[rows]
+                dirs = (P[:, 1:] - P[:, :-1]) / lengths[..., None]
+                dirs = dirs / norm(dirs)[..., None]
                 for i in np.nonzero(self.limits.kind != FREE)[0]:
                     parent = self.parent_dirs[rows] if i == 0 else dirs[:, i - 1]
                     bad |= self._limit(i, rows, parent, dirs[:, i], dirs[:, i])[1]
@@ -391,6 +397,10 @@ class ChainModel(ObstacleResponse, TwoBoneFinish):
         return iterations, residual, stalled, binding_out, obstacle_out, pen
 
     def solve(self, start):
+        if self.boxes is None and self.B <= _FEW_CHAINS:
+            settled = self._solve_settled(start)  # no iteration needed: plain floats, the same bits
+            if settled is not None:
+                return settled
         B = self.B
         tol = self.settings.tolerance
         P = start.copy()
