@@ -14,7 +14,7 @@ from .chain_types import (_COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL, Chain
 from .errors import SolverInputError
 from .geometry import all_set, any_perpendicular, any_set, cross, norm
 from .limits import CONE, FREE, HINGE, JointLimits, apply_cone, apply_hinge, carry_axis
-from .obstacles import as_boxes, points_inside, segments_cross
+from .obstacles import as_boxes, count_penetrations_few, points_inside, segments_cross
 
 # Up to this many problems, the limit steps (of the passes and of the limit check) run in plain floats
 # (limits_plain.py).
@@ -291,6 +291,9 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains):
             z = np.zeros(P.shape[0], dtype=np.int64)
             return z, z.copy()
         boxes = self.boxes.select(rows)
+        few = count_penetrations_few(P, boxes, self.ignore_end[rows], self.ignore_base[rows])
+        if few is not None:
+            return np.array(few[0], dtype=np.int64), np.array(few[1], dtype=np.int64)
         inside = points_inside(P[:, 1:], boxes)  # (b,n-1,K): joint 0 is fixed, reported separately
         inside[:, -1] &= ~self.ignore_end[rows]
         crossing = segments_cross(P[:, :-1], P[:, 1:], boxes)  # (b,n-1,K)

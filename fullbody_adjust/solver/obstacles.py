@@ -230,6 +230,33 @@ def penetrates_few(anchors, points, boxes, ignore_point=None, ignore_segment=Non
     return False
 
 
+# Up to this many joint-box tests, count_penetrations_few answers in plain floats: the chain solver counts the
+# penetrations of one or two chains after every iteration, where numpy's per-call cost was most of the count.
+_FEW_COUNTS = 48
+
+
+def count_penetrations_few(chains, boxes, ignore_end, ignore_base):
+    """Per chain (b,n,3) of joints: (joints 1..n-1 inside a box, segments meeting one), each a list of b ints, as
+    ChainModel.penetration_counts counts them: the last joint and segment skip the boxes ignore_end (b,K) marks,
+    the first segment those ignore_base marks. None when the tests are too many or the boxes oriented."""
+    b, n = chains.shape[0], chains.shape[1]
+    if boxes.axes is not None or b * n * len(boxes) > _FEW_COUNTS:
+        return None
+    mins, maxs = boxes.mins.tolist(), boxes.maxs.tolist()
+    skip_end, skip_base = ignore_end.tolist(), ignore_base.tolist()
+    inside, crossing = [], []
+    for r, chain in enumerate(chains.tolist()):
+        lo, hi = (mins[r], maxs[r]) if boxes.batched else (mins, maxs)
+        boxes_of = range(len(lo))
+        last = n - 1
+        inside.append(sum(any(_inside_one(lo[k], hi[k], chain[i]) and not (i == last and skip_end[r][k])
+                              for k in boxes_of) for i in range(1, n)))
+        crossing.append(sum(any(_crosses_one(lo[k], hi[k], chain[i], chain[i + 1])
+                                and not (i == last - 1 and skip_end[r][k]) and not (i == 0 and skip_base[r][k])
+                                for k in boxes_of) for i in range(n - 1)))
+    return inside, crossing
+
+
 def _inside_one(lo, hi, p):
     return lo[0] <= p[0] <= hi[0] and lo[1] <= p[1] <= hi[1] and lo[2] <= p[2] <= hi[2]
 

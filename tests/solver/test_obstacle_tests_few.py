@@ -89,3 +89,33 @@ def test_penetrates_few_answers_as_the_numpy_tests_with_what_each_row_ignores(se
             assert penetrates_few(a[rows], b[rows], sub) == (inside[rows] | crossing[rows]).any(), rows
     rows = np.arange(_FEW_TESTS // k + 1)
     assert penetrates_few(a[rows], b[rows], boxes.select(rows) if batched else boxes) is None  # numpy's turn
+
+
+@pytest.mark.parametrize("batched", [False, True])
+def test_chain_penetration_counts_of_a_few_chains_as_the_numpy_path(monkeypatch, batched):
+    """ChainModel.penetration_counts of 1-4 chains (count_penetrations_few, plain floats) against the numpy
+    path: the same counts, with the boxes the end and the base ignore (a target or the base inside a box)
+    left out, for 2- to 5-joint chains around one or two boxes, shared or per problem."""
+    from fullbody_adjust.solver import obstacles
+    from fullbody_adjust.solver.chain_model import ChainModel
+    from fullbody_adjust.solver.chain_types import ChainSettings
+    rng = np.random.default_rng(3 + batched)
+    counted = 0
+    for trial in range(300):
+        b, n, k = 1 + trial % 4, 2 + trial % 4, 1 + trial % 2
+        mins = rng.uniform(-0.6, 0.0, (b, k, 3) if batched else (k, 3))
+        boxes = Boxes(mins, mins + rng.uniform(0.2, 0.8, mins.shape))
+        start = np.cumsum(rng.normal(scale=0.4, size=(b, n, 3)), axis=1)
+        targets = start[:, -1] + rng.normal(scale=0.05, size=(b, 3))
+        model = ChainModel(start, targets, ChainSettings(), None, boxes, None)
+        pose = start + rng.normal(scale=0.2, size=start.shape)
+        pose[:, 1:][rng.random((b, n - 1)) < 0.2] = mins.reshape(-1, 3)[0]  # on a box's corner
+        rows = np.arange(b)
+        got = model.penetration_counts(pose, rows)
+        with monkeypatch.context() as numpy_path:
+            numpy_path.setattr(obstacles, "_FEW_COUNTS", 0)
+            expected = model.penetration_counts(pose, rows)
+        for g, e in zip(got, expected):
+            assert g.dtype == e.dtype and g.tolist() == e.tolist()
+        counted += int(expected[0].sum() + expected[1].sum() > 0)
+    assert 0 < counted < 300  # penetrating poses and clear ones
