@@ -244,7 +244,7 @@ def rotation_modes(obj):
     every Adjust Pose and Live update, and one attribute read per bone costs more than the rest of the read."""
     values = np.empty(len(obj.pose.bones), dtype=np.int32)
     obj.pose.bones.foreach_get("rotation_mode", values)
-    return tuple(_ROTATION_MODE_NAMES[int(v)] for v in values)
+    return tuple(_ROTATION_MODE_NAMES[v] for v in values.tolist())  # tolist: numpy ints index slowly
 
 
 def _check_readable(obj):

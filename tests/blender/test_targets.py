@@ -158,6 +158,18 @@ def test_read_targets_returns_world_positions_rotations_and_priorities(rig):
     assert by_effector["hand.L"].name == hand.name
 
 
+def test_a_target_scaled_to_zero_along_an_axis_reads_that_axis_as_zero(rig):
+    """The rotation part divides each column by its length, a zero-length one by 1: no NaN reaches the solve."""
+    empties = create_targets(bpy.context, rig, effector_positions(rig, ("hand.L",)), size=0.05)
+    hand = empties["hand.L"]
+    hand.rotation_euler = (0.4, -0.7, 1.2)
+    hand.scale = (0.0, 2.0, 0.5)
+    rotation = read_targets(rig)[0].rotation
+    assert np.isfinite(rotation).all()
+    np.testing.assert_array_equal(rotation[:, 0], 0.0)
+    np.testing.assert_allclose(rotation[:, 1:], euler_xyz(0.4, -0.7, 1.2)[:, 1:], atol=1e-6)
+
+
 def test_read_targets_follows_a_parented_target(rig):
     empties = create_targets(bpy.context, rig, effector_positions(rig, ("hand.R",)), size=0.05)
     holder = bpy.data.objects.new("holder", None)
