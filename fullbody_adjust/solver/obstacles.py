@@ -106,10 +106,18 @@ class Boxes:
         return np.einsum("...ij,...cj->...ci", self.axes, local)
 
     def select(self, rows):
-        """Per-problem boxes of the problems `rows` (index array); shared boxes are returned unchanged."""
+        """Per-problem boxes of the problems `rows` (index array); shared boxes are returned unchanged. Rows of
+        boxes checked once are not checked again: the chain solver selects a few times per iteration, and
+        __post_init__'s checks cost more than its tests on one frame's boxes."""
         if not self.batched:
             return self
-        return Boxes(self.mins[rows], self.maxs[rows], None if self.axes is None else self.axes[rows])
+        out = object.__new__(Boxes)
+        for name, arr in (("mins", self.mins[rows]), ("maxs", self.maxs[rows]),
+                          ("axes", None if self.axes is None else self.axes[rows])):
+            if arr is not None:
+                arr.setflags(write=False)
+            object.__setattr__(out, name, arr)
+        return out
 
 
 def as_boxes(obstacles):
