@@ -7,6 +7,7 @@ from itertools import combinations
 import numpy as np
 
 from . import reach_balls_plain
+from .reach_balls_plain import NEAR_CENTRE
 from .geometry import any_set, cross, dot, norm, unit_or_perpendicular
 
 _EYE = np.eye(3)
@@ -169,8 +170,9 @@ def nearest_on_sphere_in_balls(points, centre, radius, centres, radii, active):
     k = radii.shape[1]
     d = points - centre
     dn = norm(d)
-    radial = centre + d * (radius / np.where(dn > 0.0, dn, 1.0))[:, None]
-    radial = np.where((dn > 0.0)[:, None], radial, centre + radius[:, None] * _EYE[0])  # any point will do
+    away = dn > NEAR_CENTRE
+    radial = centre + d * (radius / np.where(away, dn, 1.0))[:, None]
+    radial = np.where(away[:, None], radial, centre + radius[:, None] * _EYE[0])  # any point will do
     cands = [radial[:, None]]
     valid = [np.ones((len(points), 1), dtype=bool)]
     if k:

@@ -11,6 +11,11 @@ from itertools import combinations
 from . import geometry_plain as g
 
 _INF = math.inf
+# A point nearer a sphere's centre than this has no usable direction to it: the squares of its offset's
+# components fall among the subnormal numbers, its length loses digits, and the radial projection lands off the
+# sphere (a point 4e-161 from the centre landed 2.6e-4 off a unit sphere). Every point of the sphere is then as
+# near as any other, up to this distance.
+NEAR_CENTRE = 1e-150
 
 
 def _inside(x, centres, radii, active):
@@ -114,7 +119,8 @@ def nearest_on_sphere_in_balls(p, centre, radius, centres, radii, active):
     radius a float). Returns (x, found)."""
     d = g.sub(p, centre)
     dn = g.norm(d)
-    radial = g.add(centre, g.scaled(d, radius / dn)) if dn > 0.0 else g.add(centre, g.scaled(g.EYE[0], radius))
+    radial = g.add(centre, g.scaled(d, radius / dn)) if dn > NEAR_CENTRE \
+        else g.add(centre, g.scaled(g.EYE[0], radius))
     cands = [radial]
     k = len(radii)
     for i in range(k):

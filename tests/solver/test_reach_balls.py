@@ -3,7 +3,7 @@ active ball, checked on dense samples of the sphere; and frames without rows."""
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
@@ -27,6 +27,10 @@ coords = st.floats(-1.0, 1.0)
 @given(point=arrays(np.float64, 3, elements=coords), centre=arrays(np.float64, 3, elements=coords),
        radius=st.floats(0.3, 1.5), centres=arrays(np.float64, (3, 3), elements=coords),
        radii=arrays(np.float64, 3, elements=st.floats(0.3, 1.5)), active=arrays(bool, 3))
+# A counterexample hypothesis found: the point 7e-161 from the sphere's centre, whose offset's squares are
+# subnormal (the radial projection landed 2.6e-4 off the sphere).
+@example(point=np.zeros(3), centre=np.full(3, 4.02661797e-161), radius=1.0, centres=np.zeros((3, 3)),
+         radii=np.ones(3), active=np.zeros(3, dtype=bool))
 def test_nearest_point_on_a_sphere_within_balls_beats_every_sample(point, centre, radius, centres, radii, active):
     _check_against_samples(point, centre, radius, centres, radii, active)
 
