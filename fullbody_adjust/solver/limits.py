@@ -26,10 +26,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from . import geometry_plain as gp
 from .errors import SolverInputError
 from .geometry import any_perpendicular, any_set, apply_matrix, cross, dot, norm, normalize, swing_rotation
 
 FREE, CONE, HINGE = 0, 1, 2
+# Up to this many hinge axes carry_axis turns in plain floats (a warm start, one frame's limbs).
+_FEW_CARRIED = 4
 
 # A direction whose in-plane part is shorter than this is treated as parallel to the hinge axis / antiparallel
 # to the parent: its bend angle is undefined, so the previous direction stands in.
@@ -179,7 +182,16 @@ def hinge_axis_from_bend(parent_dir, child_dir):
 
 def carry_axis(axis_at_start, start_parent_dir, parent_dir):
     """The hinge axis moved with its parent segment: the minimal swing from the start parent direction to
-    the current one, applied to the start axis."""
+    the current one, applied to the start axis. A few rows (b,3) each are carried in plain floats
+    (geometry_plain: the same bits)."""
+    if axis_at_start.ndim == 2 and len(axis_at_start) <= _FEW_CARRIED \
+            and axis_at_start.shape == start_parent_dir.shape == parent_dir.shape:
+        try:
+            return np.array([gp.apply_matrix(gp.swing_rotation(ref, parent), axis) for axis, ref, parent
+                             in zip(axis_at_start.tolist(), start_parent_dir.tolist(), parent_dir.tolist())],
+                            dtype=np.float64).reshape(axis_at_start.shape)
+        except ZeroDivisionError:
+            pass
     return apply_matrix(swing_rotation(start_parent_dir, parent_dir), axis_at_start)
 
 

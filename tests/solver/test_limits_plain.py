@@ -128,3 +128,22 @@ def test_the_chain_limit_check_of_a_few_chains_as_its_numpy_check(monkeypatch, k
         np.testing.assert_array_equal(model.violations(pose, rows), expected)
         broken, kept = broken + expected.sum(), kept + (~expected).sum()
     assert broken and kept
+
+
+def test_carrying_a_few_hinge_axes_gives_the_bits_of_carrying_many():
+    """limits.carry_axis on up to four rows (plain floats) against the same rows among many (numpy), also for
+    parents that did not turn, turned right round, or nearly so."""
+    from fullbody_adjust.solver import limits
+    rng = np.random.default_rng(21)
+    n = 400
+    axis, ref, parent = _unit(rng, n), _unit(rng, n), _unit(rng, n)
+    parent[::9] = ref[::9]  # no swing
+    parent[3::9] = -ref[3::9]  # a half turn about a chosen axis
+    parent[5::9] = ref[5::9] + 1e-9 * rng.normal(size=parent[5::9].shape)
+    assert n > limits._FEW_CARRIED
+    many = carry_axis(axis, ref, parent)
+    for size in range(1, limits._FEW_CARRIED + 1):
+        for start in range(0, n - size, size):
+            rows = slice(start, start + size)
+            np.testing.assert_array_equal(carry_axis(axis[rows], ref[rows], parent[rows]).view(np.int64),
+                                          many[rows].view(np.int64))
