@@ -170,8 +170,11 @@ class LimbPlacement:
         F = self.F
         c0 = self.chain0[name]
         r = np.broadcast_to(_EYE, (F, 3, 3)) if parent_rot is None else parent_rot
-        carried = base[:, None, :] + np.einsum("fij,fkj->fki", r, c0 - c0[:, :1])
-        carried = np.where(parent_moved[:, None, None], carried, c0)  # (c0 - b) + b may differ from c0 by 1 ulp
+        if any_set(parent_moved):
+            carried = base[:, None, :] + np.einsum("fij,fkj->fki", r, c0 - c0[:, :1])
+            carried = np.where(parent_moved[:, None, None], carried, c0)  # (c0 - b) + b may differ from c0 by 1 ulp
+        else:
+            carried = c0.copy()
         solved = self.limb_active[name].copy()
         status = np.full(F, "", dtype=object)
         reason = np.full(F, "", dtype=object)
