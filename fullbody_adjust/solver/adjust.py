@@ -126,7 +126,7 @@ class _Problem(SubBasePlacement, LimbPlacement):
         if t.shape != (F, E, 3):
             raise SolverInputError(f"targets must have shape ({F},{E},3), got {t.shape}")
         nan_rows = np.isnan(t).all(axis=2)
-        if np.any(~np.isfinite(t) & ~nan_rows[..., None]):
+        if any_set(~np.isfinite(t) & ~nan_rows[..., None]):
             raise SolverInputError("target has NaN/inf (a target row must be all finite, or all NaN for none)")
         self.targets = t
         self.active_e = ~nan_rows
@@ -136,7 +136,7 @@ class _Problem(SubBasePlacement, LimbPlacement):
             pr = np.asarray(priorities, dtype=np.float64)
             if pr.shape != (E,):
                 raise SolverInputError(f"priorities must have shape ({E},), got {pr.shape}")
-            if not np.all(np.isfinite(pr)) or np.any(pr < 0):
+            if not all_set(np.isfinite(pr)) or any_set(pr < 0):
                 raise SolverInputError("priorities must be finite numbers >= 0")
         self.priorities = pr
         if obstacles is not None:
@@ -168,22 +168,9 @@ class _Problem(SubBasePlacement, LimbPlacement):
 
         self.default_limits = limits is None
         if limits is None:
-            limits = self.prepared.limits
-        elif not isinstance(limits, dict) or any(not isinstance(v, LimbLimits) for v in limits.values()):
-            raise SolverInputError("limits must be a dict of limb name -> LimbLimits")
-        for name, ll in limits.items():
-            if name not in model.limbs:
-                raise SolverInputError(f"limits given for unknown limb {name!r}")
-            m = model.limbs[name].n_joints - 1
-            if len(ll.limits) != m:
-                raise SolverInputError(f"limits for {name!r} cover {len(ll.limits)} joints, the chain has {m}")
-            if ll.limits.hinge_axis.ndim == 3 and ll.limits.hinge_axis.shape[0] != F:
-                raise SolverInputError(f"limits for {name!r}: per-frame hinge axes need {F} frames")
-            pd = ll.parent_direction
-            if pd is not None and (np.shape(pd) != (F, 3) or not np.all(np.isfinite(pd))):
-                raise SolverInputError(f"limits for {name!r}: parent_direction must be finite, shape ({F},3)")
-            if pd is None and ll.limits.kind[0] != FREE:
-                raise SolverInputError(f"limits for {name!r}: joint 0 is limited but has no parent_direction")
+            limits = self.prepared.limits  # the solver's own, made to fit: not checked again on every solve
+        else:
+            _check_limits(model, limits, F)
         self.limits = limits
         self.iterations = np.zeros(F, dtype=np.int64)
         self.end_turns, self.limb_pole = {}, {}
@@ -202,7 +189,7 @@ class _Problem(SubBasePlacement, LimbPlacement):
             for k, e in enumerate(self.effectors):
                 rows = given[:, k].reshape(F, -1)
                 unset = np.isnan(rows).all(axis=1)
-                if np.any(~np.isfinite(rows) & ~unset[:, None]):
+                if any_set(~np.isfinite(rows) & ~unset[:, None]):
                     raise SolverInputError(f"{label} for {e} have NaN/inf (all NaN for none)")
                 if e != "head" and not all_set(unset):
                     store[LIMB_OF_EFFECTOR[e]] = given[:, k]
@@ -359,6 +346,26 @@ def _take_limits(limits, rows):
     axes, ref = limits.hinge_axis, limits.hinge_reference
     return limits.derived(hinge_axis=axes[rows] if axes.ndim == 3 else axes,
                           hinge_reference=ref[rows] if ref is not None and ref.ndim == 3 else ref)
+
+
+def _check_limits(model, limits, F):
+    """A caller's limits {limb name: LimbLimits} for F frames of ``model``: SolverInputError (one line) if they
+    do not fit."""
+    if not isinstance(limits, dict) or any(not isinstance(v, LimbLimits) for v in limits.values()):
+        raise SolverInputError("limits must be a dict of limb name -> LimbLimits")
+    for name, ll in limits.items():
+        if name not in model.limbs:
+            raise SolverInputError(f"limits given for unknown limb {name!r}")
+        m = model.limbs[name].n_joints - 1
+        if len(ll.limits) != m:
+            raise SolverInputError(f"limits for {name!r} cover {len(ll.limits)} joints, the chain has {m}")
+        if ll.limits.hinge_axis.ndim == 3 and ll.limits.hinge_axis.shape[0] != F:
+            raise SolverInputError(f"limits for {name!r}: per-frame hinge axes need {F} frames")
+        pd = ll.parent_direction
+        if pd is not None and (np.shape(pd) != (F, 3) or not all_set(np.isfinite(pd))):
+            raise SolverInputError(f"limits for {name!r}: parent_direction must be finite, shape ({F},3)")
+        if pd is None and ll.limits.kind[0] != FREE:
+            raise SolverInputError(f"limits for {name!r}: joint 0 is limited but has no parent_direction")
 
 
 def _frames_array(a, label, shape):

@@ -26,7 +26,7 @@ import numpy as np
 
 from . import hinge_axis_plain
 from .errors import SolverInputError
-from .geometry import any_perpendicular, apply_matrix, cross, dot, norm, normalize
+from .geometry import all_set, any_perpendicular, apply_matrix, cross, dot, norm, normalize
 from .limits import CONE, HINGE, JointLimits
 from .vocabulary import EFFECTORS, GROUPS, REQUIRED_GROUPS, SINGLE_BONE_GROUPS
 
@@ -81,7 +81,7 @@ class Skeleton:
         for label, arr in (("heads", heads), ("tails", tails)):
             if arr.shape not in ((j, 3),) and not (arr.ndim == 3 and arr.shape[1:] == (j, 3)):
                 raise SolverInputError(f"{label} must have shape ({j},3) or (F,{j},3), got {arr.shape}")
-            if not np.all(np.isfinite(arr)):
+            if not all_set(np.isfinite(arr)):
                 raise SolverInputError(f"{label} have NaN/inf")
         if heads.shape != tails.shape:
             raise SolverInputError(f"heads {heads.shape} and tails {tails.shape} differ in shape")
@@ -381,7 +381,7 @@ class LimitStart:
                 raise SolverInputError(f"bone_x_axes must have shape {heads.shape[1:]} or {heads.shape}, got "
                                        f"{x_axes.shape}")
             self.x_axes = np.broadcast_to(x_axes, heads.shape)
-            if not np.all(np.isfinite(self.x_axes)):
+            if not all_set(np.isfinite(self.x_axes)):
                 raise SolverInputError("bone_x_axes have NaN/inf")
         _up, _left, self.forward = model.body_frame(heads, tails)
         # The pelvis never rotates during a solve, so its up direction is a fixed frame for the lumbar and hip
@@ -442,7 +442,7 @@ class LimitStart:
             else:
                 # No clavicle: the SC -> shoulder direction plays its part for the shoulder cone.
                 proxy = joints[:, 0] - self.sc
-                if np.all(norm(proxy) > 1e-9 * norm(segs[:, 0])):
+                if all_set(norm(proxy) > 1e-9 * norm(segs[:, 0])):
                     parent_dir = proxy
                     set_cone(0, human.shoulder)
         elif limb.name.startswith("leg"):

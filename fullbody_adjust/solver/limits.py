@@ -175,7 +175,7 @@ def hinge_axis_from_bend(parent_dir, child_dir):
     u = normalize(parent_dir)
     v = normalize(child_dir)
     c = cross(u, v)
-    if np.any(norm(c) <= 1e-9):
+    if any_set(norm(c) <= 1e-9):
         raise SolverInputError("joint is straight: cannot derive a hinge axis from it")
     return normalize(c)
 
@@ -212,7 +212,7 @@ def apply_cone(parent, v, angle, fallback):
     if not any_set(over) and v.shape == over.shape + (3,):
         return v, over  # nothing to clamp (the common case inside FABRIK's iterations)
     bad = ~(wn > _DEGENERATE)
-    if np.any(bad):
+    if any_set(bad):
         fb = fallback - dot(fallback, parent)[..., None] * parent
         w = _with_fallback(w, fb, bad)
         bad = ~(norm(w) > _DEGENERATE)
@@ -239,7 +239,7 @@ def _hinge_frame(parent, axis):
     and the side of positive bend, axis x parent."""
     a = axis - dot(axis, parent)[..., None] * parent
     a_bad = ~(norm(a) > _DEGENERATE)
-    if np.any(a_bad):
+    if any_set(a_bad):
         a = _with_fallback(a, np.broadcast_to(any_perpendicular(parent), a.shape), a_bad)
     a = a - dot(a, parent)[..., None] * parent  # twice: a may be tiny, its first pass inexact
     a = a / norm(a)[..., None]
@@ -254,12 +254,12 @@ def apply_hinge(parent, v, axis, lo, hi, fallback, twist=None):
     the parent by up to +-twist: the nearest direction of the two wedges the module docstring describes.
     Returns (limited directions, binding mask: the direction had to change)."""
     a, side = _hinge_frame(parent, axis)
-    if twist is not None and np.any(np.asarray(twist) > 0.0):
+    if twist is not None and any_set(np.asarray(twist) > 0.0):
         return _apply_twisted_hinge(parent, v, a, side, lo, hi, fallback, np.asarray(twist, dtype=np.float64))
     x = dot(v, parent)
     y = dot(v, side)
     bad = ~(np.hypot(x, y) > _DEGENERATE)
-    if np.any(bad):
+    if any_set(bad):
         x = np.where(bad, dot(fallback, parent), x)
         y = np.where(bad, dot(fallback, side), y)
         bad = ~(np.hypot(x, y) > _DEGENERATE)
@@ -282,7 +282,7 @@ def _apply_twisted_hinge(parent, v, a, side, lo, hi, fallback, twist):
     phi = np.arctan2(z, y)
     # v along the axis with no twist to turn to it (twist 0 on that row): the previous direction stands in.
     bad = ~(np.hypot(x, r * np.cos(phi - np.clip(phi, -twist, twist))) > _DEGENERATE)
-    if np.any(bad):
+    if any_set(bad):
         x = np.where(bad, dot(fallback, parent), x)
         y2, z2 = dot(fallback, side), dot(fallback, a)
         r = np.where(bad, np.hypot(y2, z2), r)

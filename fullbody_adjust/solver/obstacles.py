@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import SolverInputError
-from .geometry import any_set
+from .geometry import all_set, any_set
 
 
 @dataclass(frozen=True)
@@ -28,7 +28,7 @@ class Boxes:
         if mins.shape != maxs.shape or mins.ndim not in (2, 3) or mins.shape[-1] != 3:
             raise SolverInputError(
                 f"boxes need mins and maxs of the same shape (K,3) or (B,K,3), got {mins.shape} and {maxs.shape}")
-        if not (np.all(np.isfinite(mins)) and np.all(np.isfinite(maxs))):
+        if not (all_set(np.isfinite(mins)) and all_set(np.isfinite(maxs))):
             raise SolverInputError("obstacle boxes have NaN/inf")
         bad = np.nonzero(np.any(mins > maxs, axis=-1))
         if bad[0].size:
@@ -42,7 +42,7 @@ class Boxes:
             if axes.shape != mins.shape + (3,):
                 raise SolverInputError(f"box axes must have shape {mins.shape + (3,)}, got {axes.shape}")
             gram = np.einsum("...ji,...jk->...ik", axes, axes)
-            if not (np.all(np.isfinite(axes)) and np.allclose(gram, np.eye(3), atol=1e-9)):
+            if not (all_set(np.isfinite(axes)) and np.allclose(gram, np.eye(3), atol=1e-9)):
                 raise SolverInputError("box axes must be orthonormal")
             axes.setflags(write=False)
             object.__setattr__(self, "axes", axes)
@@ -53,7 +53,7 @@ class Boxes:
         corners = np.asarray(corners, dtype=np.float64)
         if corners.ndim not in (3, 4) or corners.shape[-1] != 3 or corners.shape[-2] < 1:
             raise SolverInputError(f"box corners must have shape (K,8,3), (K,2,3) or (B,K,...,3), got {corners.shape}")
-        if not np.all(np.isfinite(corners)):
+        if not all_set(np.isfinite(corners)):
             raise SolverInputError("obstacle box corners have NaN/inf")
         return cls(corners.min(axis=-2), corners.max(axis=-2))
 
@@ -67,7 +67,7 @@ class Boxes:
         corners = np.asarray(corners, dtype=np.float64)
         if corners.ndim not in (3, 4) or corners.shape[-2:] != (8, 3):
             raise SolverInputError(f"box corners must have shape (K,8,3) or (B,K,8,3), got {corners.shape}")
-        if not np.all(np.isfinite(corners)):
+        if not all_set(np.isfinite(corners)):
             raise SolverInputError("obstacle box corners have NaN/inf")
         if corners.shape[-3] == 0:
             return cls(np.zeros(corners.shape[:-2] + (3,)), np.zeros(corners.shape[:-2] + (3,)))

@@ -30,7 +30,7 @@ from .body import CHAIN, END, FIXED, ROOT, LimitStart
 from .chain_model import ChainModel
 from .chain_types import _reach_bounds
 from .errors import SolverInputError
-from .geometry import norm
+from .geometry import any_set, norm
 from .vocabulary import GROUPS
 
 _CAPACITY = 4
@@ -63,7 +63,7 @@ class PreparedStart:
                 joints = limb.joints(self._heads, self._tails)
                 lengths = norm(joints[:, 1:] - joints[:, :-1])
                 short = lengths <= 1e-12
-                if np.any(short):
+                if any_set(short):
                     i = int(np.nonzero(short.any(axis=0))[0][0])
                     what = self.model.names[limb.bones[i]]
                     raise SolverInputError(f"{name}: chain segment {i} (from bone {what!r}) has zero length")

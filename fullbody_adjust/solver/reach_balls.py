@@ -90,7 +90,7 @@ def nearest_in_balls(points, centres, radii, active):
     feasible = _inside(points, centres, radii, active)
     best_d = np.where(feasible, 0.0, np.inf)
     todo = ~feasible
-    if np.any(todo):
+    if any_set(todo):
         # Only the rows outside some ball have candidates to weigh (a point inside all stays, at distance 0).
         rows = np.nonzero(todo)[0]
         best[rows], best_d[rows] = _nearest_candidate(points[rows], centres[rows], radii[rows], active[rows])
@@ -208,7 +208,7 @@ def sub_base_point(points, centres, radii, active, priorities, variant):
         return np.array([x], dtype=np.float64), np.array([ok])
     x, feasible = nearest_in_balls(points, centres, radii, active)
     todo = ~feasible & np.any(active, axis=1)
-    if not np.any(todo):
+    if not any_set(todo):
         return x, feasible
     rows = np.nonzero(todo)[0]
     p, c, r, act = points[rows], centres[rows], radii[rows], active[rows]

@@ -10,7 +10,7 @@ import numpy as np
 from .adjust import sub_base_point
 from .contacts import GROUND, RetargetSettings, detect_contacts, hold
 from .errors import SolverInputError
-from .geometry import norm
+from .geometry import all_set, norm
 from .retarget_rig import (EFFECTOR_CHAIN, EFFECTORS, FEET, Rig, ankle_above_sole, chain_joints, effector_points,
                            heading_rotation, hip_centres, leg_length, rest_points, sole_heights)
 from .retarget_transfer import transfer_pose, translate_body
@@ -97,7 +97,7 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     source_pose = np.asarray(source_pose, dtype=np.float64)
     if source_pose.ndim != 4 or source_pose.shape[1:] != (len(source), 4, 4) or len(source_pose) == 0:
         raise SolverInputError(f"source pose must have shape (F,{len(source)},4,4), got {source_pose.shape}")
-    if not np.all(np.isfinite(source_pose)):
+    if not all_set(np.isfinite(source_pose)):
         raise SolverInputError("source pose has NaN/inf")
     target_basis = np.asarray(target_basis, dtype=np.float64)
     if target_basis.shape != (len(target), 4, 4):

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import SolverInputError
-from .geometry import cross, cross_components, dot, norm, normalize
+from .geometry import all_set, any_set, cross, cross_components, dot, norm, normalize
 from .vocabulary import LIMB_EFFECTORS
 
 EFFECTORS = LIMB_EFFECTORS
@@ -43,12 +43,12 @@ class Rig:
         if parents.shape != (j,) or rest.shape != (j, 4, 4) or lengths.shape != (j,) or connected.shape != (j,):
             raise SolverInputError(f"rig of {j} bones: parents {parents.shape}, rest {rest.shape}, "
                                    f"lengths {lengths.shape}, connected {connected.shape} do not fit")
-        if np.any(parents >= np.arange(j)) or np.any(parents < -1):
+        if any_set(parents >= np.arange(j)) or any_set(parents < -1):
             raise SolverInputError("rig bones must come after their parents")
-        if not (np.all(np.isfinite(rest)) and np.all(np.isfinite(world)) and np.all(np.isfinite(lengths))):
+        if not (all_set(np.isfinite(rest)) and all_set(np.isfinite(world)) and all_set(np.isfinite(lengths))):
             raise SolverInputError("rig has NaN/inf in its rest or world matrix")
         scales = np.linalg.norm(world[:3, :3], axis=0)
-        if world.shape != (4, 4) or not np.all(scales > 0.0) or np.ptp(scales) > 1e-4 * scales.max() \
+        if world.shape != (4, 4) or not all_set(scales > 0.0) or np.ptp(scales) > 1e-4 * scales.max() \
                 or np.linalg.det(world[:3, :3]) <= 0.0:
             raise SolverInputError("armature object scale must be uniform and positive (apply its scale)")
         groups = {g: tuple(int(b) for b in bones) for g, bones in dict(self.groups).items()}

@@ -44,7 +44,8 @@ import numpy as np
 
 from .body import BodyModel, LimbLimits
 from .errors import SolverInputError
-from .geometry import any_perpendicular, apply_matrix, cross, dot, norm, normalize, rotate_about_axis
+from .geometry import (all_set, any_perpendicular, any_set, apply_matrix, cross, dot, norm, normalize,
+                       rotate_about_axis)
 
 AXES = "XYZ"
 
@@ -81,7 +82,7 @@ class BoneLimitSpec:
                 r = (lo, hi)
             checked.append(r)
         rest = np.eye(3) if self.rest_in_parent is None else np.array(self.rest_in_parent, dtype=np.float64)
-        if rest.shape != (3, 3) or not np.all(np.isfinite(rest)):
+        if rest.shape != (3, 3) or not all_set(np.isfinite(rest)):
             raise SolverInputError("rest_in_parent must be a finite 3x3 matrix")
         rest.setflags(write=False)
         object.__setattr__(self, "locked", locked)
@@ -171,7 +172,7 @@ def _perpendicular_axis(axis, p):
     """Unit `axis` made perpendicular to the unit parent direction p (any perpendicular where it lies along p)."""
     a = axis - dot(axis, p)[..., None] * p
     bad = ~(norm(a) > 1e-9)
-    if np.any(bad):
+    if any_set(bad):
         a = np.where(bad[..., None], any_perpendicular(p), a)
     return normalize(a)
 

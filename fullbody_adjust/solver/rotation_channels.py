@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import SolverInputError
+from .geometry import all_set, any_set
 from .vocabulary import EULER_ORDERS, ROTATION_PROPERTY
 
 
@@ -71,9 +72,9 @@ def quaternions_of(matrices):
     q = np.empty((len(m), 4))
     for p in range(4):
         sel = pick == p
-        if not np.any(sel):
+        if not any_set(sel):
             continue
-        s = m if p == pick[0] and np.all(sel) else m[sel]  # usually one case covers every matrix: no gather
+        s = m if p == pick[0] and all_set(sel) else m[sel]  # usually one case covers every matrix: no gather
         if p == 0:
             r = np.sqrt(1.0 + s[:, 0, 0] + s[:, 1, 1] + s[:, 2, 2]) * 2
             v = [0.25 * r, (s[:, 2, 1] - s[:, 1, 2]) / r, (s[:, 0, 2] - s[:, 2, 0]) / r, (s[:, 1, 0] - s[:, 0, 1]) / r]

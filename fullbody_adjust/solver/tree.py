@@ -30,7 +30,7 @@ from .chain import ChainSettings, solve_chain
 from .chain_model import ChainModel
 from .chain_types import _STALL
 from .errors import SolverInputError
-from .geometry import any_set
+from .geometry import all_set, any_set
 from .obstacles import as_boxes, points_inside, segments_cross
 
 STRATEGIES = ("centroid", "weighted", "sequential")
@@ -66,7 +66,7 @@ class _Tree:
         n = p.shape[0]
         if n < 2:
             raise SolverInputError("a tree needs at least 2 joints")
-        if not np.all(np.isfinite(p)):
+        if not all_set(np.isfinite(p)):
             raise SolverInputError("positions have NaN/inf")
         par = np.asarray(parents)
         if par.shape != (n,) or not np.issubdtype(par.dtype, np.integer):
@@ -74,7 +74,7 @@ class _Tree:
         roots = np.nonzero(par == -1)[0]
         if roots.size != 1:
             raise SolverInputError(f"the tree needs exactly one root (parent -1), found {roots.size}")
-        if np.any((par < -1) | (par >= n)):
+        if any_set((par < -1) | (par >= n)):
             raise SolverInputError("a parent index is out of range")
         self.n, self.root, self.parents = n, int(roots[0]), par.astype(np.int64)
         self.paths = []  # root -> joint, for every joint
@@ -102,7 +102,7 @@ class _Tree:
             t = np.asarray(e.target, dtype=np.float64)
             if t.shape != (3,):
                 raise SolverInputError(f"target of effector {e.joint} must have shape (3,)")
-            if not np.all(np.isfinite(t)):
+            if not all_set(np.isfinite(t)):
                 raise SolverInputError(f"target of effector {e.joint} has NaN/inf")
             if not np.isfinite(e.priority):
                 raise SolverInputError(f"priority of effector {e.joint} is not finite")
@@ -190,7 +190,7 @@ def _solve_fabrik(tree, start, settings, obstacles, weighted):
     residual = _residuals(tree, X)
     iterations = 0
     stalled = False
-    while np.any(residual > tol) and iterations < settings.max_iterations:
+    while any_set(residual > tol) and iterations < settings.max_iterations:
         before = X.copy()
         F = X.copy()  # forward-stage positions
         proposals = {}  # sub-base joint -> [(position, weight)]
@@ -218,7 +218,7 @@ def _solve_fabrik(tree, start, settings, obstacles, weighted):
         history.append(residual)
         counts.append(iterations)
         moved = max(np.linalg.norm(X[e.joint] - before[e.joint]) for e in tree.effectors)
-        if np.any(residual > tol) and moved < tol * _STALL:
+        if any_set(residual > tol) and moved < tol * _STALL:
             stalled = True
             break
     how = f"stalled after {iterations} iterations" if stalled else f"iteration cap {iterations} reached"

@@ -42,7 +42,7 @@ def two_bone_start(start, targets, axis, pole=None):
         cos_max = (dist * dist + length * length - reach2 * reach2) / (2.0 * length * np.maximum(dist, 1e-300))
         cos_now = dot(arm, to_t) / (length * np.maximum(dist, 1e-300))
         need = (cos_now < cos_max) & (dist > 0.0)
-        if np.any(need):
+        if any_set(need):
             t_dir = to_t / np.maximum(dist, 1e-300)[:, None]
             angle_now = np.arccos(np.clip(cos_now, -1.0, 1.0))
             angle_ok = np.arccos(np.clip(cos_max, -1.0, 1.0))
