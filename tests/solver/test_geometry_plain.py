@@ -21,31 +21,22 @@ def _bits(a):
     return np.asarray(a, dtype=np.float64).view(np.int64)
 
 
+# The plain products and the numpy calls they stand in for, with the second operand's shape per row.
+PRODUCTS = {
+    "matrix times vector": (gp.apply_matrix, g.apply_matrix, (3,)),
+    "matrix times points": (gp.apply_to_points, lambda m, p: np.einsum("bij,bkj->bki", m, p), (4, 3)),  # two_bone_start
+    "matrix product": (gp.matmul, lambda a, b: np.einsum("bij,bjk->bik", a, b), (3, 3)),  # limb_rotations
+}
+
+
 @pytest.mark.parametrize("seed", range(3))
-def test_matrix_times_vector_has_the_bits_of_einsum(seed):
+@pytest.mark.parametrize("product", PRODUCTS)
+def test_matrix_products_have_the_bits_of_einsum(product, seed):
+    plain, numpy_call, shape = PRODUCTS[product]
     rng = np.random.default_rng(seed)
-    m, v = _values(rng, (3000, 3, 3)), _values(rng, (3000, 3))
-    batch = g.apply_matrix(m, v)
-    plain = [gp.apply_matrix(mi.tolist(), vi.tolist()) for mi, vi in zip(m, v)]
-    assert np.array_equal(_bits(plain), _bits(batch))
-
-
-@pytest.mark.parametrize("seed", range(3))
-def test_matrix_times_points_has_the_bits_of_einsum(seed):
-    rng = np.random.default_rng(10 + seed)
-    m, points = _values(rng, (1500, 3, 3)), _values(rng, (1500, 4, 3))
-    batch = np.einsum("bij,bkj->bki", m, points)  # as two_bone_start turns a chain about its base
-    plain = [gp.apply_to_points(mi.tolist(), pi.tolist()) for mi, pi in zip(m, points)]
-    assert np.array_equal(_bits(plain), _bits(batch))
-
-
-@pytest.mark.parametrize("seed", range(3))
-def test_matrix_product_has_the_bits_of_einsum(seed):
-    rng = np.random.default_rng(20 + seed)
-    a, b = _values(rng, (3000, 3, 3)), _values(rng, (3000, 3, 3))
-    batch = np.einsum("bij,bjk->bik", a, b)  # as limb_rotations chains the segment rotations
-    plain = [gp.matmul(ai.tolist(), bi.tolist()) for ai, bi in zip(a, b)]
-    assert np.array_equal(_bits(plain), _bits(batch))
+    a, b = _values(rng, (2000, 3, 3)), _values(rng, (2000,) + shape)
+    got = [plain(x.tolist(), y.tolist()) for x, y in zip(a, b)]
+    assert np.array_equal(_bits(got), _bits(numpy_call(a, b)))
 
 
 def test_all_zero_products_give_positive_zero_as_einsum_does():
