@@ -14,7 +14,8 @@ from .limits import FREE
 
 class SettledChains:
     """ChainModel.solve for problems that each either stretch toward a target beyond reach or start at their
-    target within their limits; it uses the model's lengths, targets, limits and parent directions, and its plain limit steps."""
+    target within their limits; it uses the model's lengths, targets, limits and parent directions, and its
+    plain limit steps."""
 
     def _solve_settled(self, start):
         """ChainModel.solve(start) in plain floats, or None when some problem needs FABRIK's iterations (a target
