@@ -9,11 +9,14 @@ import numpy as np
 from .body import CHAIN, ROOT
 from .chain import solve_chain_batch
 from .chain_types import ChainBatchResult, _final_status
+from . import geometry_plain as gp
 from .geometry import any_set, apply_matrix, norm, stack_rows
 from .limb_rotations import _EYE, LimbSolve, end_rotation, set_segment_rotations
 from .limits import HINGE, JointLimits, carry_axis
 from .obstacles import points_inside, segments_cross
 from .two_bone_start import two_bone_start
+
+_EYE_ROWS = _EYE.tolist()
 
 
 class LimbPlacement:
@@ -90,6 +93,12 @@ class LimbPlacement:
         """Top-down pass over the bones, one hierarchy level at a time: new heads, tails and world rotation
         deltas; limbs other than the trunk are solved when their first bone is reached (their base then rides
         on its parent)."""
+        if self.F == 1:
+            return self._propagate_one_frame(delta, trunk)
+        return self._propagate_frames(delta, trunk)
+
+    def _propagate_frames(self, delta, trunk):
+        """_propagate on F frames at once, numpy on every level."""
         model, F, H0, T0 = self.model, self.F, self.H0, self.T0
         J = len(model.names)
         heads = H0.copy()
@@ -134,6 +143,52 @@ class LimbPlacement:
         _carry(heads, rot, moved, H0, *self.prepared.leaves)  # fingers, face...: on their nearest placed ancestor
         tails = np.where(moved[..., None], heads + apply_matrix(rot, T0 - H0), T0) if any_set(moved) else T0.copy()
         return heads, tails, rot, solves
+
+    def _propagate_one_frame(self, delta, trunk):
+        """_propagate on one frame with its levels' per-bone steps in plain floats (the same operations:
+        geometry_plain's products add as einsum does); the limbs' solves, the leaves (fingers, face: many bones
+        at once) and the tails in numpy as there."""
+        model, H0, T0 = self.model, self.H0, self.T0
+        J = len(model.names)
+        h0 = H0[0].tolist()
+        heads = list(h0)
+        rot = [None] * J  # None: the identity the bone starts with
+        moved = [False] * J
+        solves = {"trunk": trunk}
+        shift = delta[0].tolist()
+        for rigid, par, limb_bones in self.prepared.levels:
+            _carry_one(heads, rot, moved, h0, rigid.tolist(), par.tolist())
+            starts = {name: (np.array([heads[j]]), None if p < 0 else np.array([_EYE if rot[p] is None else rot[p]]),
+                             np.array([p >= 0 and moved[p]]))
+                      for j, p, role, name, k in limb_bones if role == CHAIN and k == 0 and name not in solves}
+            if starts:
+                solves.update(self._solve_limbs(starts))
+            for j, p, role, name, k in limb_bones:
+                if role == ROOT:
+                    heads[j] = [h0[j][0] + shift[0], h0[j][1] + shift[1], h0[j][2] + shift[2]]
+                    moved[j] = shift != [0.0, 0.0, 0.0]
+                    continue
+                ls = solves[name]
+                if ls.solved[0]:
+                    heads[j] = ls.joints[0, k if role == CHAIN else -1].tolist()
+                    rot[j] = (ls.segment_rotations(self.chain0[name], self.limits.get(name))[0, k].tolist()
+                              if role == CHAIN else _EYE.tolist())
+                    moved[j] = True
+                if role != CHAIN and name in self.end_turns and np.isfinite(self.end_turns[name][0, 0, 0]):
+                    carried = np.array([_EYE if rot[p] is None else rot[p]])
+                    rot[j] = end_rotation(self.end_turns[name], carried, T0[:, j] - H0[:, j])[0].tolist()
+                    moved[j] = True
+        heads = np.array([heads], dtype=np.float64)
+        rotations = np.empty((1, J, 3, 3))
+        rotations[...] = _EYE
+        turned = [j for j in range(J) if rot[j] is not None]
+        if turned:
+            rotations[0, turned] = np.array([rot[j] for j in turned], dtype=np.float64)
+        moved = np.array([moved])
+        _carry(heads, rotations, moved, H0, *self.prepared.leaves)  # many at once: numpy's turn
+        tails = np.where(moved[..., None], heads + apply_matrix(rotations, T0 - H0), T0) if any_set(moved) \
+            else T0.copy()
+        return heads, tails, rotations, solves
 
     def _solve_limbs(self, starts):
         """{limb: LimbSolve} for the limbs {name: (base, parent_rot, parent_moved)} (_start_limb); the chain
@@ -246,6 +301,19 @@ def _split(res, sizes):
                                     res.reachable[cut], res.status[cut], res.reason[cut]))
         at += size
     return out
+
+
+def _carry_one(heads, rot, moved, h0, bones, carriers):
+    """_carry on one frame in plain floats: heads, rot (None: identity) and moved are lists over the bones, h0
+    the start heads; the same operations as _carry's."""
+    for b, c in zip(bones, carriers):
+        if moved[c]:
+            turn = _EYE_ROWS if rot[c] is None else rot[c]
+            offset = [h0[b][0] - h0[c][0], h0[b][1] - h0[c][1], h0[b][2] - h0[c][2]]
+            carried = gp.apply_matrix(turn, offset)
+            heads[b] = [heads[c][0] + carried[0], heads[c][1] + carried[1], heads[c][2] + carried[2]]
+            rot[b] = rot[c]
+            moved[b] = True
 
 
 def _carry(heads, rot, moved, H0, bones, carriers):
