@@ -6,10 +6,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import geometry_plain as gp
 from .body import CHAIN, ROOT
 from .chain import solve_chain_batch
 from .chain_types import ChainBatchResult, _final_status
-from . import geometry_plain as gp
 from .geometry import any_set, apply_matrix, norm, stack_rows
 from .limb_rotations import _EYE, LimbSolve, end_rotation, set_segment_rotations
 from .limits import HINGE, JointLimits, carry_axis
@@ -172,7 +172,7 @@ class LimbPlacement:
                 if ls.solved[0]:
                     heads[j] = ls.joints[0, k if role == CHAIN else -1].tolist()
                     rot[j] = (ls.segment_rotations(self.chain0[name], self.limits.get(name))[0, k].tolist()
-                              if role == CHAIN else _EYE.tolist())
+                              if role == CHAIN else _EYE_ROWS)
                     moved[j] = True
                 if role != CHAIN and name in self.end_turns and np.isfinite(self.end_turns[name][0, 0, 0]):
                     carried = np.array([_EYE if rot[p] is None else rot[p]])
