@@ -13,7 +13,7 @@ from .chain_types import (_COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL, Chain
                           _reach_bounds, _segment_lengths)
 from .errors import SolverInputError
 from .geometry import all_set, any_perpendicular, any_set, cross, norm
-from .limits import CONE, FREE, HINGE, JointLimits, apply_cone, apply_hinge, carry_axis
+from .limits import CONE, FREE, HINGE, JointLimits, apply_cone, apply_hinge, carry_axis, carry_axis_plain
 from .obstacles import as_boxes, count_penetrations_few, points_inside, segments_cross
 
 # Up to this many problems, the limit steps (of the passes and of the limit check) run in plain floats
@@ -165,7 +165,7 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains):
         if self.limits.kind[i] == HINGE:
             axis = self.hinge_axes[r, i].tolist()
             if reverse or i > 0:  # carried by the proposed parent direction, or by the parent
-                axis = limits_plain.carry_axis(axis, self.hinge_refs[r, i].tolist(), v if reverse else parent)
+                axis = carry_axis_plain(axis, self.hinge_refs[r, i].tolist(), v if reverse else parent)
         return limits_plain.limit(self.limits, i, parent, v, fallback, axis, reverse)
 
     def _plain_binding(self, P, rows):

@@ -28,7 +28,8 @@ import numpy as np
 
 from . import geometry_plain as gp
 from .errors import SolverInputError
-from .geometry import any_perpendicular, any_set, apply_matrix, cross, dot, norm, normalize, swing_rotation
+from .geometry import (all_set, any_perpendicular, any_set, apply_matrix, cross, dot, norm, normalize,
+                       swing_rotation)
 
 FREE, CONE, HINGE = 0, 1, 2
 # Up to this many hinge axes carry_axis turns in plain floats (a warm start, one frame's limbs).
@@ -71,11 +72,11 @@ class JointLimits:
         for name, arr in (("hinge_axis", axis), ("hinge_reference", ref)):
             if arr is not None and arr.shape != (m, 3) and not (arr.ndim == 3 and arr.shape[1:] == (m, 3)):
                 raise SolverInputError(f"joint limits: {name} must be ({m},3) or (B,{m},3), got {arr.shape}")
-        if ((kind < FREE) | (kind > HINGE)).any():
+        if any_set((kind < FREE) | (kind > HINGE)):
             raise SolverInputError("joint limits: kind must be FREE=0, CONE=1 or HINGE=2")
         for name, arr in (("cone_angle", cone), ("hinge_axis", axis), ("hinge_min", lo), ("hinge_max", hi),
                           ("hinge_twist", twist), ("hinge_reference", ref)):
-            if arr is not None and not np.isfinite(arr).all():
+            if arr is not None and not all_set(np.isfinite(arr)):
                 raise SolverInputError(f"joint limits: {name} has NaN/inf")
         for i in np.nonzero(kind == CONE)[0]:
             if not 0.0 <= cone[i] <= math.pi:
@@ -83,11 +84,11 @@ class JointLimits:
         for i in np.nonzero(kind == HINGE)[0]:
             if not -math.pi <= lo[i] <= hi[i] <= math.pi:
                 raise SolverInputError(f"joint {i}: hinge range must satisfy -pi <= min <= max <= pi")
-            if (norm(axis[..., i, :]) <= 1e-12).any():
+            if any_set(norm(axis[..., i, :]) <= 1e-12):
                 raise SolverInputError(f"joint {i}: hinge axis has zero length")
             if not 0.0 <= twist[i] < math.pi / 2:
                 raise SolverInputError(f"joint {i}: hinge twist must be in [0, pi/2)")
-            if ref is not None and i > 0 and (norm(ref[..., i, :]) <= 1e-12).any():
+            if ref is not None and i > 0 and any_set(norm(ref[..., i, :]) <= 1e-12):
                 raise SolverInputError(f"joint {i}: hinge reference direction has zero length")
         for arr in (kind, cone, axis, lo, hi, twist) + (() if ref is None else (ref,)):
             arr.setflags(write=False)
@@ -187,12 +188,17 @@ def carry_axis(axis_at_start, start_parent_dir, parent_dir):
     if axis_at_start.ndim == 2 and len(axis_at_start) <= _FEW_CARRIED \
             and axis_at_start.shape == start_parent_dir.shape == parent_dir.shape:
         try:
-            return np.array([gp.apply_matrix(gp.swing_rotation(ref, parent), axis) for axis, ref, parent
+            return np.array([carry_axis_plain(axis, ref, parent) for axis, ref, parent
                              in zip(axis_at_start.tolist(), start_parent_dir.tolist(), parent_dir.tolist())],
                             dtype=np.float64).reshape(axis_at_start.shape)
         except ZeroDivisionError:
             pass
     return apply_matrix(swing_rotation(start_parent_dir, parent_dir), axis_at_start)
+
+
+def carry_axis_plain(axis_at_start, start_parent_dir, parent_dir):
+    """carry_axis of one axis in plain floats (3-vectors as lists; geometry_plain: the same bits)."""
+    return gp.apply_matrix(gp.swing_rotation(start_parent_dir, parent_dir), axis_at_start)
 
 
 def _with_fallback(v, fallback, bad):

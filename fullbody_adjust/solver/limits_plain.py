@@ -45,10 +45,6 @@ def apply_cone(parent, v, angle, fallback):
     return g.add(g.scaled(parent, float(np.cos(angle))), g.scaled(e, float(np.sin(angle)))), True
 
 
-def carry_axis(axis_at_start, start_parent_dir, parent_dir):
-    return g.apply_matrix(g.swing_rotation(start_parent_dir, parent_dir), axis_at_start)
-
-
 def apply_hinge(parent, v, axis, lo, hi, fallback, twist):
     """limits.apply_hinge for one direction: (limited direction, binding)."""
     a, side = hinge_frame(parent, axis)

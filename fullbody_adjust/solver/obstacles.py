@@ -253,10 +253,10 @@ def count_penetrations_few(chains, boxes, ignore_end, ignore_base):
     mins, maxs = boxes.mins.tolist(), boxes.maxs.tolist()
     skip_end, skip_base = ignore_end.tolist(), ignore_base.tolist()
     inside, crossing = [], []
+    last = n - 1
     for r, chain in enumerate(chains.tolist()):
         lo, hi = (mins[r], maxs[r]) if boxes.batched else (mins, maxs)
         boxes_of = range(len(lo))
-        last = n - 1
         inside.append(sum(any(_inside_one(lo[k], hi[k], chain[i]) and not (i == last and skip_end[r][k])
                               for k in boxes_of) for i in range(1, n)))
         crossing.append(sum(any(_crosses_one(lo[k], hi[k], chain[i], chain[i + 1])

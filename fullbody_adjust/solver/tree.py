@@ -322,7 +322,7 @@ def _result(tree, start, X, iterations, history, notes, settings, obstacles, str
             st, why = "max_iterations", chain_reason
         extra = []
         if obstacles is not None:
-            if points_inside(e.target, obstacles).any():
+            if any_set(points_inside(e.target, obstacles)):
                 extra.append("target inside obstacle")
             hit = [j for j in path[1:] if j in bad_joint or j in bad_seg]
             if hit:
