@@ -190,25 +190,24 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
             goals = targets.FrameTargets(*(np.stack(field) for field in zip(*goal_rows)))
             corners = np.stack(corner_rows)
     world_targets = goals.positions  # (F,E,3), NaN: no target
-    _check_object_scale(obj, snapshot)
     bone_map, model = rig.bone_map, rig.model
     controlled = rig.controlled
     if controlled:  # solved on the metarig's hierarchy of the ORG- bones, as the model is
-        snapshot = replace(snapshot, parents=model.parents)
+        snapshot = snapshot.derived("skeleton", lambda: replace(snapshot, parents=model.parents), of=model)
     else:
         _check_not_driven(obj, bone_map)
-    _check_driven_bones(model, snapshot)
+    # What depends on the start pose alone is checked and derived once per snapshot (Live solves from one
+    # snapshot until its frame or base pose changes).
+    snapshot.derived("checked", lambda: _check_start(obj, model, snapshot), of=model)
     _check_target_distances(obj, world_targets, snapshot)
     priorities = _priorities(obj)
     progress("solving", 0.3)
 
-    to_arm = pose.affine_inverse(snapshot.matrix_world)  # (F,4,4)
-    heads = _apply(to_arm, snapshot.heads)
-    tails = _apply(to_arm, snapshot.tails)
+    to_arm, heads, tails = snapshot.derived("armature space", lambda: _armature_space(snapshot))
     arm_targets = _apply(to_arm, world_targets)
     boxes = _armature_boxes(corners, to_arm)
     end_turns, poles = _end_goals(model, snapshot, goals, to_arm)
-    solve_settings = _in_armature_units(settings, snapshot.matrix_world)
+    solve_settings = _in_armature_units(settings, snapshot.derived("object scales", lambda: _object_scales(snapshot)))
     try:
         limits = ik_limits.joint_limits(obj, model, heads, tails, snapshot.pose_matrices, settings,
                                         controls=rig.fk_controls)
@@ -223,8 +222,6 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
     oriented = goals.oriented.any(axis=0)  # (E,) effectors that take their target's orientation
     written = _bones_to_write(model, snapshot, result, keep_hands, oriented)
     names = tuple(snapshot.names[j] for j in written)
-    new_pose = _new_pose_matrices(snapshot, result, written)
-    new_world = snapshot.matrix_world[:, None] @ new_pose
     action = None
     if controlled and names:
         channels = _control_channels(context, obj, frames, snapshot, result, bone_map, keep_hands, oriented,
@@ -235,7 +232,8 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
     elif names:
         # Both writers check all their input before writing any of it; the channels come from the snapshot
         # just read, so once keying has started the pose write cannot fail.
-        channels = pose.world_rotations_to_channels(obj, snapshot, new_world, names)
+        channels = pose.armature_rotations_to_channels(obj, snapshot, _new_pose_matrices(snapshot, result, written),
+                                                       names)
         if options.insert_keys:
             action = keyframes.key_bones_frames(obj, None, frames, channels, action_name=options.new_action)
         if apply_pose:
@@ -293,14 +291,37 @@ def _control_channels(context, obj, frames, snapshot, result, bone_map, keep_han
         return control_channels(obj, context.view_layer, pairs, names, desired, tolerance, rows)
 
 
-def _in_armature_units(settings, matrix_world):
+def _in_armature_units(settings, scales):
     """``settings`` (world units) for a solve in armature space: the tolerance shrunk by the largest object
     scale, so a target met in armature space is met in the world; the obstacle margin grown by the smallest,
-    so the clearance kept in the world is at least the margin."""
-    scales = norm(np.swapaxes(matrix_world[:, :3, :3], -1, -2))  # (F,3): the object's axis scales per frame
+    so the clearance kept in the world is at least the margin. ``scales``: _object_scales."""
+    largest, smallest = scales
     chain = settings.chain
-    chain = replace(chain, tolerance=chain.tolerance / float(scales.max()), margin=chain.margin / float(scales.min()))
+    chain = replace(chain, tolerance=chain.tolerance / largest, margin=chain.margin / smallest)
     return replace(settings, chain=chain)
+
+
+def _object_scales(snapshot):
+    """(largest, smallest) axis scale of the object's world matrix over the snapshot's frames."""
+    scales = norm(np.swapaxes(snapshot.matrix_world[:, :3, :3], -1, -2))  # (F,3)
+    return float(scales.max()), float(scales.min())
+
+
+def _armature_space(snapshot):
+    """(to_arm (F,4,4), heads, tails (F,B,3)): the world-to-armature matrices and the bones in armature
+    space, read-only (they are kept with the snapshot)."""
+    to_arm = pose.affine_inverse(snapshot.matrix_world)
+    out = (to_arm, _apply(to_arm, snapshot.heads), _apply(to_arm, snapshot.tails))
+    for array in out:
+        array.flags.writeable = False
+    return out
+
+
+def _check_start(obj, model, snapshot):
+    """AdjustError unless the start pose can be solved from (object scale, bones' lengths and scales)."""
+    _check_object_scale(obj, snapshot)
+    _check_driven_bones(model, snapshot)
+    return True
 
 
 @contextmanager
@@ -359,7 +380,7 @@ def _check_target_distances(obj, world_targets, snapshot):
     positions cannot place anything that far to better than a tenth of the rig (typing inf into a location
     field stores the largest float, 3.4e38)."""
     distance = norm(world_targets - snapshot.heads[:, :1])  # (F,E), NaN: no target
-    far = np.nonzero((distance > _FAR * _size(snapshot.heads)).any(axis=0))[0]
+    far = np.nonzero((distance > _FAR * _world_size(snapshot)).any(axis=0))[0]
     if len(far):
         effector = targets.EFFECTORS[far[0]]
         name = next(s.target.name for s in obj.fullbody_adjust.targets if s.enabled and s.effector == effector)
@@ -421,7 +442,7 @@ def _check_driven_bones(model, snapshot):
     needed[snapshot.parents[driven & (snapshot.parents >= 0)]] = True
     needed = np.nonzero(needed)[0]  # only these are measured (a fraction of a full rig's bones)
     axis_scales = norm(np.swapaxes(snapshot.pose_matrices[:, needed, :3, :3], -1, -2))  # (F,k,3)
-    flat = (axis_scales.min(axis=-1) <= _FLAT) | (snapshot.lengths[:, needed] <= _FLAT * _size(snapshot.heads))
+    flat = (axis_scales.min(axis=-1) <= _FLAT) | (snapshot.lengths[:, needed] <= _FLAT * _world_size(snapshot))
     bad = needed[flat.any(axis=0)]
     if len(bad):
         raise AdjustError(f"Bone '{snapshot.names[bad[0]]}' has zero length or scale (scaled to 0 in Pose Mode?): "
@@ -433,6 +454,11 @@ def _driven(roles, with_ends):
     comparisons: np.isin costs ~0.1 ms a call, a fair part of a Live update's reading."""
     mask = (roles == ROOT) | (roles == CHAIN)
     return mask | (roles == END) if with_ends else mask
+
+
+def _world_size(snapshot):
+    """The rig's size in the world (_size of its heads), kept with the snapshot."""
+    return snapshot.derived("world size", lambda: _size(snapshot.heads))
 
 
 def _size(points):
@@ -464,7 +490,8 @@ def _bones_to_write(model, snapshot, result, keep_hands, oriented):
     driven = np.nonzero(driven)[0]  # only these are measured (a fraction of a full rig's bones)
     turn = np.abs(result.rotations[:, driven] - np.eye(3)).max(axis=(-1, -2))  # (F,k)
     old_heads = snapshot.pose_matrices[..., :3, 3]
-    shift = norm(result.heads[:, driven] - old_heads[:, driven]) / _size(old_heads)
+    shift = norm(result.heads[:, driven] - old_heads[:, driven]) / snapshot.derived("armature size",
+                                                                                  lambda: _size(old_heads))
     return driven[((turn > _MOVED) | (shift > _MOVED)).any(axis=0)]
 
 

@@ -36,6 +36,7 @@ class LiveState:
     base: dict  # property -> (B,k) channel values of every pose bone when Live was turned on / last keyed
     bone_names: tuple  # the bones ``base`` rows belong to
     start: object = None  # PoseSnapshot of the base pose at ``start_frame``
+    rig: object = None  # the rig_cache.Rig ``start`` was read with
     start_frame: float = None
     stale: bool = True  # read the base pose again before the next solve
     written: tuple = ()  # bones whose channels the last solve changed
@@ -208,12 +209,11 @@ def _solve(obj, state, context):
     _busy = True
     try:
         frame = _current_frame(context.scene)
-        rig = None
-        if state.stale or state.start_frame != frame or state.start.names != tuple(obj.data.bones.keys()):
+        rig = rig_cache.rig_of(obj)  # another Rig when the armature was edited: its base pose is read again
+        if state.stale or state.start_frame != frame or state.rig is not rig:
             _restore(obj, state, frame)
-            rig = rig_cache.rig_of(obj)  # looked up once for the base pose's read and the solve
             state.start, state.start_frame, state.written = pose.read_pose(obj, rig.static(obj)), frame, ()
-            state.stale = False
+            state.rig, state.stale = rig, False
         state.solves += 1
         outcome = adjustment.adjust_pose(context, obj, LIVE_OPTIONS, start=state.start, rig=rig)
     except AdjustError as ex:

@@ -91,12 +91,22 @@ class PoseSnapshot:
                        tails=self.tails[i], lengths=self.lengths[i],
                        channels={key: value[i] for key, value in self.channels.items()})
 
+    def derived(self, key, make, of=None):
+        """``make()``, computed once for this snapshot and ``key`` and then kept with it: for what a solve
+        derives from its start pose alone, which Live solves from again and again. ``of``: an object the value
+        also depends on (a BodyModel), told apart by identity. Keep plain values and arrays here, never bpy
+        data (an edit of the armature frees its bones)."""
+        memo = self.__dict__.get("_derived")
+        if memo is None:
+            memo = {}
+            object.__setattr__(self, "_derived", memo)
+        kept = memo.get(key)
+        if kept is None or kept[0] is not of:
+            kept = memo[key] = (of, make())
+        return kept[1]
+
     def _index_of(self):
-        cached = self.__dict__.get("_names_index")
-        if cached is None:
-            cached = {name: i for i, name in enumerate(self.names)}
-            object.__setattr__(self, "_names_index", cached)
-        return cached
+        return self.derived("names index", lambda: {name: i for i, name in enumerate(self.names)})
 
 
 def read_pose(obj, static=None):
@@ -152,15 +162,32 @@ def world_rotations_to_channels(obj, snapshot, new_world, bones):
       - 'location' only for an unconnected bone whose head moved relative to its parent (the root bone when
         the pelvis moves). Connected bones ignore location; scale is never written.
     """
+    idx = _listed_once(snapshot, bones)
+    new_world = _array(new_world, snapshot.pose_matrices.shape[:-3] + (len(idx), 4, 4), "new_world")
+    to_armature = affine_inverse(snapshot.matrix_world)
+    return _channels(obj, snapshot, (to_armature[:, None] if snapshot.batched else to_armature) @ new_world, idx)
+
+
+def armature_rotations_to_channels(obj, snapshot, new_pose, bones):
+    """world_rotations_to_channels for matrices in armature space (``new_pose``, as PoseBone.matrix): a solve
+    in armature space has them, and needs no round trip through the object's transform."""
+    idx = _listed_once(snapshot, bones)
+    return _channels(obj, snapshot, _array(new_pose, snapshot.pose_matrices.shape[:-3] + (len(idx), 4, 4),
+                                           "new_pose"), idx)
+
+
+def _listed_once(snapshot, bones):
     idx = snapshot.indices(bones)
     if len(set(idx.tolist())) != len(idx):
         raise ValueError("world_rotations_to_channels: a bone is listed twice")
-    lead = snapshot.pose_matrices.shape[:-3]
-    new_world = _array(new_world, lead + (len(idx), 4, 4), "new_world")
+    return idx
+
+
+def _channels(obj, snapshot, armature, idx):
     if not snapshot.batched:
         return {name: {prop: values[0] for prop, values in props.items()}
-                for name, props in _channels_per_frame(obj, as_batch(snapshot), new_world[None], idx).items()}
-    return _channels_per_frame(obj, snapshot, new_world, idx)
+                for name, props in _channels_per_frame(obj, as_batch(snapshot), armature[None], idx).items()}
+    return _channels_per_frame(obj, snapshot, armature, idx)
 
 
 def apply_channels(obj, channels):
@@ -300,9 +327,10 @@ def _to_world(matrix_world, points):
 # --- writing --------------------------------------------------------------------------------------------
 
 
-def _channels_per_frame(obj, snapshot, new_world, idx):
-    """The batched core of world_rotations_to_channels: snapshot batched (F,...), new_world (F,k,4,4)."""
-    frames = new_world.shape[0]
+def _channels_per_frame(obj, snapshot, armature, idx):
+    """The batched core of world_rotations_to_channels: snapshot batched (F,...), ``armature`` the requested
+    matrices in armature space (F,k,4,4)."""
+    frames = armature.shape[0]
     parents = snapshot.parents
     listed = {int(i): j for j, i in enumerate(idx)}
     # Bones whose pose matrix may change: the listed ones and their unlisted ancestors (such a bone keeps
@@ -318,14 +346,14 @@ def _channels_per_frame(obj, snapshot, new_world, idx):
 
     bones = obj.data.bones
     data_bones = {i: bones[snapshot.names[i]] for i in order}
-    rest = {i: Matrix(snapshot.rest_matrices[i].tolist()) for i in order}  # tolist: Matrix(ndarray) is ~10x slower
-    for i in order:
-        if parents[i] >= 0 and parents[i] not in rest:
-            rest[int(parents[i])] = Matrix(snapshot.rest_matrices[parents[i]].tolist())
-    size = max(1.0, float(np.abs(snapshot.rest_matrices[:, :3, 3]).max()))
+    rest = snapshot.derived("rest Matrix", dict)  # kept: Live converts the same bones again and again
+    for i in order + [int(parents[i]) for i in order if parents[i] >= 0]:
+        if i not in rest:
+            rest[i] = Matrix(snapshot.rest_matrices[i].tolist())  # tolist: Matrix(ndarray) is ~10x slower
+    size = snapshot.derived("rig size", lambda: max(1.0, float(np.abs(snapshot.rest_matrices[:, :3, 3]).max())))
     head_tolerance = _HEAD_MOVED_TOLERANCE * size
 
-    target = _reachable_armature_matrices(snapshot, new_world, idx)  # (F,k,4,4) armature space
+    target = _reachable_armature_matrices(snapshot, armature, idx)  # (F,k,4,4)
     result = {snapshot.names[i]: {} for i in listed}
     rotation_values = {i: np.empty((frames, CHANNEL_SIZES[ROTATION_PROPERTY[snapshot.rotation_modes[i]]]))
                        for i in listed}
@@ -372,11 +400,11 @@ def _channels_per_frame(obj, snapshot, new_world, idx):
     return result
 
 
-def _reachable_armature_matrices(snapshot, new_world, idx):
-    """new_world mapped to armature space and reduced to what a rigid bone can do: its Y axis (the bone's
+def _reachable_armature_matrices(snapshot, armature, idx):
+    """The armature-space matrices (F,k,4,4) reduced to what a rigid bone can do: its Y axis (the bone's
     direction) exactly, X/Z re-orthogonalised around it (Z's roll kept), each axis with the length of the
     bone's current pose matrix axis (its scale unchanged). A no-op (to rounding) for reachable input."""
-    armature = affine_inverse(snapshot.matrix_world)[:, None] @ new_world
+    armature = armature.copy()
     linear = armature[..., :3, :3]
     y = linear[..., :, 1]
     z = linear[..., :, 2]
@@ -433,11 +461,13 @@ def _nearest_axis_angle(angle, axis, reference):
 
 
 def as_batch(snapshot):
-    """A single-frame snapshot as the one-frame batch read_pose_frames would give."""
-    return replace(snapshot, frame=np.array([snapshot.frame]), matrix_world=snapshot.matrix_world[None],
-                   pose_matrices=snapshot.pose_matrices[None], matrices=snapshot.matrices[None],
-                   heads=snapshot.heads[None], tails=snapshot.tails[None], lengths=snapshot.lengths[None],
-                   channels={key: value[None] for key, value in snapshot.channels.items()})
+    """A single-frame snapshot as the one-frame batch read_pose_frames would give (the same batch object on
+    every call, so what a solve derives from it is kept too)."""
+    return snapshot.derived("batch", lambda: replace(
+        snapshot, frame=np.array([snapshot.frame]), matrix_world=snapshot.matrix_world[None],
+        pose_matrices=snapshot.pose_matrices[None], matrices=snapshot.matrices[None], heads=snapshot.heads[None],
+        tails=snapshot.tails[None], lengths=snapshot.lengths[None],
+        channels={key: value[None] for key, value in snapshot.channels.items()}))
 
 
 def _array(value, shape, name):

@@ -364,3 +364,22 @@ def test_key_pose_is_undone_by_undo(live):
     bpy.ops.ed.undo()
     obj = bpy.data.objects["metarig"]
     assert keys_state(obj) == keys
+
+
+def test_an_edited_rig_is_read_again_before_the_next_solve(live):
+    """Editing the armature while Live is on (here: a longer forearm) changes the rest pose the shown pose is
+    computed from: the next solve reads the rig again, so the hand still lands on its target."""
+    obj = live_after_a_target_move()
+    height = Pose(obj).height()
+    assert hand_distance(obj) < REACH * height
+    bpy.context.view_layer.objects.active = obj
+    bpy.ops.object.mode_set(mode='EDIT')
+    forearm = obj.data.edit_bones["forearm.L"]
+    forearm.tail = forearm.head + 1.2 * (forearm.tail - forearm.head)  # the hand is connected: it moves too
+    bpy.ops.object.mode_set(mode='OBJECT')
+    bpy.context.view_layer.update()
+    move_hand_target(obj)  # the same spot again, as a drag that goes on
+    target = slot(obj, "hand.L").target
+    target.location = target.location + target.location.orthogonal().normalized() * 0.02 * height
+    bpy.context.view_layer.update()
+    assert hand_distance(obj) < REACH * height

@@ -14,9 +14,12 @@ from mathutils import Euler, Matrix, Quaternion
 
 from fullbody_adjust.bridge.errors import AdjustError
 from fullbody_adjust.bridge.keyframes import key_bones_frames
+from fullbody_adjust.solver.geometry import affine_inverse
 from fullbody_adjust.solver.vocabulary import EULER_ORDERS
 from fullbody_adjust.bridge.pose import (
     apply_channels,
+    armature_rotations_to_channels,
+    as_batch,
     evaluated_heads,
     read_pose,
     read_pose_frames,
@@ -261,6 +264,45 @@ def test_read_pose_rejects_non_armatures():
 
 
 # --- writing: world matrices land where asked -------------------------------------------------------------
+
+
+@pytest.mark.parametrize("transform", sorted(OBJECT_TRANSFORMS))
+def test_armature_space_matrices_give_the_channels_of_their_world_matrices(transform):
+    """The solve's own path (armature space, no round trip through the object transform) gives the same
+    channels as the world-space conversion of the same matrices, to float rounding."""
+    obj = build_chain_rig(transform, seed=3)
+    snapshot = read_pose(obj)
+    requested, _expected = realizable_request(snapshot, CHAIN_GROUPS, np.random.default_rng(4),
+                                              head_offsets={"root": np.array([0.05, 0.1, -0.03])})
+    from_world = world_rotations_to_channels(obj, snapshot, requested, CHAIN_GROUPS)
+    from_armature = armature_rotations_to_channels(obj, snapshot, affine_inverse(snapshot.matrix_world) @ requested,
+                                                   CHAIN_GROUPS)
+    assert from_world.keys() == from_armature.keys()
+    for name, props in from_world.items():
+        assert props.keys() == from_armature[name].keys()
+        for prop, value in props.items():
+            np.testing.assert_allclose(from_armature[name][prop], value, atol=1e-6, err_msg=f"{name} {prop}")
+
+
+def test_what_a_snapshot_keeps_is_its_own():
+    """A snapshot's batch form and derived values are made once and kept with it; a value that depends on
+    another object is made again for another one; a copy of the snapshot keeps nothing of them."""
+    obj = build_chain_rig()
+    snapshot = read_pose(obj)
+    assert as_batch(snapshot) is as_batch(snapshot)
+    np.testing.assert_array_equal(as_batch(snapshot).heads[0], snapshot.heads)
+    made = []
+
+    def make():
+        made.append(len(made))
+        return len(made)
+
+    first, second = object(), object()
+    assert snapshot.derived("count", make, of=first) == 1
+    assert snapshot.derived("count", make, of=first) == 1
+    assert snapshot.derived("count", make, of=second) == 2
+    assert read_pose(obj).derived("count", make, of=second) == 3  # another snapshot of the same pose
+    assert as_batch(snapshot).derived("count", make, of=second) == 4
 
 
 @pytest.mark.parametrize("transform", sorted(OBJECT_TRANSFORMS))
