@@ -266,6 +266,8 @@ class _Problem(SubBasePlacement, LimbPlacement):
         placed_with = dict(offsets0)
         fixable = None
         for _ in range(self.settings.sub_base_passes - 1):
+            if not any_set(trunk_solved):
+                break  # the chest did not turn on any frame: no limb's base moved (far below is empty)
             chest_r = chest_rotation(trunk0, trunk_joints)
             turned = {n: apply_matrix(chest_r, offsets0[n]) for n in upper}
             changed = np.zeros(F, dtype=bool)
