@@ -31,6 +31,7 @@ import bpy
 import numpy as np
 from mathutils import Euler, Matrix, Vector
 
+from ..solver import geometry_plain as gp
 from ..solver.geometry import affine_inverse, cross, dot, norm
 from ..solver.vocabulary import ROTATION_PROPERTY
 from .errors import AdjustError
@@ -404,6 +405,8 @@ def _reachable_armature_matrices(snapshot, armature, idx):
     """The armature-space matrices (F,k,4,4) reduced to what a rigid bone can do: its Y axis (the bone's
     direction) exactly, X/Z re-orthogonalised around it (Z's roll kept), each axis with the length of the
     bone's current pose matrix axis (its scale unchanged). A no-op (to rounding) for reachable input."""
+    if armature.shape[0] == 1:
+        return _reachable_one_frame(snapshot, armature[0], idx)
     armature = armature.copy()
     linear = armature[..., :3, :3]
     y = linear[..., :, 1]
@@ -427,6 +430,28 @@ def _head_moved(bone, local, location, current, rest, pose_matrix, parent_kwargs
     kept.translation = Vector(current)
     head = bone.convert_local_to_pose(kept, rest, **parent_kwargs).translation
     return (head - pose_matrix.translation).length > tolerance
+
+
+def _reachable_one_frame(snapshot, armature, idx):
+    """_reachable_armature_matrices of one frame (``armature`` (k,4,4)) in plain floats, with the same operations
+    (geometry_plain): numpy's per-call cost on a few bones was most of it."""
+    out = []
+    for matrix, pose_matrix in zip(armature.tolist(), snapshot.pose_matrices[0, idx].tolist()):
+        y = _unit((matrix[0][1], matrix[1][1], matrix[2][1]), "a bone's Y axis")
+        z = (matrix[0][2], matrix[1][2], matrix[2][2])
+        z = _unit(gp.sub(z, gp.scaled(y, gp.dot(z, y))), "a bone's Z axis (parallel to its Y axis)")
+        x = gp.cross(y, z)
+        scale = [gp.norm((pose_matrix[0][j], pose_matrix[1][j], pose_matrix[2][j])) for j in range(3)]
+        out.append([[x[r] * scale[0], y[r] * scale[1], z[r] * scale[2], matrix[r][3]] for r in range(3)]
+                   + [[0.0, 0.0, 0.0, 1.0]])
+    return np.array([out], dtype=np.float64).reshape(1, len(out), 4, 4)
+
+
+def _unit(v, what):
+    n = gp.norm(v)
+    if n < 1e-12:
+        raise ValueError(f"new_world: {what} has zero length")
+    return gp.divided(v, n)
 
 
 def _rotation_value(quaternion, local, mode, reference):

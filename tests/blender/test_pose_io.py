@@ -6,12 +6,14 @@ and follow their parents, twist is kept, and rotations stay continuous in every 
 """
 
 import math
+from types import SimpleNamespace
 
 import bpy
 import numpy as np
 import pytest
 from mathutils import Euler, Matrix, Quaternion
 
+from fullbody_adjust.bridge import pose as pose_module
 from fullbody_adjust.bridge.errors import AdjustError
 from fullbody_adjust.bridge.keyframes import key_bones_frames
 from fullbody_adjust.solver.geometry import affine_inverse
@@ -282,6 +284,27 @@ def test_armature_space_matrices_give_the_channels_of_their_world_matrices(trans
         assert props.keys() == from_armature[name].keys()
         for prop, value in props.items():
             np.testing.assert_allclose(from_armature[name][prop], value, atol=1e-6, err_msg=f"{name} {prop}")
+
+
+def test_one_frames_reachable_matrices_are_the_batch_paths_bit_for_bit():
+    """The one-frame conversion reduces requested matrices to what rigid bones can do in plain floats: the same
+    bits as the numpy path gives for that frame among others, scaled and sheared input included."""
+    rng = np.random.default_rng(7)
+    k, frames = 6, 5
+    requested = rng.normal(size=(frames, k, 4, 4))
+    requested[..., 3, :] = (0.0, 0.0, 0.0, 1.0)
+    pose_matrices = rng.normal(size=(frames, 9, 4, 4))
+    idx = np.array([1, 2, 4, 5, 7, 8])
+    batch = pose_module._reachable_armature_matrices(SimpleNamespace(pose_matrices=pose_matrices), requested, idx)
+    for f in range(frames):
+        one = pose_module._reachable_armature_matrices(SimpleNamespace(pose_matrices=pose_matrices[f:f + 1]),
+                                                       requested[f:f + 1], idx)
+        assert one.shape == (1, k, 4, 4)
+        assert one.tobytes() == batch[f:f + 1].tobytes()
+    with pytest.raises(ValueError, match="Y axis"):
+        flat = requested[:1].copy()
+        flat[0, 2, :3, 1] = 0.0
+        pose_module._reachable_armature_matrices(SimpleNamespace(pose_matrices=pose_matrices[:1]), flat, idx)
 
 
 def test_what_a_snapshot_keeps_is_its_own():
