@@ -4,6 +4,7 @@ settings)."""
 
 import numpy as np
 
+from . import geometry_plain as gp
 from .geometry import all_set, any_set, norm
 from .obstacles import penetrations
 from .reach_balls import nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point
@@ -43,6 +44,11 @@ class SubBasePlacement:
 
     def _in_reach(self, names, rows, bases):
         """(b,) every active limb's target lies within its reach from `bases[name]` (rule (i), no margin)."""
+        if len(rows) == 1:  # one frame (Adjust Pose, Live): the same distances in plain floats
+            r = int(rows[0])
+            return np.array([all(not self.limb_active[n][r]
+                                 or gp.norm(gp.sub(self.limb_target[n][r].tolist(), bases[n][0].tolist()))
+                                 <= self.reach_eff[n][r] for n in names)])
         ok = np.ones(len(rows), dtype=bool)
         for n in names:
             d = norm(self.limb_target[n][rows] - bases[n])
