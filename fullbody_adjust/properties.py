@@ -42,6 +42,10 @@ def _live_toggled(settings, context):
     live.live_toggled(settings.id_data, context)
 
 
+def _solve_setting_changed(settings, context):
+    live.settings_changed(settings.id_data)
+
+
 def _is_not_owner(slot, obj):
     # A character cannot chase itself.
     return obj is not slot.id_data
@@ -49,12 +53,14 @@ def _is_not_owner(slot, obj):
 
 def _object_of_slot(name, description):
     """A target slot's Object pointer (any object but the armature that owns the slot)."""
-    return PointerProperty(name=name, description=description, type=bpy.types.Object, poll=_is_not_owner)
+    return PointerProperty(name=name, description=description, type=bpy.types.Object, poll=_is_not_owner,
+                           update=_solve_setting_changed)
 
 
 def _distance(name, description, **keywords):
     """A length in scene units."""
-    return FloatProperty(name=name, description=description, subtype='DISTANCE', unit='LENGTH', **keywords)
+    return FloatProperty(name=name, description=description, subtype='DISTANCE', unit='LENGTH',
+                         update=_solve_setting_changed, **keywords)
 
 
 class FULLBODY_ADJUST_PG_target(bpy.types.PropertyGroup):
@@ -63,11 +69,13 @@ class FULLBODY_ADJUST_PG_target(bpy.types.PropertyGroup):
     target: _object_of_slot("Target", "Object (normally an empty) whose location the effector reaches for")
     priority: IntProperty(name="Priority", default=DEFAULT_PRIORITY['hand.L'], min=0, soft_max=10,
                           description="When targets conflict, the higher priority is met first (by default feet 3, "
-                                      "hands 2, head 1)")
-    enabled: BoolProperty(name="Enabled", description="Use this target when adjusting", default=True)
+                                      "hands 2, head 1)", update=_solve_setting_changed)
+    enabled: BoolProperty(name="Enabled", description="Use this target when adjusting", default=True,
+                          update=_solve_setting_changed)
     use_rotation: BoolProperty(name="Rotation", default=False,
                                description="The hand or foot takes the target's world orientation (as far as the "
-                                           "wrist's or ankle's limits allow); off: it keeps its own")
+                                           "wrist's or ankle's limits allow); off: it keeps its own",
+                               update=_solve_setting_changed)
     pole: _object_of_slot("Pole", "Object the elbow or knee points toward: the limb bends in the plane of the "
                                   "shoulder or hip, the target and the pole. Empty: the limb keeps its own bend plane")
 
@@ -84,28 +92,30 @@ class FULLBODY_ADJUST_PG_settings(bpy.types.PropertyGroup):
     active_target_index: IntProperty(name="Active Target", description="Target slot selected in the list")
     obstacles: PointerProperty(name="Obstacles", type=bpy.types.Collection,
                                description="Collection whose meshes are obstacles. Empty: every visible mesh that "
-                                           "this armature neither deforms nor parents")
+                                           "this armature neither deforms nor parents", update=_solve_setting_changed)
     bone_map: CollectionProperty(name="Bone Map", description="Which rig bones form each body model group",
                                  type=FULLBODY_ADJUST_PG_bone_map_item)
     active_bone_map_index: IntProperty(name="Active Bone Map Item", description="Bone map row selected in the list")
     variant: EnumProperty(name="Variant", items=VARIANT_ITEMS, default=DEFAULT_VARIANT.upper(),
                           description="How the groups meeting at the chest and at the pelvis settle conflicting "
-                                      "targets")
+                                      "targets", update=_solve_setting_changed)
     margin: _distance("Margin", "Clearance kept between joints and obstacle boxes (the paper's Δd)",
                       default=0.01, min=0.0, soft_max=0.5)
     tolerance: _distance("Tolerance", "A target counts as reached within this distance",
                          default=1e-5, min=1e-9, soft_max=0.01, precision=6)
     max_iterations: IntProperty(name="Max Iterations", description="Iteration limit per solve",
-                                default=200, min=1, soft_max=1000)
+                                default=200, min=1, soft_max=1000, update=_solve_setting_changed)
     use_joint_limits: BoolProperty(name="Joint Limits", default=True,
                                    description="Respect the rig's own IK locks and limits and Local Space Limit "
                                                "Rotation constraints on the mapped bones; elbows and knees that set "
-                                               "none never bend backwards")
+                                               "none never bend backwards", update=_solve_setting_changed)
     keep_hand_orientation: BoolProperty(name="Keep Hand Orientation", default=True,
-                                        description="Hands keep their world orientation while the arms move")
+                                        description="Hands keep their world orientation while the arms move",
+                                        update=_solve_setting_changed)
     live: BoolProperty(name="Live Adjust", default=False, update=_live_toggled,
-                       description="Re-solve and show the pose (without keys) whenever a target moves or the frame "
-                                   "changes; Key Pose keys what is shown, turning it off returns to the keyed pose")
+                       description="Re-solve and show the pose (without keys) whenever a target, pole or obstacle "
+                                   "moves, a setting changes or the frame changes; Key Pose keys what is shown, "
+                                   "turning it off returns to the keyed pose")
 
 
 classes = (

@@ -1,6 +1,7 @@
-"""Live Adjust: while ``obj.fullbody_adjust.live`` is on, moving one of the armature's targets (or the
-armature itself) and changing the frame re-solve the current frame and show the pose, without keys.
-``key_pose`` keys what is shown; turning Live off puts the keyed pose back.
+"""Live Adjust: while ``obj.fullbody_adjust.live`` is on, moving one of the armature's targets, poles or
+obstacles (or the armature itself), changing a setting the solve reads and changing the frame re-solve the
+current frame and show the pose, without keys. ``key_pose`` keys what is shown; turning Live off puts the keyed
+pose back.
 
 Every live solve starts from the *base* pose of the current frame: the animation evaluated there, with the
 bones that are not animated as they were when Live was turned on or last keyed. So the pose shown is a
@@ -12,7 +13,10 @@ Handlers (registered with the extension, kept across file loads): with no armatu
 once. They never keep bpy objects between calls (Undo and file loads replace them): the state is keyed by
 object name and the objects are looked up on each call. A live solve's error is stored for the panel,
 never raised out of a handler. Applying the pose makes Blender evaluate the armature again; that update
-is not a reason to solve (only a target's transform, the armature's object transform or the frame are).
+is not a reason to solve (only a target's, pole's or obstacle's transform, the armature's object transform, a
+changed setting or the frame are). A setting changed (its property's update calls ``settings_changed``) marks
+the armature's Live solve pending and tags the armature, so the update that follows solves once, however many
+settings a script changes in between.
 """
 
 from dataclasses import dataclass
@@ -21,7 +25,7 @@ import bpy
 import numpy as np
 from bpy.app.handlers import persistent
 
-from . import adjustment, frames, keyframes, pose, rig_cache, targets
+from . import adjustment, frames, keyframes, obstacles, pose, rig_cache, targets
 from .errors import AdjustError
 
 # How a live solve differs from Adjust Pose: no keys, a deleted target's slot is left out, and no residuals
@@ -43,6 +47,7 @@ class LiveState:
     error: str = ""  # why the last solve failed, one line ("" when it went well)
     warning: str = ""  # what the last solve left out (a deleted target), one line
     solves: int = 0  # live solves so far (for tests and the bench)
+    pending: bool = False  # a setting changed: solve on the next update
     pointer: int = 0  # the armature's as_pointer(): its state follows it through a rename
 
 
@@ -72,6 +77,15 @@ def live_toggled(obj, context):
         state = _states.pop(obj.name, None)
         if state is not None and obj.type == 'ARMATURE':
             _guarded(_restore, obj, state, _current_frame(context.scene))
+
+
+def settings_changed(obj):
+    """A setting of ``obj.fullbody_adjust`` the solve reads was changed: while Live is on, solve again on the next
+    update (tagged here, so there is one)."""
+    state = _states.get(obj.name) if not _busy else None
+    if state is not None and obj.fullbody_adjust.live:
+        state.pending = True
+        obj.update_tag()
 
 
 def key_pose(context, obj):
@@ -114,7 +128,7 @@ def _on_depsgraph_update(scene, depsgraph):
         return
     moved = {update.id.name for update in depsgraph.updates
              if update.is_updated_transform and isinstance(update.id, bpy.types.Object)}
-    if not moved:
+    if not moved and not any(state.pending for state in _states.values()):
         return
     gone = False
     for name in list(_states):
@@ -123,14 +137,25 @@ def _on_depsgraph_update(scene, depsgraph):
             gone = True
             continue
         state = _states[obj.name]
-        target_names = {slot.target.name for slot in obj.fullbody_adjust.targets if slot.target is not None}
         if obj.name in moved and _object_moved(obj, state):
             state.stale = True  # the base pose's world matrices moved with the object
             _solve(obj, state, bpy.context)
-        elif moved & target_names:
+        elif state.pending or _inputs_moved(obj, moved - {obj.name}, bpy.context):
             _solve(obj, state, bpy.context)
     if gone:
         _resync()  # Live switched off some other way (or the armature deleted): follow what the file says
+
+
+def _inputs_moved(obj, moved, context):
+    """Whether one of the objects named ``moved`` is a target, a pole or an obstacle of ``obj``. The obstacles are
+    looked for only when something else moved (it goes through the scene's objects)."""
+    if not moved:
+        return False
+    slots = obj.fullbody_adjust.targets
+    inputs = {ob.name for slot in slots for ob in (slot.target, slot.pole) if ob is not None}
+    if moved & inputs:
+        return True
+    return any(mesh.name in moved for mesh in obstacles.obstacle_meshes(obj, context))
 
 
 @persistent
@@ -215,6 +240,7 @@ def _solve(obj, state, context):
             state.start, state.start_frame, state.written = pose.read_pose(obj, rig.static(obj)), frame, ()
             state.rig, state.stale = rig, False
         state.solves += 1
+        state.pending = False
         outcome = adjustment.adjust_pose(context, obj, LIVE_OPTIONS, start=state.start, rig=rig)
     except AdjustError as ex:
         state.error, state.warning = str(ex), ""

@@ -8,8 +8,9 @@ import bpy
 import numpy as np
 import pytest
 
-from .scene_tools import (Pose, add_rig, animating_fcurves, bone_map, drop_frame, keys_at, keys_state, place,
-                          pose_channels, residuals, slot, without_derived_handles)
+from .scene_tools import (Pose, add_box, add_rig, animating_fcurves, bone_map, body_axes, chain_joints,
+                          chain_length, drop_frame, inside_box, keys_at, keys_state, place, pose_channels, residuals,
+                          slot, without_derived_handles)
 from .test_adjust_pose import KEY_FRAME, keyed_metarig, reach_left_hand
 
 # A met target is within this fraction of the rig's height (as for Adjust Pose).
@@ -382,4 +383,81 @@ def test_an_edited_rig_is_read_again_before_the_next_solve(live):
     target = slot(obj, "hand.L").target
     target.location = target.location + target.location.orthogonal().normalized() * 0.02 * height
     bpy.context.view_layer.update()
+    assert hand_distance(obj) < REACH * height
+
+
+def test_moving_a_pole_solves_again(live):
+    """The elbow follows its pole while the pole is dragged, as it follows the hand's target: each pole move
+    solves, and the pose shown is the one Adjust Pose gives for the same targets and pole."""
+    obj = live_after_a_target_move()
+    pose = Pose(obj)
+    height = pose.height()
+    up, _left, forward = body_axes(obj, pose)
+    joints = chain_joints(obj, pose, "arm.L")
+    middle = joints[-3] + 0.5 * (joints[-1] - joints[-3])
+    pole = bpy.data.objects.new("Pole", None)
+    bpy.context.scene.collection.objects.link(pole)
+    slot(obj, "hand.L").pole = pole
+    bpy.context.view_layer.update()
+    solved = solves(live, obj)
+    elbows = []
+    for side in (-up, -forward):  # below the arm, then behind it
+        place(pole, pose.to_world(middle + 0.6 * chain_length(joints) * side))
+        bpy.context.view_layer.update()
+        elbows.append(chain_joints(obj, Pose(obj), "arm.L")[-2])
+        assert hand_distance(obj) < REACH * height
+    assert solves(live, obj) == solved + 2
+    assert live.status(obj) == ""
+    assert np.linalg.norm(elbows[1] - elbows[0]) > 0.02 * height  # the elbow went with the pole
+
+    obj.fullbody_adjust.live = False  # back to the base pose, solved by Adjust Pose from there
+    assert bpy.ops.fullbody_adjust.adjust_pose() == {'FINISHED'}
+    np.testing.assert_allclose(chain_joints(obj, Pose(obj), "arm.L")[-2], elbows[1], atol=1e-5 * height)
+
+
+def test_moving_an_obstacle_into_the_arm_solves_again(live):
+    """An obstacle dragged onto the elbow pushes the arm out of it while the hand stays on its target; moving
+    a mesh that is no obstacle (it rides on the armature) does not solve."""
+    obj = live_after_a_target_move()
+    height = Pose(obj).height()
+    elbow = chain_joints(obj, Pose(obj), "arm.L")[-2]
+    box = add_box(obj, (100.0, 100.0, 100.0), 0.12 * height)
+    bpy.context.view_layer.update()
+    solved = solves(live, obj)
+    box.location = tuple(Pose(obj).to_world(elbow))
+    bpy.context.view_layer.update()
+    assert solves(live, obj) == solved + 1
+    after = chain_joints(obj, Pose(obj), "arm.L")
+    assert not inside_box(box, Pose(obj).to_world(after)).any()
+    assert hand_distance(obj) < REACH * height
+
+    rider = add_box(obj, (50.0, 50.0, 50.0), 0.01 * height)
+    rider.parent = obj
+    bpy.context.view_layer.update()
+    solved = solves(live, obj)
+    rider.location = (49.0, 50.0, 50.0)
+    bpy.context.view_layer.update()
+    assert solves(live, obj) == solved
+
+
+def test_a_changed_setting_solves_once_on_the_next_update(live):
+    """Switching the hand's slot off shows the pose without it (the arm back where the base pose has it);
+    several settings changed before one update solve once; switching it on solves it again."""
+    obj = live_rig()
+    base = chain_joints(obj, Pose(obj), "arm.L")
+    obj.fullbody_adjust.live = True
+    move_hand_target(obj)
+    bpy.context.view_layer.update()
+    height = Pose(obj).height()
+    assert hand_distance(obj) < REACH * height
+    solved = solves(live, obj)
+    slot(obj, "hand.L").enabled = False
+    slot(obj, "foot.R").priority = 5
+    obj.fullbody_adjust.margin = 0.02
+    bpy.context.view_layer.update()
+    assert solves(live, obj) == solved + 1
+    np.testing.assert_allclose(chain_joints(obj, Pose(obj), "arm.L"), base, atol=1e-6 * height)
+    slot(obj, "hand.L").enabled = True
+    bpy.context.view_layer.update()
+    assert solves(live, obj) == solved + 2
     assert hand_distance(obj) < REACH * height
