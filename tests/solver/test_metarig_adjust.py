@@ -52,6 +52,23 @@ def test_a_pose_solved_alone_equals_its_row_of_a_batch_within_1e9(rig, kind, han
         assert list(one.status) == list(batch.status[f])
 
 
+@pytest.mark.parametrize("off", [0.5, 2.0, 8.0])
+def test_a_hand_just_off_its_target_is_solved_alone_as_in_a_batch(rig, off):
+    """A hand `off` tolerances from its target (feet and the other hand where they stand): left untouched within
+    the tolerance, solved beyond it, by a pose solved alone exactly as by its row of a batch."""
+    model, h, t, x = rig
+    tolerance = AdjustSettings().chain.tolerance
+    targets = metarig.wrists_and_ankles(model, h)
+    targets[0] += off * tolerance * np.array([0.6, 0.0, 0.8])
+    one = adjust_pose(model, h, t, targets, metarig.EFFECTORS, metarig.PRIORITIES, bone_x_axes=x)
+    batch = _frames(rig, np.repeat(targets[None], 2, 0), None)
+    np.testing.assert_array_equal(one.heads, batch.heads[0])
+    assert list(one.status) == list(batch.status[0])
+    assert one.residuals[0] <= tolerance
+    wrist = h[model.limbs["arm.L"].end_bone]
+    assert np.array_equal(one.heads[model.limbs["arm.L"].end_bone], wrist) == (off <= 1.0)
+
+
 def test_a_target_beyond_reach_ends_at_the_stretched_arm(rig):
     """Without joint limits the best pose is the arm straight on the line from its base to the target."""
     model, h, t, x = rig
