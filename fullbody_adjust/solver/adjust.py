@@ -34,6 +34,7 @@ import numpy as np
 
 from .adjust_types import UNCONSTRAINED, VARIANTS, AdjustBatchResult, AdjustResult, AdjustSettings
 from .body import GROUPS, LIMB_OF_EFFECTOR, BodyModel, LimbLimits
+from . import geometry_plain as gp
 from .errors import SolverInputError
 from .geometry import all_set, any_set, apply_matrix, norm
 from .limb_placement import LimbPlacement
@@ -305,6 +306,53 @@ class _Problem(SubBasePlacement, LimbPlacement):
 
     def _result(self, heads, tails, rotations, solves) -> AdjustBatchResult:
         model, F = self.model, self.F
+        if F == 1:
+            residuals, status, reasons = self._effector_outcome_one_frame(heads, solves)
+        else:
+            residuals, status, reasons = self._effector_outcome(heads, solves)
+        moved = np.zeros((F, len(GROUPS)), dtype=bool)
+        bone_moved = ((heads != self.H0) | (tails != self.T0)).any(axis=2)  # (F,J)
+        columns, bones, starts = group_bones(model)
+        if columns.size:
+            moved[:, columns] = np.logical_or.reduceat(bone_moved[:, bones], starts, axis=1)
+        chest = model.groups["trunk"][-1]
+        sc_disp = norm(tails[:, chest] - self.T0[:, chest])
+        root_disp = norm(heads[:, model.root] - self.H0[:, model.root])
+        return AdjustBatchResult(heads, tails, rotations, self.effectors, residuals, status, reasons, moved, GROUPS,
+                                 self.iterations.copy(), sc_disp, root_disp)
+
+    def _effector_outcome_one_frame(self, heads, solves):
+        """_effector_outcome of one frame, effector by effector in plain floats and strings (the same distances;
+        numpy's per-call cost on five values was most of it)."""
+        tol = self.settings.chain.tolerance
+        trunk = solves["trunk"]
+        trunk_stuck = bool(trunk.solved[0]) and trunk.status[0] in ("blocked", "limited")
+        residuals, status, reasons = [], [], []
+        for k, e in enumerate(self.effectors):
+            name = LIMB_OF_EFFECTOR[e]
+            if not self.active_e[0, k]:
+                residuals.append(np.nan)
+                status.append(UNCONSTRAINED)
+                reasons.append("no target on this frame")
+                continue
+            limb = self.model.limbs[name]
+            res = gp.norm(gp.sub(heads[0, limb.end_bone].tolist(), self.targets[0, k].tolist()))
+            st, why = solves[name].status[0], solves[name].reason[0]
+            if res <= tol:
+                st, why = "reached", why or "reached"
+            else:
+                if st == "reached":  # met by its chain, then moved (cannot happen with rigid propagation)
+                    st, why = "unreachable", "moved off its target after the chain solve"
+                if st == "unreachable" and limb.hub == "sc" and trunk_stuck:
+                    st, why = trunk.status[0], f"the trunk could not bring the SC into reach: {trunk.reason[0]}"
+            residuals.append(res)
+            status.append(st)
+            reasons.append(why)
+        return np.array([residuals]), np.array([status], dtype=str), np.array([reasons], dtype=str)
+
+    def _effector_outcome(self, heads, solves):
+        """(residuals, status, reasons) (F,E) of the effectors: each limb's end against its target, and why."""
+        model = self.model
         tol = self.settings.chain.tolerance
         # Every effector at once (F,E): each limb's end against its target.
         names = [LIMB_OF_EFFECTOR[e] for e in self.effectors]
@@ -330,17 +378,7 @@ class _Problem(SubBasePlacement, LimbPlacement):
         why[met & (why == "")] = "reached"
         status = np.where(act, st, UNCONSTRAINED)
         reasons = np.where(act, why, "no target on this frame")
-        moved = np.zeros((F, len(GROUPS)), dtype=bool)
-        bone_moved = ((heads != self.H0) | (tails != self.T0)).any(axis=2)  # (F,J)
-        columns, bones, starts = group_bones(model)
-        if columns.size:
-            moved[:, columns] = np.logical_or.reduceat(bone_moved[:, bones], starts, axis=1)
-        chest = model.groups["trunk"][-1]
-        sc_disp = norm(tails[:, chest] - self.T0[:, chest])
-        root_disp = norm(heads[:, model.root] - self.H0[:, model.root])
-        return AdjustBatchResult(heads, tails, rotations, self.effectors, residuals, status.astype(str),
-                                 reasons.astype(str), moved, GROUPS, self.iterations.copy(), sc_disp,
-                                 root_disp)
+        return residuals, status.astype(str), reasons.astype(str)
 
 
 def _take_limits(limits, rows):
