@@ -32,9 +32,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import geometry_plain as gp
 from .adjust_types import UNCONSTRAINED, VARIANTS, AdjustBatchResult, AdjustResult, AdjustSettings
 from .body import GROUPS, LIMB_OF_EFFECTOR, BodyModel, LimbLimits
-from . import geometry_plain as gp
 from .errors import SolverInputError
 from .geometry import all_set, any_set, apply_matrix, norm
 from .limb_placement import LimbPlacement
