@@ -19,12 +19,13 @@ def obstacle_meshes(obj, context):
     """
     collection = obj.fullbody_adjust.obstacles
     if collection is not None:
-        candidates = collection.all_objects
+        candidates = [ob for ob in collection.all_objects if ob.type == 'MESH']
     else:
         # scene.objects, not view_layer.objects: the latter lags behind objects linked since the last update.
+        # The type first: it is the cheaper test, and a scene's set has many objects.
         view_layer = context.view_layer
-        candidates = [ob for ob in context.scene.objects if ob.visible_get(view_layer=view_layer)]
-    meshes = [ob for ob in candidates if ob.type == 'MESH' and not moves_with(ob, obj)]
+        candidates = [ob for ob in context.scene.objects if ob.type == 'MESH' and ob.visible_get(view_layer=view_layer)]
+    meshes = [ob for ob in candidates if not moves_with(ob, obj)]
     return sorted(meshes, key=lambda ob: ob.name)
 
 
@@ -79,12 +80,14 @@ def box_frame_reader(obj, context):
 
 def _corners(meshes, depsgraph, frame=None):
     corners = np.zeros((len(meshes), 8, 3))
+    local = np.empty((len(meshes), 24), dtype=np.float32)  # Blender's float32 values, read in bulk
     for index, ob in enumerate(meshes):
         evaluated = ob.evaluated_get(depsgraph)
-        local = np.array(evaluated.bound_box, dtype=np.float64)  # (8, 3)
+        evaluated.bound_box.foreach_get(local[index])  # np.array(bound_box) cost 20 times more
         world = np.array(evaluated.matrix_world, dtype=np.float64)
-        corners[index] = local @ world[:3, :3].T + world[:3, 3]
-        if not np.all(np.isfinite(corners[index])):
-            where = "" if frame is None else f" at frame {frame:g}"
-            raise AdjustError(f"Obstacle '{ob.name}' has a non-finite bounding box{where}")
+        corners[index] = local[index].reshape(8, 3).astype(np.float64) @ world[:3, :3].T + world[:3, 3]
+    bad = np.nonzero(~np.isfinite(corners).all(axis=(1, 2)))[0]
+    if len(bad):
+        where = "" if frame is None else f" at frame {frame:g}"
+        raise AdjustError(f"Obstacle '{meshes[bad[0]].name}' has a non-finite bounding box{where}")
     return corners
