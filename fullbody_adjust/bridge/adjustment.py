@@ -15,6 +15,7 @@ from ..solver import Boxes, ChainSettings, SolverInputError
 from ..solver.adjust import AdjustSettings, adjust_frames as solve_frames
 from ..solver.body import CHAIN, END, ROOT
 from ..solver.geometry import norm
+from ..solver.obstacle_reach import body_reach, reachable_boxes, skeleton_reach
 from ..solver.obstacles import penetrations
 from . import control_rig, frames as frames_module, ik_limits, keyframes, mapping, obstacles, pose, rig_cache, targets
 from .control_match import control_channels
@@ -143,12 +144,13 @@ def settings_of(obj, options=Options()):
     return AdjustSettings(chain=chain, variant=str(pick("variant")).lower(), use_limits=bool(pick("use_joint_limits")))
 
 
-def adjust_pose(context, obj, options=Options(), start=None, rig=None):
+def adjust_pose(context, obj, options=Options(), start=None, rig=None, obstacle_corners=None):
     """Adjust the armature's pose at the current frame, apply it, and key the bones that moved. ``start``:
     the pose to solve from, a PoseSnapshot of this frame (default: the pose as it is now); ``rig``: its
-    rig_cache.Rig, when the caller just looked it up."""
+    rig_cache.Rig, when the caller just looked it up; ``obstacle_corners``: obstacles.obstacle_boxes of this
+    frame, when the caller keeps them (default: read now)."""
     frame = context.scene.frame_current
-    return _run(context, obj, [frame], options, apply_pose=True, start=start, rig=rig)
+    return _run(context, obj, [frame], options, apply_pose=True, start=start, rig=rig, corners=obstacle_corners)
 
 
 def adjust_frames(context, obj, frame_start, frame_end, options=Options(), progress=None):
@@ -159,7 +161,7 @@ def adjust_frames(context, obj, frame_start, frame_end, options=Options(), progr
     return _run(context, obj, frames, options, apply_pose=False, progress=progress)
 
 
-def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None, rig=None):
+def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None, rig=None, corners=None):
     progress = progress or (lambda stage, fraction: None)
     check_armature(obj)
     rig = rig or rig_cache.rig_of(obj)
@@ -173,7 +175,7 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
         # The current frame as the user sees it. Stepping to it with frame_set would evaluate the animation
         # again and throw away pose changes not keyed yet, even when the run then fails.
         goals = _current_targets(obj, context, options.skip_missing_targets)
-        corners = obstacles.obstacle_boxes(obj, context)[None]
+        corners = (obstacles.obstacle_boxes(obj, context) if corners is None else corners)[None]
         snapshot = pose.as_batch(pose.read_pose(obj, rig.static(obj)) if start is None else start)
     else:
         with _pose_kept(obj):  # stepping through the frames evaluates the animation into the pose bones
@@ -205,9 +207,14 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
 
     to_arm, heads, tails = snapshot.derived("armature space", lambda: _armature_space(snapshot))
     arm_targets = _apply(to_arm, world_targets)
-    boxes = _armature_boxes(corners, to_arm)
     end_turns, poles = _end_goals(model, snapshot, goals, to_arm)
     solve_settings = _in_armature_units(settings, snapshot.derived("object scales", lambda: _object_scales(snapshot)))
+    boxes = None
+    if corners.shape[1]:  # a set's meshes far from the character are left out before they are built into boxes
+        centre, radius = body_reach(model, heads, tails, arm_targets,
+                                    snapshot.derived("skeleton reach", lambda: skeleton_reach(model, heads, tails),
+                                                     of=model))
+        boxes = _armature_boxes(corners, to_arm, centre, radius + solve_settings.chain.margin)
     try:
         limits = ik_limits.joint_limits(obj, model, heads, tails, snapshot.pose_matrices, settings,
                                         controls=rig.fk_controls)
@@ -472,12 +479,20 @@ def _apply(matrices, points):
     return np.einsum("...ij,...j->...i", m[..., :3, :3], points) + m[..., :3, 3]
 
 
-def _armature_boxes(world_corners, to_arm):
+def _armature_boxes(world_corners, to_arm, centre, radius):
     """The obstacles' boxes in armature space from their world corners (F,K,8,3) in bound_box order: each the
-    mesh's own (oriented) box, as the user sees it."""
-    if world_corners.shape[1] == 0:
+    mesh's own (oriented) box, as the user sees it; None when there are none. Boxes no bone can reach (outside the
+    ball `centre` (F,3), `radius` (F,) on every frame: solver.obstacle_reach) are left out first: a box built from
+    8 corners lies within sqrt(3) times their farthest distance from their mean (along each of its axes it spans
+    their projections), so one whose ball is outside is outside."""
+    corners = _apply(to_arm, world_corners)
+    mean = corners.mean(axis=2)
+    size = np.sqrt(3.0) * norm(corners - mean[:, :, None]).max(axis=2)
+    keep = (norm(mean - centre[:, None]) - size <= radius[:, None]).any(axis=0)
+    if not keep.any():
         return None
-    return Boxes.from_box_corners(_apply(to_arm, world_corners))
+    boxes = Boxes.from_box_corners(corners[:, keep])
+    return reachable_boxes(boxes, centre, radius)  # the solver's own test, on the boxes' bounds
 
 
 def _bones_to_write(model, snapshot, result, keep_hands, oriented):

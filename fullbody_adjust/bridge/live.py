@@ -17,6 +17,11 @@ is not a reason to solve (only a target's, pole's or obstacle's transform, the a
 changed setting or the frame are). A setting changed (its property's update calls ``settings_changed``) marks
 the armature's Live solve pending and tags the armature, so the update that follows solves once, however many
 settings a script changes in between.
+
+The obstacles' boxes are read once and kept (reading them goes through every object of the scene) until an update
+may have changed them: a mesh that does not move with the armature moved or changed (that also solves again, as a
+moved target does), or the scene's objects or collections changed (added, removed, shown, hidden). A new frame,
+Undo and a changed setting read them again too.
 """
 
 from dataclasses import dataclass
@@ -48,6 +53,7 @@ class LiveState:
     warning: str = ""  # what the last solve left out (a deleted target), one line
     solves: int = 0  # live solves so far (for tests and the bench)
     pending: bool = False  # a setting changed: solve on the next update
+    obstacle_corners: object = None  # obstacles.obstacle_boxes of the current frame, kept (None: read them again)
     pointer: int = 0  # the armature's as_pointer(): its state follows it through a rename
 
 
@@ -84,7 +90,7 @@ def settings_changed(obj):
     update (tagged here, so there is one)."""
     state = _states.get(obj.name) if not _busy else None
     if state is not None and obj.fullbody_adjust.live:
-        state.pending = True
+        state.pending, state.obstacle_corners = True, None
         obj.update_tag()
 
 
@@ -126,6 +132,12 @@ def key_pose(context, obj):
 def _on_depsgraph_update(scene, depsgraph):
     if not _states or _busy:
         return
+    for name, state in _states.items():
+        obj = bpy.data.objects.get(name)
+        changed = _obstacles_changed(obj, depsgraph) if obj is not None else None
+        if changed:
+            state.obstacle_corners = None
+            state.pending |= changed == _MESH_CHANGED
     moved = {update.id.name for update in depsgraph.updates
              if update.is_updated_transform and isinstance(update.id, bpy.types.Object)}
     if not moved and not any(state.pending for state in _states.values()):
@@ -140,22 +152,40 @@ def _on_depsgraph_update(scene, depsgraph):
         if obj.name in moved and _object_moved(obj, state):
             state.stale = True  # the base pose's world matrices moved with the object
             _solve(obj, state, bpy.context)
-        elif state.pending or _inputs_moved(obj, moved - {obj.name}, bpy.context):
+        elif state.pending or _inputs_moved(obj, moved - {obj.name}):
             _solve(obj, state, bpy.context)
     if gone:
         _resync()  # Live switched off some other way (or the armature deleted): follow what the file says
 
 
-def _inputs_moved(obj, moved, context):
-    """Whether one of the objects named ``moved`` is a target, a pole or an obstacle of ``obj``. The obstacles are
-    looked for only when something else moved (it goes through the scene's objects)."""
+def _inputs_moved(obj, moved):
+    """Whether one of the objects named ``moved`` is a target or a pole of ``obj`` (obstacles: see
+    _obstacles_changed)."""
     if not moved:
         return False
     slots = obj.fullbody_adjust.targets
-    inputs = {ob.name for slot in slots for ob in (slot.target, slot.pole) if ob is not None}
-    if moved & inputs:
-        return True
-    return any(mesh.name in moved for mesh in obstacles.obstacle_meshes(obj, context))
+    return bool(moved & {ob.name for slot in slots for ob in (slot.target, slot.pole) if ob is not None})
+
+
+# What _obstacles_changed tells.
+_MESH_CHANGED = "mesh"  # an obstacle mesh moved or changed: read them again and solve again
+_SCENE_CHANGED = "scene"  # the scene's objects or collections changed: read them again at the next solve
+
+
+def _obstacles_changed(obj, depsgraph):
+    """How ``depsgraph``'s updates may have changed the obstacles of ``obj``: _MESH_CHANGED when a mesh that does not
+    move with ``obj`` moved or changed (the character's own meshes, deformed by each pose shown, do not count);
+    else _SCENE_CHANGED when the scene or a collection was updated (objects linked, removed, shown, hidden: such
+    updates name them; so do many other changes, which is why they do not solve again by themselves); else None."""
+    scene = None
+    for update in depsgraph.updates:
+        data = update.id.original
+        if isinstance(data, (bpy.types.Scene, bpy.types.Collection)):
+            scene = _SCENE_CHANGED
+        elif (isinstance(data, bpy.types.Object) and data.type == 'MESH'
+              and (update.is_updated_transform or update.is_updated_geometry) and not obstacles.moves_with(data, obj)):
+            return _MESH_CHANGED
+    return scene
 
 
 @persistent
@@ -238,10 +268,13 @@ def _solve(obj, state, context):
         if state.stale or state.start_frame != frame or state.rig is not rig:
             _restore(obj, state, frame)
             state.start, state.start_frame, state.written = pose.read_pose(obj, rig.static(obj)), frame, ()
-            state.rig, state.stale = rig, False
+            state.rig, state.stale, state.obstacle_corners = rig, False, None
+        if state.obstacle_corners is None:
+            state.obstacle_corners = obstacles.obstacle_boxes(obj, context)
         state.solves += 1
         state.pending = False
-        outcome = adjustment.adjust_pose(context, obj, LIVE_OPTIONS, start=state.start, rig=rig)
+        outcome = adjustment.adjust_pose(context, obj, LIVE_OPTIONS, start=state.start, rig=rig,
+                                         obstacle_corners=state.obstacle_corners)
     except AdjustError as ex:
         state.error, state.warning = str(ex), ""
         _restore(obj, state, frame)

@@ -40,6 +40,7 @@ from .geometry import all_set, any_set, apply_matrix, norm
 from .limb_placement import LimbPlacement
 from .limb_rotations import LimbSolve, chest_rotation
 from .limits import FREE
+from .obstacle_reach import body_reach, reachable_boxes
 from .obstacles import Boxes
 from .prepared import group_bones, prepare
 from .reach_balls import nearest_in_balls, project_onto_balls, sub_base_point
@@ -151,6 +152,9 @@ class _Problem(SubBasePlacement, LimbPlacement):
 
         # Limb chains at the start poses and their reach (read-only, kept with the prepared start pose).
         self.prepared = prepare(model, self.H0, self.T0, settings, bone_x_axes)
+        if self.obstacles is not None:  # boxes no bone can reach are left out before any test
+            centre, radius = body_reach(model, self.H0, self.T0, t, self.prepared.skeleton_reach())
+            self.obstacles = reachable_boxes(self.obstacles, centre, radius + settings.chain.margin)
         self.chain0, self.reach = self.prepared.chains()
         # Reach used for the sub-base decisions; cut where joint limits held a limb short (limit_passes).
         self.reach_eff = {n: r.copy() for n, r in self.reach.items()}

@@ -105,6 +105,16 @@ class Boxes:
             return local
         return np.einsum("...ij,...cj->...ci", self.axes, local)
 
+    def take(self, indices):
+        """The boxes `indices` (an index array over K), shared or per problem as these are."""
+        out = object.__new__(Boxes)
+        for name, arr, axis in (("mins", self.mins, -2), ("maxs", self.maxs, -2), ("axes", self.axes, -3)):
+            if arr is not None:
+                arr = np.take(arr, indices, axis=axis)
+                arr.setflags(write=False)
+            object.__setattr__(out, name, arr)
+        return out
+
     def select(self, rows):
         """Per-problem boxes of the problems `rows` (index array); shared boxes are returned unchanged. Rows of
         boxes checked once are not checked again: the chain solver selects a few times per iteration, and

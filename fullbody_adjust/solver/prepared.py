@@ -31,6 +31,7 @@ from .chain_model import ChainModel
 from .chain_types import _reach_bounds
 from .errors import SolverInputError
 from .geometry import any_set, norm
+from .obstacle_reach import skeleton_reach
 from .vocabulary import GROUPS
 
 _CAPACITY = 4
@@ -53,6 +54,7 @@ class PreparedStart:
         self._limits = None
         self._records_by_limb = None
         self._chains = None
+        self._skeleton_reach = None
 
     def chains(self):
         """({limb: start chain (F,n,3)}, {limb: reach (F,)}), read-only; the reach is the sum of the segment
@@ -70,6 +72,12 @@ class PreparedStart:
                 chain0[name], reach[name] = _read_only(joints), _read_only(_reach_bounds(lengths)[0])
             self._chains = chain0, reach
         return dict(self._chains[0]), dict(self._chains[1])  # the caller may add to its dicts
+
+    def skeleton_reach(self):
+        """(F,) obstacle_reach.skeleton_reach of the start poses."""
+        if self._skeleton_reach is None:
+            self._skeleton_reach = _read_only(skeleton_reach(self.model, self._heads, self._tails))
+        return self._skeleton_reach
 
     @property
     def limits(self):

@@ -168,6 +168,35 @@ def test_obstacle_on_the_elbows_way(extension_module_name):
     assert_lengths_kept(before, after)
 
 
+def test_meshes_far_from_the_character_change_nothing(extension_module_name):
+    """A set of forty meshes (some rotated) far from the character: they are obstacles (visible meshes), but no
+    bone can reach them, so Adjust Pose gives the pose it gives without them, bit for bit."""
+    adjustment = importlib.import_module(f"{extension_module_name}.bridge.adjustment")
+    obj = rig_with_targets("basic")
+    rest = pose_channels(obj)
+    before = Pose(obj)
+    reach_left_hand(obj, before, "arm")
+    elbow = before.to_world(before.head(bone_map(obj)["arm.L"][-1]))
+    add_box(obj, elbow + np.array([0.0, -0.05, 0.05]), 0.08)
+
+    def adjusted():
+        for name, (_mode, location, quaternion, euler, _axis_angle, _scale) in rest.items():
+            pb = obj.pose.bones[name]
+            pb.location, pb.rotation_quaternion, pb.rotation_euler = location, quaternion, euler
+        outcome = adjustment.adjust_pose(bpy.context, obj, adjustment.Options(insert_keys=False))
+        return Pose(obj).matrices, outcome
+
+    alone, outcome_alone = adjusted()
+    for k in range(40):
+        far = add_box(obj, (30.0 + 2.0 * k, -40.0, 1.0), 1.5)
+        far.rotation_euler = (0.3 * k, 0.0, 0.7) if k % 2 else (0.0, 0.0, 0.0)
+    bpy.context.view_layer.update()
+    among, outcome_among = adjusted()
+    np.testing.assert_array_equal(among, alone)
+    np.testing.assert_array_equal(outcome_among.residuals, outcome_alone.residuals)
+    assert outcome_among.moved_bones == outcome_alone.moved_bones
+
+
 # --- keys ------------------------------------------------------------------------------------------------------
 
 

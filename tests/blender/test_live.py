@@ -461,3 +461,35 @@ def test_a_changed_setting_solves_once_on_the_next_update(live):
     bpy.context.view_layer.update()
     assert solves(live, obj) == solved + 2
     assert hand_distance(obj) < REACH * height
+
+
+def test_obstacles_are_read_again_when_the_scene_changes(live):
+    """Live keeps the obstacles' boxes between updates: a box linked where the elbow is counts from the next
+    solve on, one hidden stops counting, and editing a box's mesh solves again at once."""
+    obj = live_after_a_target_move()
+    height = Pose(obj).height()
+    free = chain_joints(obj, Pose(obj), "arm.L")
+    box = add_box(obj, Pose(obj).to_world(free[-2]), 0.12 * height)  # linked: no solve yet
+    bpy.context.view_layer.update()
+    assert inside_box(box, Pose(obj).to_world(free[-2:-1])).all()
+
+    target = slot(obj, "hand.L").target
+    goal = np.array(target.location)
+    target.location = tuple(goal + [0.0, 0.0, 1e-3 * height])  # a drag goes on
+    bpy.context.view_layer.update()
+    assert not inside_box(box, Pose(obj).to_world(chain_joints(obj, Pose(obj), "arm.L"))).any()
+    assert hand_distance(obj) < REACH * height
+
+    solved = solves(live, obj)
+    for vertex in box.data.vertices:  # the box grows: its mesh changed, the pose follows at once
+        vertex.co = vertex.co * 1.5
+    box.data.update()
+    bpy.context.view_layer.update()
+    assert solves(live, obj) == solved + 1
+    assert not inside_box(box, Pose(obj).to_world(chain_joints(obj, Pose(obj), "arm.L"))).any()
+
+    box.hide_set(True)  # hidden: no obstacle from the next solve on
+    bpy.context.view_layer.update()
+    target.location = tuple(goal)
+    bpy.context.view_layer.update()
+    np.testing.assert_allclose(chain_joints(obj, Pose(obj), "arm.L"), free, atol=1e-6 * height)
