@@ -19,9 +19,9 @@ the armature's Live solve pending and tags the armature, so the update that foll
 settings a script changes in between.
 
 The obstacles' boxes are read once and kept (reading them goes through every object of the scene) until an update
-may have changed them: a mesh that does not move with the armature moved or changed (that also solves again, as a
-moved target does), or the scene's objects or collections changed (added, removed, shown, hidden). A new frame,
-Undo and a changed setting read them again too.
+may have changed them: a mesh that does not move with the armature moved or changed (read at once, and when the
+boxes differ that solves again, as a moved target does), or the scene's objects or collections changed (added,
+removed, shown, hidden). A new frame, Undo and a changed setting read them again too.
 """
 
 from dataclasses import dataclass
@@ -135,9 +135,18 @@ def _on_depsgraph_update(scene, depsgraph):
     for name, state in _states.items():
         obj = bpy.data.objects.get(name)
         changed = _obstacles_changed(obj, depsgraph) if obj is not None else None
-        if changed:
+        if changed == _MESH_CHANGED:
+            # Solve again only when the boxes did change: a mesh that follows the pose some other way (a driver)
+            # changes with every pose shown, and would otherwise keep Live solving.
+            kept = state.obstacle_corners
+            try:
+                state.obstacle_corners = obstacles.obstacle_boxes(obj, bpy.context)
+            except AdjustError:  # the solve says why
+                state.obstacle_corners = None
+            state.pending |= state.obstacle_corners is None or kept is None \
+                or not np.array_equal(kept, state.obstacle_corners)
+        elif changed:
             state.obstacle_corners = None
-            state.pending |= changed == _MESH_CHANGED
     moved = {update.id.name for update in depsgraph.updates
              if update.is_updated_transform and isinstance(update.id, bpy.types.Object)}
     if not moved and not any(state.pending for state in _states.values()):

@@ -493,3 +493,23 @@ def test_obstacles_are_read_again_when_the_scene_changes(live):
     target.location = tuple(goal)
     bpy.context.view_layer.update()
     np.testing.assert_allclose(chain_joints(obj, Pose(obj), "arm.L"), free, atol=1e-6 * height)
+
+
+def test_an_obstacle_edit_that_keeps_its_box_does_not_solve(live):
+    """A mesh edit that leaves the mesh's box where it was (a triangulated cube) solves nothing; one that moves the
+    box does. So a mesh that follows the pose some other way (a driver) stops Live solving once its box is still."""
+    obj = live_after_a_target_move()
+    height = Pose(obj).height()
+    box = add_box(obj, (0.3 * height, -0.5 * height, 0.5 * height), 0.1 * height)
+    bpy.context.view_layer.update()
+    move_hand_target(obj)  # a solve that reads the box
+    target = slot(obj, "hand.L").target
+    target.location = tuple(np.array(target.location) + [0.0, 0.0, 1e-3 * height])
+    bpy.context.view_layer.update()
+    solved = solves(live, obj)
+    box.modifiers.new("triangles", 'TRIANGULATE')  # the mesh changed, its box did not
+    bpy.context.view_layer.update()
+    assert solves(live, obj) == solved
+    box.location = tuple(np.array(box.location) + [0.0, 0.0, 0.01 * height])
+    bpy.context.view_layer.update()
+    assert solves(live, obj) == solved + 1
