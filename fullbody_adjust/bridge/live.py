@@ -177,7 +177,7 @@ def _inputs_moved(obj, moved):
 
 
 # What _obstacles_changed tells.
-_MESH_CHANGED = "mesh"  # an obstacle mesh moved or changed: read them again and solve again
+_MESH_CHANGED = "mesh"  # an obstacle mesh moved or changed: read them at once, solve again if they differ
 _SCENE_CHANGED = "scene"  # the scene's objects or collections changed: read them again at the next solve
 
 
