@@ -58,7 +58,7 @@ def _object_of_slot(name, description):
 
 
 def _distance(name, description, **keywords):
-    """A length in scene units."""
+    """A length in scene units that the solve reads (Live solves again when it changes)."""
     return FloatProperty(name=name, description=description, subtype='DISTANCE', unit='LENGTH',
                          update=_solve_setting_changed, **keywords)
 

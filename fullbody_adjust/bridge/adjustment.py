@@ -15,7 +15,7 @@ from ..solver import Boxes, ChainSettings, SolverInputError
 from ..solver.adjust import AdjustSettings, adjust_frames as solve_frames
 from ..solver.body import CHAIN, END, ROOT
 from ..solver.geometry import norm
-from ..solver.obstacle_reach import body_reach, reachable_boxes, skeleton_reach
+from ..solver.obstacle_reach import body_reach, skeleton_reach
 from ..solver.obstacles import penetrations
 from . import control_rig, frames as frames_module, ik_limits, keyframes, mapping, obstacles, pose, rig_cache, targets
 from .control_match import control_channels
@@ -482,17 +482,17 @@ def _apply(matrices, points):
 def _armature_boxes(world_corners, to_arm, centre, radius):
     """The obstacles' boxes in armature space from their world corners (F,K,8,3) in bound_box order: each the
     mesh's own (oriented) box, as the user sees it; None when there are none. Boxes no bone can reach (outside the
-    ball `centre` (F,3), `radius` (F,) on every frame: solver.obstacle_reach) are left out first: a box built from
-    8 corners lies within sqrt(3) times their farthest distance from their mean (along each of its axes it spans
-    their projections), so one whose ball is outside is outside."""
+    ball `centre` (F,3), `radius` (F,) on every frame: solver.obstacle_reach) are left out before they are built:
+    a box built from 8 corners lies within sqrt(3) times their farthest distance from their mean (along each of its
+    axes it spans their projections), so one whose ball is outside is outside. (The solver then leaves out, on the
+    built boxes' bounds, what this looser test kept.)"""
     corners = _apply(to_arm, world_corners)
     mean = corners.mean(axis=2)
     size = np.sqrt(3.0) * norm(corners - mean[:, :, None]).max(axis=2)
     keep = (norm(mean - centre[:, None]) - size <= radius[:, None]).any(axis=0)
     if not keep.any():
         return None
-    boxes = Boxes.from_box_corners(corners[:, keep])
-    return reachable_boxes(boxes, centre, radius)  # the solver's own test, on the boxes' bounds
+    return Boxes.from_box_corners(corners[:, keep])
 
 
 def _bones_to_write(model, snapshot, result, keep_hands, oriented):

@@ -132,32 +132,18 @@ def key_pose(context, obj):
 def _on_depsgraph_update(scene, depsgraph):
     if not _states or _busy:
         return
-    for name, state in _states.items():
-        obj = bpy.data.objects.get(name)
-        changed = _obstacles_changed(obj, depsgraph) if obj is not None else None
-        if changed == _MESH_CHANGED:
-            # Solve again only when the boxes did change: a mesh that follows the pose some other way (a driver)
-            # changes with every pose shown, and would otherwise keep Live solving.
-            kept = state.obstacle_corners
-            try:
-                state.obstacle_corners = obstacles.obstacle_boxes(obj, bpy.context)
-            except AdjustError:  # the solve says why
-                state.obstacle_corners = None
-            state.pending |= state.obstacle_corners is None or kept is None \
-                or not np.array_equal(kept, state.obstacle_corners)
-        elif changed:
-            state.obstacle_corners = None
-    moved = {update.id.name for update in depsgraph.updates
-             if update.is_updated_transform and isinstance(update.id, bpy.types.Object)}
-    if not moved and not any(state.pending for state in _states.values()):
-        return
-    gone = False
+    live, gone = [], False
     for name in list(_states):
         obj = _live_object(name)
         if obj is None:
             gone = True
             continue
         state = _states[obj.name]
+        _follow_obstacles(obj, state, depsgraph)  # on every update: one that moved nothing may have changed them
+        live.append((obj, state))
+    moved = {update.id.name for update in depsgraph.updates
+             if update.is_updated_transform and isinstance(update.id, bpy.types.Object)}
+    for obj, state in live:
         if obj.name in moved and _object_moved(obj, state):
             state.stale = True  # the base pose's world matrices moved with the object
             _solve(obj, state, bpy.context)
@@ -165,6 +151,23 @@ def _on_depsgraph_update(scene, depsgraph):
             _solve(obj, state, bpy.context)
     if gone:
         _resync()  # Live switched off some other way (or the armature deleted): follow what the file says
+
+
+def _follow_obstacles(obj, state, depsgraph):
+    """Drop the obstacles ``state`` keeps when ``depsgraph``'s updates may have changed them. A changed obstacle mesh
+    has them read at once, and solves again only when the boxes did change: a mesh that follows the pose some other
+    way (a driver) changes with every pose shown, and would otherwise keep Live solving."""
+    changed = _obstacles_changed(obj, depsgraph)
+    if changed == _MESH_CHANGED:
+        kept = state.obstacle_corners
+        try:
+            state.obstacle_corners = obstacles.obstacle_boxes(obj, bpy.context)
+        except AdjustError:  # the solve says why
+            state.obstacle_corners = None
+        state.pending |= state.obstacle_corners is None or kept is None \
+            or not np.array_equal(kept, state.obstacle_corners)
+    elif changed:
+        state.obstacle_corners = None
 
 
 def _inputs_moved(obj, moved):

@@ -174,10 +174,7 @@ def test_meshes_far_from_the_character_change_nothing(extension_module_name):
     adjustment = importlib.import_module(f"{extension_module_name}.bridge.adjustment")
     obj = rig_with_targets("basic")
     rest = pose_channels(obj)
-    before = Pose(obj)
-    reach_left_hand(obj, before, "arm")
-    elbow = before.to_world(before.head(bone_map(obj)["arm.L"][-1]))
-    add_box(obj, elbow + np.array([0.0, -0.05, 0.05]), 0.08)
+    reach_left_hand(obj, Pose(obj), "arm")
 
     def adjusted():
         for name, (_mode, location, quaternion, euler, _axis_angle, _scale) in rest.items():
@@ -186,7 +183,11 @@ def test_meshes_far_from_the_character_change_nothing(extension_module_name):
         outcome = adjustment.adjust_pose(bpy.context, obj, adjustment.Options(insert_keys=False))
         return Pose(obj).matrices, outcome
 
+    free, _outcome = adjusted()
+    solved = Pose(obj)
+    add_box(obj, solved.to_world(solved.head(bone_map(obj)["arm.L"][-1])), 0.08)  # where the elbow goes without it
     alone, outcome_alone = adjusted()
+    assert np.abs(alone - free).max() > 1e-3  # the box near the arm counts
     for k in range(40):
         far = add_box(obj, (30.0 + 2.0 * k, -40.0, 1.0), 1.5)
         far.rotation_euler = (0.3 * k, 0.0, 0.7) if k % 2 else (0.0, 0.0, 0.0)
