@@ -6,8 +6,10 @@ even under non-uniform object scale, targets map into it exactly, and each obsta
 box with the mesh's rotation (an oriented box) carried into it.
 """
 
+from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -70,9 +72,22 @@ class Outcome:
     status: np.ndarray  # (F,E)
     reasons: np.ndarray  # (F,E)
     moved_bones: tuple
-    joints_inside: np.ndarray  # (F,) joints inside an obstacle box after the solve
-    segments_crossing: np.ndarray  # (F,) bone segments crossing a box after the solve
+    # () -> ((F,) joints inside an obstacle box after the solve, (F,) bone segments crossing one): counted when first
+    # asked for (joints_inside, segments_crossing); Live never asks.
+    count_penetrations: Callable
     action: object = None
+
+    @cached_property
+    def _penetration_counts(self):
+        return self.count_penetrations()
+
+    @property
+    def joints_inside(self):
+        return self._penetration_counts[0]
+
+    @property
+    def segments_crossing(self):
+        return self._penetration_counts[1]
 
     @property
     def constrained(self):
@@ -258,10 +273,9 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
     else:
         world_effectors = _effector_positions(model, result.heads, snapshot.matrix_world)
     residuals = norm(world_effectors - world_targets)
-    inside, crossing = _penetrations(model, result.heads, result.tails, boxes)
     return Outcome(frames=np.asarray(frames, dtype=np.float64), effectors=tuple(targets.EFFECTORS),
                    residuals=residuals, status=result.status, reasons=result.reasons, moved_bones=names,
-                   joints_inside=inside, segments_crossing=crossing, action=action)
+                   count_penetrations=lambda: _penetrations(model, result.heads, result.tails, boxes), action=action)
 
 
 def _new_pose_matrices(snapshot, result, bones):
@@ -485,14 +499,30 @@ def _armature_boxes(world_corners, to_arm, centre, radius):
     ball `centre` (F,3), `radius` (F,) on every frame: solver.obstacle_reach) are left out before they are built:
     a box built from 8 corners lies within sqrt(3) times their farthest distance from their mean (along each of its
     axes it spans their projections), so one whose ball is outside is outside. (The solver then leaves out, on the
-    built boxes' bounds, what this looser test kept.)"""
-    corners = _apply(to_arm, world_corners)
-    mean = corners.mean(axis=2)
-    size = np.sqrt(3.0) * norm(corners - mean[:, :, None]).max(axis=2)
-    keep = (norm(mean - centre[:, None]) - size <= radius[:, None]).any(axis=0)
+    built boxes' bounds, what this looser test kept.)
+
+    One frame's last corners and boxes are kept (_last_boxes): Live builds the same boxes on every update while
+    only the targets move, and so do clicks while the obstacles stay."""
+    one = world_corners.shape[0] == 1
+    last = _last_boxes if one else {}  # a frame range's are built for its one solve
+    key = (to_arm.tobytes(), world_corners.shape, world_corners.tobytes()) if one else None
+    if key is None or last.get("key") != key:
+        corners = _apply(to_arm, world_corners)
+        mean = corners.mean(axis=2)
+        last.clear()
+        size = np.sqrt(3.0) * norm(corners - mean[:, :, None]).max(axis=2)
+        last.update(key=key, corners=corners, mean=mean, size=size)
+    keep = (norm(last["mean"] - centre[:, None]) - last["size"] <= radius[:, None]).any(axis=0)
     if not keep.any():
         return None
-    return Boxes.from_box_corners(corners[:, keep])
+    if last.get("kept") is None or not np.array_equal(last["kept"], keep):
+        last.update(kept=keep, boxes=Boxes.from_box_corners(last["corners"][:, keep]))
+    return last["boxes"]
+
+
+# _armature_boxes' last frame: its key (the armature transform and the world corners, as bytes), the corners in
+# armature space with their means and sizes, and the Boxes built from those kept (immutable: shared by the solves).
+_last_boxes = {}
 
 
 def _bones_to_write(model, snapshot, result, keep_hands, oriented):
@@ -520,16 +550,18 @@ def _effector_positions(model, heads, matrix_world):
 
 
 def _penetrations(model, heads, tails, boxes):
-    """Chain joints inside, and chain segments crossing, an obstacle box: (F,) counts each."""
-    inside = crossing = np.zeros(heads.shape[0], dtype=np.int64)
+    """Chain joints inside, and chain segments crossing, an obstacle box: (F,) counts each. Every limb's chain in
+    one test (the counts add up over joints and segments, so they are the sums of the limbs' own)."""
     if boxes is None:
-        return inside, crossing
-    for limb in model.limbs.values():
-        n = limb.n_joints
-        joints_in, segments_in = penetrations(limb.joints(heads, tails), np.c_[np.arange(n - 1), np.arange(1, n)],
-                                              boxes)
-        inside, crossing = inside + joints_in, crossing + segments_in
-    return inside, crossing
+        none = np.zeros(heads.shape[0], dtype=np.int64)
+        return none, none
+    chains = [limb.joints(heads, tails) for limb in model.limbs.values()]
+    segments, at = [], 0
+    for chain in chains:
+        n = chain.shape[1]
+        segments.append(np.c_[np.arange(at, at + n - 1), np.arange(at + 1, at + n)])
+        at += n
+    return penetrations(np.concatenate(chains, axis=1), np.concatenate(segments), boxes)
 
 
 def create_targets(context, obj, *, reset=False):

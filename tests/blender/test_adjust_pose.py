@@ -198,6 +198,35 @@ def test_meshes_far_from_the_character_change_nothing(extension_module_name):
     assert outcome_among.moved_bones == outcome_alone.moved_bones
 
 
+
+def test_an_obstacle_stays_in_the_world_when_the_armature_moves(extension_module_name):
+    """A click reuses the boxes it built while the obstacles and the armature's transform stay the same. The
+    armature moved away from a box by its elbow, its targets with it, no longer bends around that box: the pose
+    is the one solved without the box."""
+    adjustment = importlib.import_module(f"{extension_module_name}.bridge.adjustment")
+    obj = rig_with_targets("basic")
+    rest = pose_channels(obj)
+    reach_left_hand(obj, Pose(obj), "arm")
+
+    def adjusted():
+        for name, (_mode, location, quaternion, euler, _axis_angle, _scale) in rest.items():
+            pb = obj.pose.bones[name]
+            pb.location, pb.rotation_quaternion, pb.rotation_euler = location, quaternion, euler
+        adjustment.adjust_pose(bpy.context, obj, adjustment.Options(insert_keys=False))
+        return Pose(obj).matrices
+
+    free = adjusted()
+    solved = Pose(obj)
+    add_box(obj, solved.to_world(solved.head(bone_map(obj)["arm.L"][-1])), 0.08)  # where the elbow goes without it
+    bpy.context.view_layer.update()
+    assert np.abs(adjusted() - free).max() > 1e-3  # the box counts
+    obj.location.x += 2.0
+    for target_slot in obj.fullbody_adjust.targets:
+        if target_slot.target is not None:
+            target_slot.target.location.x += 2.0
+    bpy.context.view_layer.update()
+    np.testing.assert_allclose(adjusted(), free, rtol=0.0, atol=1e-6)
+
 # --- keys ------------------------------------------------------------------------------------------------------
 
 
