@@ -3,7 +3,7 @@ segment crosses one, is moved to the nearest clear point (ObstacleResponse._avoi
 
 import numpy as np
 
-from .geometry import any_set, cross, dot, norm, outward_angles, unit_or_perpendicular
+from .geometry import all_set, any_set, cross, dot, norm, outward_angles, unit_or_perpendicular
 from .obstacles import penetrates_few, points_inside, segments_cross
 
 # Obstacle response candidates (see _avoid for which one is taken).
@@ -92,20 +92,24 @@ class ObstacleResponse:
         ring = _CIRCLE_COS[None, :, None] * e1[:, None, :] + _CIRCLE_SIN[None, :, None] * e2[:, None, :]  # (h,24,3)
         circle_pts = center[:, None, :] + rho[:, None, None] * ring
         circle_dirs = (circle_pts - a[:, None, :]) / L[:, None, None]
-        sphere_dirs = (_SPHERE_AXIS[None, :, None] * nvec[:, None, :]
-                       + _SPHERE_E1[None, :, None] * e1[:, None, :]
-                       + _SPHERE_E2[None, :, None] * e2[:, None, :])
-        dirs = np.concatenate([circle_dirs, sphere_dirs], axis=1)
-        dirs = dirs / norm(dirs)[..., None]
-        if limit_fn is not None:
-            dirs = limit_fn(h, dirs)
-        pts = a[:, None, :] + L[:, None, None] * dirs
         sub = boxes.select(h)
         ij = None if ign_joint is None else ign_joint[h][:, None, :]
         iseg = None if ign_seg is None else ign_seg[h][:, None, :]
-        c_in, c_cross = self._violations(sub, a[:, None, :], pts, ij, iseg)
+        if all_set(inside[h].any(axis=1) & has_circle):
+            # A joint inside a box takes the first clear point of the paper's circle when the circle has one: every
+            # circle point comes before every sphere sample in the preference order (below), so those need no test.
+            pts, score = self._scored(h, a, L, circle_dirs, sub, ij, iseg, limit_fn)
+            clear = score == 0
+            if all_set(clear.any(axis=1)):
+                out = cand.copy()
+                out[h] = pts[np.arange(h.size), np.argmax(clear, axis=1)]
+                return out, hit, np.zeros(b, dtype=bool)
+        sphere_dirs = (_SPHERE_AXIS[None, :, None] * nvec[:, None, :]
+                       + _SPHERE_E1[None, :, None] * e1[:, None, :]
+                       + _SPHERE_E2[None, :, None] * e2[:, None, :])
+        pts, score = self._scored(h, a, L, np.concatenate([circle_dirs, sphere_dirs], axis=1), sub, ij, iseg,
+                                  limit_fn)
         # Least penetration = fewest boxes entered or crossed; a missing circle is never a candidate.
-        score = c_in.sum(axis=-1) + c_cross.sum(axis=-1)
         score[:, :_CIRCLE_SAMPLES] = np.where(has_circle[:, None], score[:, :_CIRCLE_SAMPLES], np.iinfo(np.int64).max)
         # Which candidate: first the fewest boxes entered or crossed ("least penetration"), then
         # - a joint inside a box (the paper's case): preference order, i.e. the paper's circle from its point
@@ -124,5 +128,15 @@ class ObstacleResponse:
         failed = np.zeros(b, dtype=bool)
         failed[h] = score[np.arange(h.size), pick] > 0
         return out, hit, failed
+
+    def _scored(self, h, anchors, lengths, dirs, boxes, ign_joint, ign_seg, limit_fn):
+        """Candidate points at `lengths` (h,) from `anchors` (h,3) along `dirs` (h,c,3) (normalised, then
+        limited) and how many boxes each enters or its segment crosses: (points (h,c,3), score (h,c))."""
+        dirs = dirs / norm(dirs)[..., None]
+        if limit_fn is not None:
+            dirs = limit_fn(h, dirs)
+        pts = anchors[:, None, :] + lengths[:, None, None] * dirs
+        c_in, c_cross = self._violations(boxes, anchors[:, None, :], pts, ign_joint, ign_seg)
+        return pts, c_in.sum(axis=-1) + c_cross.sum(axis=-1)
 
     # -- passes ------------------------------------------------------------------------------------------------
