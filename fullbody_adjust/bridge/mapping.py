@@ -76,7 +76,7 @@ def describe_armature(obj):
     bones = obj.data.bones
     n = len(bones)
     names = tuple(b.name for b in bones)
-    parents = parent_indices(bones, names)
+    parents = parent_indices(bones)
     if _is_control_rig(obj):
         parents = _control_rig().skeleton_parents(names, parents)
     heads = np.empty(n * 3, dtype=np.float32)

@@ -235,11 +235,13 @@ def continuous_rotation(prop, mode, value, reference):
 # --- reading --------------------------------------------------------------------------------------------
 
 
-def parent_indices(bones, names):
-    """Each of an armature's ``bones`` (``names``: theirs, in order) as its parent's index, -1 for a root. One RNA
-    read of each bone's parent: a Live update reads them all to know the rig has not changed."""
-    index = {name: i for i, name in enumerate(names)}
-    return [-1 if (parent := bone.parent) is None else index[parent.name] for bone in bones]
+def parent_indices(bones):
+    """Each of an armature's ``bones`` as its parent's index, -1 for a root. One RNA read of each bone's parent,
+    looked up by the bone itself (a bpy struct compares and hashes as the data it wraps): a Live update reads them
+    all to know the rig has not changed."""
+    bones = bones.values()
+    index = {bone: i for i, bone in enumerate(bones)}
+    return [index.get(bone.parent, -1) for bone in bones]
 
 
 def read_static(obj):
@@ -255,7 +257,7 @@ def read_static(obj):
         # Blender keeps both in the same (depth-first) order; the snapshot relies on it.
         raise AdjustError(f"Armature '{obj.name}': pose bones out of step with its bones (enter and leave "
                           f"edit mode to rebuild the pose)")
-    parents = np.array(parent_indices(bones, names), dtype=int)
+    parents = np.array(parent_indices(bones), dtype=int)
     if np.any(parents >= np.arange(count)):
         raise AdjustError(f"Armature '{obj.name}': a bone is listed before its parent")
     return {

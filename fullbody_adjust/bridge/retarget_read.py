@@ -138,7 +138,7 @@ def rig_of(obj, bone_map):
     bones = obj.data.bones
     names = tuple(b.name for b in bones)
     index = {n: i for i, n in enumerate(names)}
-    parents = pose.parent_indices(bones, names)
+    parents = pose.parent_indices(bones)
     if any(p >= i for i, p in enumerate(parents)):
         raise AdjustError(f"Armature '{obj.name}': a bone is listed before its parent")
     connected = np.array([b.use_connect for b in bones], dtype=bool)
@@ -152,7 +152,7 @@ def rig_of(obj, bone_map):
 def _skeleton_rig(obj, bone_map):
     """The Rig of a control rig's mapped bones, parents first in the metarig's hierarchy."""
     all_names = tuple(b.name for b in obj.data.bones)
-    all_parents = control_rig.skeleton_parents(all_names, pose.parent_indices(obj.data.bones, all_names))
+    all_parents = control_rig.skeleton_parents(all_names, pose.parent_indices(obj.data.bones))
     mapped = [bone for _group, bone in bone_map.items()]
     depth = {}
 

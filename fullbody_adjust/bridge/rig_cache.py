@@ -106,4 +106,4 @@ def _fingerprint(obj):
         arrays.append(buffer.tobytes())
     stored = tuple((item.group, item.bone) for item in obj.fullbody_adjust.bone_map)
     names = tuple(bones.keys())
-    return (names, tuple(pose.parent_indices(bones, names)), *arrays, stored, control_rig.is_generated_rigify(obj))
+    return (names, tuple(pose.parent_indices(bones)), *arrays, stored, control_rig.is_generated_rigify(obj))

@@ -60,6 +60,26 @@ def test_added_bone_is_seen(rig, rig_cache):
     assert after.model.names.index("prop") == list(rig.data.bones.keys()).index("prop")
 
 
+
+def test_reparented_bone_is_seen(rig, rig_cache):
+    """A bone moved under the bone listed before it, a leaf, where it stands: the bones keep their names and order.
+    The next model has the new hierarchy."""
+    before = rig_cache.rig_of(rig)
+    bones = rig.data.bones
+    names = list(bones.keys())
+    moved = next(bone.name for bone, previous in zip(bones[1:], bones) if not previous.children and
+                 bone.parent != previous and not bone.use_connect)
+    leaf = names[names.index(moved) - 1]
+    bpy.ops.object.mode_set(mode='EDIT')
+    rig.data.edit_bones[moved].parent = rig.data.edit_bones[leaf]
+    bpy.ops.object.mode_set(mode='OBJECT')
+    assert list(rig.data.bones.keys()) == names and rig.data.bones[moved].parent.name == leaf
+    after = rig_cache.rig_of(rig)
+    assert after is not before
+    assert names[after.rest["parents"][names.index(moved)]] == leaf
+    assert after.model.parents[after.model.names.index(moved)] == after.model.names.index(leaf)
+
+
 def test_edited_map_is_used(rig, rig_cache):
     before = rig_cache.rig_of(rig)
     arm = model_bones(before, "arm.L")
