@@ -306,10 +306,10 @@ def _control_channels(context, obj, frames, snapshot, result, bone_map, keep_han
             desired[:, k] = desired[:, p] @ pose.affine_inverse(old[:, p]) @ old[:, k]
     pairs = control_rig.control_pairs(obj, bone_map)
     if apply_pose:
-        return control_channels(obj, context.view_layer, pairs, names, desired, tolerance, [0])
+        return control_channels(obj, context.view_layer, pairs, names, desired, tolerance, [0], start=snapshot)
     with _pose_kept(obj):
         rows = (row for row, _frame in frames_module.step_frames(context.scene, frames))
-        return control_channels(obj, context.view_layer, pairs, names, desired, tolerance, rows)
+        return control_channels(obj, context.view_layer, pairs, names, desired, tolerance, rows, start=snapshot)
 
 
 def _in_armature_units(settings, scales):

@@ -223,15 +223,19 @@ def _error(bone, pair, pose_bones, desired, lengths):
     return tail if pair.bends else max(math.dist(_head(b), _head(d)), tail)
 
 
-def control_channels(obj, view_layer, pairs, bones, desired, tolerance, rows):
+def control_channels(obj, view_layer, pairs, bones, desired, tolerance, rows, start=None):
     """The controls' channels that pose ``bones`` at ``desired`` (F,k,4,4 armature space) on each frame:
     {control: {property: (F,n)}} for the controls that moved on some frame, rotations continuous over frames.
     ``rows`` yields the frame rows in order (the caller may step the scene to each frame as it yields); the
-    controls are left as placed for the last row."""
+    controls are left as placed for the last row. A control counts as moved when it ends a frame away from where
+    it was before that frame's matching or, given ``start`` (the PoseSnapshot the solve started from), from where
+    it was in that pose: Live matches from the controls it placed on the update before, and one that needs no
+    further move is still part of the pose it shows."""
     controls = list(dict.fromkeys(pair.control for pair in pairs))
     out, moved = [], np.zeros(len(controls), dtype=bool)
+    start_bases = None if start is None else start.channels["matrix_basis"][:, start.indices(controls)]
     for row in rows:
-        before = _bases(obj, controls)
+        before = _bases(obj, controls) if start_bases is None else start_bases[row]
         match_controls(obj, view_layer, pairs, dict(zip(bones, desired[row])), tolerance)
         moved |= np.abs(_bases(obj, controls) - before).max(axis=(1, 2)) > _CONTROL_MOVED
         out.append(read_channels(obj, controls, previous=out[-1] if out else None))

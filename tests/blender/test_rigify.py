@@ -8,8 +8,8 @@ from mathutils import Matrix, Vector
 import numpy as np
 import pytest
 
-from .scene_tools import (Pose, add_box, animating_fcurves, bone_map, chain_joints, drop_frame, file_state,
-                          inside_box, keys_state, place, slot, without_derived_handles)
+from .scene_tools import (Pose, add_box, animating_fcurves, body_axes, bone_map, chain_joints, chain_length,
+                          drop_frame, file_state, inside_box, keys_state, place, slot, without_derived_handles)
 from .test_adjust_pose import REACH, adjust, reach_left_hand
 
 SWITCHES = ("upper_arm_parent.L", "upper_arm_parent.R", "thigh_parent.L", "thigh_parent.R")
@@ -126,6 +126,26 @@ def test_control_matching_ends_on_its_best_sweep(extension_module_name, capfd, m
     for returned, best, now in checked:
         assert returned == best and now == pytest.approx(best, rel=1e-9, abs=1e-12)
 
+
+
+@pytest.mark.parametrize("limbs", ["IK", "FK"])
+def test_live_on_a_generated_rig_keeps_what_it_placed_before(limbs):
+    """Live through the controls, one target at a time: the left hand's target moved, then only the right hand's.
+    The left hand stays on its target: the controls the update before placed are part of the pose shown, though
+    this update had no further move for them."""
+    rig = generated_rig("basic", limbs)
+    rig.fullbody_adjust.live = True
+    before = Pose(rig)
+    up, _left, forward = body_axes(rig, before)
+    goals = {}
+    for side in "LR":
+        arm = chain_joints(rig, before, f"arm.{side}")
+        goals[side] = before.to_world(arm[-1] + 0.15 * chain_length(arm) * (up + forward))
+        place(slot(rig, f"hand.{side}").target, goals[side])
+        after = Pose(rig)  # evaluates the scene: the live handler solves
+        for done in goals:
+            assert np.linalg.norm(world_head(after, f"DEF-hand.{done}") - goals[done]) <= REACH * before.height(), \
+                (side, done)
 
 @pytest.mark.parametrize("kind, limbs, task, moved", [
     ("basic", "FK", "arm", False), ("basic", "FK", "trunk", False), ("basic", "IK", "arm", False),
