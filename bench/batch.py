@@ -32,7 +32,6 @@ Run: .ci/with-bpy python bench/batch.py [--repeat 3] [--frames 1000]   (prints o
 Blender's and the importers' chatter goes to stderr)
 """
 
-import os
 import statistics
 import sys
 import time
@@ -46,7 +45,7 @@ import numpy as np  # noqa: E402
 from mathutils import Matrix  # noqa: E402
 
 import fullbody_adjust  # noqa: E402
-from bench.command_line import print_report, whole_number_options  # noqa: E402
+from bench.command_line import leave_blender, print_report, whole_number_options  # noqa: E402
 from fullbody_adjust.bridge import keyframes, mapping, retarget  # noqa: E402
 from fullbody_adjust.solver import retarget as rt  # noqa: E402
 from tests.helpers.bvh import CMU_SCALE, MOCAP_DIR  # noqa: E402
@@ -319,6 +318,4 @@ def measure(args):
 
 if __name__ == "__main__":
     main()
-    # The bpy module's own teardown can crash (4.2) or hang (4.5) after Python is done: the JSON is out.
-    sys.stdout.flush()
-    os._exit(0)
+    leave_blender()

@@ -40,7 +40,7 @@ import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 
 from bench.batch import copy_target, reach_errors, remove_run, run_constraints, stats  # noqa: E402
-from bench.command_line import print_report, whole_number_options  # noqa: E402
+from bench.command_line import leave_blender, print_report, whole_number_options  # noqa: E402
 import fullbody_adjust  # noqa: E402
 from fullbody_adjust.bridge import clip_import, mapping, retarget  # noqa: E402
 from tests.helpers.bvh import CMU_CLIPS, MOCAP_DIR, cut_bvh  # noqa: E402
@@ -189,6 +189,4 @@ def measure(args):
 
 if __name__ == "__main__":
     main()
-    # The bpy module's own teardown can crash (4.2) or hang (4.5) after Python is done: the JSON is out.
-    sys.stdout.flush()
-    os._exit(0)
+    leave_blender()

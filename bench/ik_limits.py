@@ -20,7 +20,6 @@ adjust_plain shows that, not the reading.
 Run: .ci/with-bpy python bench/ik_limits.py [--repeat 20]
 """
 
-import json
 import statistics
 import sys
 import time
@@ -32,8 +31,8 @@ import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 
 import fullbody_adjust  # noqa: E402
-from bench.command_line import whole_number_options  # noqa: E402
-from fullbody_adjust.bridge import adjustment, ik_limits, mapping, pose  # noqa: E402
+from bench.command_line import leave_blender, print_report, whole_number_options  # noqa: E402
+from fullbody_adjust.bridge import adjustment, ik_limits, pose, rig_cache  # noqa: E402
 from fullbody_adjust.solver.body import default_limits  # noqa: E402
 
 
@@ -79,7 +78,7 @@ def time_adjust(obj, repeat):
 
 def time_read(obj, repeat, defaults_only=False):
     snapshot = pose.as_batch(pose.read_pose(obj))  # armature at the origin: world = armature space
-    model = adjustment._model(snapshot, mapping.ensure_map(obj))
+    model = rig_cache.rig_of(obj).model
     settings = adjustment.settings_of(obj)
     heads, tails, matrices = snapshot.heads, snapshot.tails, snapshot.pose_matrices
     times = []
@@ -97,8 +96,7 @@ def summary(times):
     return {"median_ms": 1e3 * statistics.median(times), "best_ms": 1e3 * min(times)}
 
 
-def main():
-    args = whole_number_options(__doc__, ("--repeat", 20, "timed runs of each measure"))
+def measure(args):
     obj = build_scene()
     out = {"bones": len(obj.data.bones), "blender": bpy.app.version_string, "numpy": np.__version__}
     out["adjust_plain"] = summary(time_adjust(obj, args.repeat))
@@ -111,8 +109,13 @@ def main():
     out["ratio_read_set_to_adjust"] = out["read_set"]["median_ms"] / out["adjust_set"]["median_ms"]
     added = out["read_set"]["median_ms"] - out["defaults"]["median_ms"]
     out["ratio_read_set_less_defaults_to_adjust_plain"] = added / out["adjust_plain"]["median_ms"]
-    print(json.dumps(out, indent=1))
+    return out
+
+
+def main():
+    print_report(measure, whole_number_options(__doc__, ("--repeat", 20, "timed runs of each measure")), indent=1)
 
 
 if __name__ == "__main__":
     main()
+    leave_blender()

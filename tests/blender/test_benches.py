@@ -1,0 +1,41 @@
+"""The benches that drive Blender end to end run through the bpy module, print their one JSON report and exit 0: a
+bench whose calls went stale fails here rather than when somebody next measures. One repetition each; no time is
+checked, only what the benches report of the poses they measured."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def run_bench(tmp_path, name, *args):
+    env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "user"))
+    done = subprocess.run([sys.executable, str(REPO / "bench" / name), *args], cwd=REPO, env=env, capture_output=True,
+                          text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    return json.loads(done.stdout)
+
+
+def test_interactive_bench_measures_every_rig_and_case(tmp_path):
+    report = run_bench(tmp_path, "interactive.py", "--repeat", "1")
+    assert set(report["rigs"]) == {"basic", "full", "generated"}
+    for kind, rig in report["rigs"].items():
+        assert set(rig["cases"]) == {"near", "far", "obstacle"}
+        for case, measures in rig["cases"].items():
+            for name in ("adjust_pose_ms", "live_update_ms", "blender_ik_ms"):
+                assert measures[name]["median"] > 0.0
+            for name in ("adjust_pose_ms", "live_update_ms"):  # wrists from the evaluated pose, in arm lengths
+                if case == "far":
+                    assert measures[name]["hand_residual"] > 0.1, (kind, name)  # 2.5 arm lengths away
+                else:
+                    assert measures[name]["hand_residual"] < 1e-4, (kind, case, name)
+
+
+def test_ik_limits_bench_reads_the_limits_it_set(tmp_path):
+    report = run_bench(tmp_path, "ik_limits.py", "--repeat", "1")
+    assert report["bones"] == 159
+    for name in ("adjust_plain", "read_plain", "adjust_set", "read_set", "defaults"):
+        assert report[name]["median_ms"] > 0.0
