@@ -195,28 +195,42 @@ def apply_channels(obj, channels):
     """Write single-frame ``channels`` ({bone name: {property: (k,) values}}, as returned by
     world_rotations_to_channels) into obj's pose bones. Rotations are kept continuous with each bone's
     current value (quaternion hemisphere, compatible Euler, nearest axis-angle); a rotation property that
-    does not match the bone's rotation mode is an error."""
+    does not match the bone's rotation mode is an error. Plain floats per value: numpy's per-call cost on a few
+    values per bone was most of a Live update's writing."""
     pose_bones = obj.pose.bones
     writes = []
     for name, props in channels.items():  # check everything before writing anything
         pose_bone = pose_bones.get(name)
         if pose_bone is None:
             raise AdjustError(f"The armature has no bone named '{name}'")
+        mode = pose_bone.rotation_mode
         for prop, value in props.items():
             value = np.asarray(value, dtype=np.float64)
             if prop not in CHANNEL_SIZES or value.shape != (CHANNEL_SIZES[prop],):
                 raise ValueError(f"apply_channels: bone '{name}': {prop} needs {CHANNEL_SIZES.get(prop, '?')} "
                                  f"values, got shape {value.shape}")
-            if not np.isfinite(value).all():
+            value = value.tolist()
+            if not all(math.isfinite(v) for v in value):
                 raise ValueError(f"apply_channels: bone '{name}': {prop} has NaN/inf")
-            if prop.startswith("rotation_") and ROTATION_PROPERTY[pose_bone.rotation_mode] != prop:
-                raise ValueError(f"apply_channels: bone '{name}' rotates in mode {pose_bone.rotation_mode}, "
-                                 f"not by {prop}")
-            writes.append((pose_bone, prop, value))
-    for pose_bone, prop, value in writes:
+            if prop.startswith("rotation_") and ROTATION_PROPERTY[mode] != prop:
+                raise ValueError(f"apply_channels: bone '{name}' rotates in mode {mode}, not by {prop}")
+            writes.append((pose_bone, mode, prop, value))
+    for pose_bone, mode, prop, value in writes:
         if prop.startswith("rotation_"):
-            value = continuous_rotation(prop, pose_bone.rotation_mode, value, np.array(getattr(pose_bone, prop)))
-        setattr(pose_bone, prop, value.tolist())
+            value = _continuous_one(prop, mode, value, getattr(pose_bone, prop))
+        setattr(pose_bone, prop, value)
+
+
+def _continuous_one(prop, mode, value, current):
+    """continuous_rotation of one value (a list) against a bone's current one (a mathutils value), as a list: the
+    same comparisons in plain floats for a quaternion and an Euler that need no conversion."""
+    if prop == "rotation_quaternion":
+        if value[0] * current[0] + value[1] * current[1] + value[2] * current[2] + value[3] * current[3] < 0.0:
+            return [-v for v in value]
+        return value
+    if prop == "rotation_euler" and all(abs(v - c) <= math.pi for v, c in zip(value, current)):
+        return value
+    return continuous_rotation(prop, mode, np.array(value), np.array(current)).tolist()
 
 
 def continuous_rotation(prop, mode, value, reference):
