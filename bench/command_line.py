@@ -6,7 +6,6 @@ import contextlib
 import ctypes
 import json
 import os
-import shutil
 import sys
 
 
@@ -52,12 +51,8 @@ def print_report(measure, args, indent=2):
 
 
 def leave_blender(code=0):
-    """Exit with ``code`` without the bpy module's own teardown, which is unreliable once Python shuts down (4.2
-    crashes on a registered property's Python callback, SIGSEGV, exit 139; 4.5 can hang), the report flushed and the
-    temporary folder Blender would have removed removed. A bench that used bpy ends with this."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    bpy = sys.modules.get("bpy")
-    if bpy is not None:
-        shutil.rmtree(bpy.app.tempdir, ignore_errors=True)
-    os._exit(code)
+    """Exit with ``code`` without the bpy module's teardown (fullbody_adjust.bpy_exit): a bench that used bpy
+    ends with this, its report printed."""
+    from fullbody_adjust.bpy_exit import leave
+
+    leave(code)

@@ -3,9 +3,9 @@
 classes in this Python, then runs the same command as ``blender -b FILE.blend -c fullbody_adjust SUBCOMMAND
 [options]`` (cli.main). ``--help`` lists the subcommands and exit codes."""
 
-import os
-import shutil
 import sys
+
+from .bpy_exit import leave
 
 
 def run(argv):
@@ -28,18 +28,7 @@ def worker():
 
     register()
     clip_worker.serve()
-    _leave(0)
-
-
-def _leave(code):
-    """Exit without the bpy module's own teardown, which is unreliable once Python shuts down (Blender 4.2
-    crashes, 4.5 can hang: see tests/conftest.py), removing the temporary folder Blender would have removed."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    bpy = sys.modules.get("bpy")
-    if bpy is not None:
-        shutil.rmtree(bpy.app.tempdir, ignore_errors=True)
-    os._exit(code)
+    leave(0)
 
 
 if __name__ == "__main__":
@@ -51,4 +40,4 @@ if __name__ == "__main__":
         print("python -m fullbody_adjust: error: the bpy module is not installed in this Python "
               "(pip install bpy, or run `blender -b FILE.blend -c fullbody_adjust ...`)", file=sys.stderr)
         code = 3
-    _leave(code)
+    leave(code)

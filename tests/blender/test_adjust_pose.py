@@ -140,6 +140,15 @@ def test_pose_mode(capfd):
     assert_met(obj, report, enabled, before.height())
 
 
+def adjusted_from(adjustment, obj, rest):
+    """The pose put back to ``rest`` (pose_channels) and adjusted without keys: (the evaluated pose's matrices,
+    the outcome)."""
+    for name, (_mode, location, quaternion, euler, _axis_angle, _scale) in rest.items():
+        pb = obj.pose.bones[name]
+        pb.location, pb.rotation_quaternion, pb.rotation_euler = location, quaternion, euler
+    outcome = adjustment.adjust_pose(bpy.context, obj, adjustment.Options(insert_keys=False))
+    return Pose(obj).matrices, outcome
+
 def test_obstacle_on_the_elbows_way(extension_module_name):
     """A box where the elbow would go without it: after adjusting, no joint of any chain is inside it, and the
     hand still reaches its target."""
@@ -177,11 +186,7 @@ def test_meshes_far_from_the_character_change_nothing(extension_module_name):
     reach_left_hand(obj, Pose(obj), "arm")
 
     def adjusted():
-        for name, (_mode, location, quaternion, euler, _axis_angle, _scale) in rest.items():
-            pb = obj.pose.bones[name]
-            pb.location, pb.rotation_quaternion, pb.rotation_euler = location, quaternion, euler
-        outcome = adjustment.adjust_pose(bpy.context, obj, adjustment.Options(insert_keys=False))
-        return Pose(obj).matrices, outcome
+        return adjusted_from(adjustment, obj, rest)
 
     free, _outcome = adjusted()
     solved = Pose(obj)
@@ -209,11 +214,7 @@ def test_an_obstacle_stays_in_the_world_when_the_armature_moves(extension_module
     reach_left_hand(obj, Pose(obj), "arm")
 
     def adjusted():
-        for name, (_mode, location, quaternion, euler, _axis_angle, _scale) in rest.items():
-            pb = obj.pose.bones[name]
-            pb.location, pb.rotation_quaternion, pb.rotation_euler = location, quaternion, euler
-        adjustment.adjust_pose(bpy.context, obj, adjustment.Options(insert_keys=False))
-        return Pose(obj).matrices
+        return adjusted_from(adjustment, obj, rest)[0]
 
     free = adjusted()
     solved = Pose(obj)
