@@ -45,7 +45,8 @@ import numpy as np  # noqa: E402
 from mathutils import Matrix  # noqa: E402
 
 import fullbody_adjust  # noqa: E402
-from bench.command_line import leave_blender, print_report, whole_number_options  # noqa: E402
+from bench.command_line import print_report, whole_number_options  # noqa: E402
+from fullbody_adjust.bpy_exit import leave  # noqa: E402
 from fullbody_adjust.bridge import keyframes, mapping, retarget  # noqa: E402
 from fullbody_adjust.solver import retarget as rt  # noqa: E402
 from tests.helpers.bvh import CMU_SCALE, MOCAP_DIR  # noqa: E402
@@ -318,4 +319,4 @@ def measure(args):
 
 if __name__ == "__main__":
     main()
-    leave_blender()
+    leave(0)  # the bpy module's own teardown is unreliable (bpy_exit): the report is out

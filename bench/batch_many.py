@@ -40,8 +40,9 @@ import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 
 from bench.batch import copy_target, reach_errors, remove_run, run_constraints, stats  # noqa: E402
-from bench.command_line import leave_blender, print_report, whole_number_options  # noqa: E402
+from bench.command_line import print_report, whole_number_options  # noqa: E402
 import fullbody_adjust  # noqa: E402
+from fullbody_adjust.bpy_exit import leave  # noqa: E402
 from fullbody_adjust.bridge import clip_import, mapping, retarget  # noqa: E402
 from tests.helpers.bvh import CMU_CLIPS, MOCAP_DIR, cut_bvh  # noqa: E402
 
@@ -189,4 +190,4 @@ def measure(args):
 
 if __name__ == "__main__":
     main()
-    leave_blender()
+    leave(0)  # the bpy module's own teardown is unreliable (bpy_exit): the report is out

@@ -1,5 +1,4 @@
-"""What the benches' command lines share: whole-number options, stdout kept for the one JSON report, and an exit
-that skips the bpy module's teardown."""
+"""What the benches' command lines share: whole-number options, and stdout kept for the one JSON report."""
 
 import argparse
 import contextlib
@@ -49,10 +48,3 @@ def print_report(measure, args, indent=2):
         report = measure(args)
     print(json.dumps(report, indent=indent))
 
-
-def leave_blender(code=0):
-    """Exit with ``code`` without the bpy module's teardown (fullbody_adjust.bpy_exit): a bench that used bpy
-    ends with this, its report printed."""
-    from fullbody_adjust.bpy_exit import leave
-
-    leave(code)

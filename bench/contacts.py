@@ -57,7 +57,7 @@ import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 
 import fullbody_adjust  # noqa: E402
-from bench.command_line import leave_blender  # noqa: E402
+from fullbody_adjust.bpy_exit import leave  # noqa: E402
 from fullbody_adjust.bridge import mapping, retarget  # noqa: E402
 from fullbody_adjust.bridge.pose import read_pose_frames  # noqa: E402
 from tests.helpers.bvh import CMU_SCALE, MOCAP_DIR  # noqa: E402
@@ -185,4 +185,4 @@ if __name__ == "__main__":
         run(ARGS.dirs[0])
     else:
         measure(ARGS.dirs)
-    leave_blender()
+    leave(0)  # the bpy module's own teardown is unreliable (bpy_exit): the report is out

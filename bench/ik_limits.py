@@ -31,7 +31,8 @@ import bpy  # noqa: E402
 import numpy as np  # noqa: E402
 
 import fullbody_adjust  # noqa: E402
-from bench.command_line import leave_blender, print_report, whole_number_options  # noqa: E402
+from bench.command_line import print_report, whole_number_options  # noqa: E402
+from fullbody_adjust.bpy_exit import leave  # noqa: E402
 from fullbody_adjust.bridge import adjustment, ik_limits, pose, rig_cache  # noqa: E402
 from fullbody_adjust.solver.body import default_limits  # noqa: E402
 
@@ -118,4 +119,4 @@ def main():
 
 if __name__ == "__main__":
     main()
-    leave_blender()
+    leave(0)  # the bpy module's own teardown is unreliable (bpy_exit): the report is out

@@ -43,7 +43,8 @@ import numpy as np  # noqa: E402
 from mathutils import Matrix, Vector  # noqa: E402
 
 import fullbody_adjust  # noqa: E402
-from bench.command_line import leave_blender, stdout_to_stderr, whole_number_options  # noqa: E402
+from bench.command_line import stdout_to_stderr, whole_number_options  # noqa: E402
+from fullbody_adjust.bpy_exit import leave  # noqa: E402
 from fullbody_adjust.bridge import adjustment, live, pose, rig_cache  # noqa: E402
 
 RIGS = ("basic", "full", "generated")
@@ -305,4 +306,4 @@ def main():
 
 if __name__ == "__main__":
     main()
-    leave_blender()
+    leave(0)  # the bpy module's own teardown is unreliable (bpy_exit): the report is out
