@@ -6,8 +6,10 @@ import math
 
 import numpy as np
 
+from . import geometry_plain as g
+from . import limits_plain
 from .geometry import any_set, cross, dot, norm, outward_angles, unit_or_perpendicular
-from .limits import CONE, FREE, HINGE, apply_cone, apply_hinge, carry_axis
+from .limits import CONE, FREE, HINGE, apply_cone, apply_hinge, carry_axis, carry_axis_plain
 
 # Two-segment finish (ChainModel._two_bone_finish): swivel angles of the middle joint around the pivot ->
 # target line, from FABRIK's proposal outward (0, +d, -d, +2d, ...), and the least hinge twist range that
@@ -15,6 +17,10 @@ from .limits import CONE, FREE, HINGE, apply_cone, apply_hinge, carry_axis
 _SWIVEL_ANGLES = outward_angles(48)
 _SWIVEL_COS, _SWIVEL_SIN = np.cos(_SWIVEL_ANGLES), np.sin(_SWIVEL_ANGLES)
 _MIN_FINISH_TWIST = math.radians(5)
+# Up to this many chains, the limits are first checked in plain floats (the same bits) on each chain's first
+# candidate clear of the boxes alone: where that one holds, it is the pick (every finish of bench/interactive.py's
+# obstacle case), and numpy's limit checks of all 48 candidates were half the finish's time.
+_FEW_CHAINS = 4
 
 
 class TwoBoneFinish:
@@ -77,13 +83,57 @@ class TwoBoneFinish:
                     None if ign_joint is None else ign_joint[:, None], None if ign_seg is None else ign_seg[:, None])
                 ok &= ~(inside.any(axis=-1) | crossing.any(axis=-1))
         if any_set(ok):
-            ok &= self._limits_hold(rows[h], P[h], E, S, a, v)
+            ok = self._first_clear_holds(rows[h], P[h], E, S, a, v, ok)
         pick = np.argmax(ok, axis=1)
         found = ok[np.arange(h.size), pick]
         finished[h] = found
         middle[h] = E[np.arange(h.size), pick]
         end[h] = wrist[np.arange(h.size), pick]
         return finished, middle, end
+
+    def _first_clear_holds(self, rows, P, E, S, a, v, clear):
+        """clear & _limits_hold(...) (h,K), as far as the pick needs it: a few chains' first candidate clear of the
+        boxes is checked in plain floats, and where it keeps the limits it is the only candidate left; the other
+        chains get every candidate checked in numpy."""
+        if len(rows) > _FEW_CHAINS:
+            return clear & self._limits_hold(rows, P, E, S, a, v)
+        ok = np.zeros_like(clear)
+        rest = []
+        for q, (r, row) in enumerate(zip(rows.tolist(), clear)):
+            c = int(np.argmax(row))
+            if not row[c]:
+                continue  # no candidate is clear of the boxes
+            u = g.divided(g.sub(E[q, c].tolist(), S[q].tolist()), float(a[q]))
+            first = g.divided(g.sub(E[q, 0].tolist(), S[q].tolist()), float(a[q]))
+            try:
+                holds = self._limits_hold_one(r, P[q].tolist(), g.divided(u, g.norm(u)),
+                                              g.divided(first, g.norm(first)), v[q, c].tolist())
+            except ZeroDivisionError:  # where numpy would divide by zero: numpy decides
+                holds = False
+            if holds:
+                ok[q, c] = True
+            else:
+                rest.append(q)
+        if rest:
+            rest = np.array(rest)
+            ok[rest] = clear[rest] & self._limits_hold(rows[rest], P[rest], E[rest], S[rest], a[rest], v[rest])
+        return ok
+
+    def _limits_hold_one(self, r, pose, u, first, v):
+        """_limits_hold of problem r's one candidate in plain floats (pose: its chain as lists): u the unit direction
+        pivot -> middle, first that of the first candidate (the pivot limit's fallback there), v middle -> target."""
+        j, k = self.n - 3, self.n - 2
+        limits = self.limits
+        if limits.kind[j] != FREE:
+            parent = self.parent_dirs[r].tolist() if j == 0 else g.divided_by_norm(g.sub(pose[j], pose[j - 1]))
+            if self._plain_limit_one(j, r, parent, u, first)[1]:
+                return False
+        if limits.kind[k] == CONE:
+            return not limits_plain.apply_cone(u, v, float(limits.cone_angle[k]), v)[1]
+        if limits.kind[k] == HINGE:
+            axis = carry_axis_plain(self.hinge_axes[r, k].tolist(), self.hinge_refs[r, k].tolist(), u)
+            return not limits_plain.limit(limits, k, u, v, v, axis)[1]
+        return True
 
     def _limits_hold(self, rows, P, E, S, a, v):
         """(h,K) bool: the pivot joint n-3 (toward the middle joints E from the pivot S, segment length a) and the

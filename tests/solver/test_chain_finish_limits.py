@@ -1,0 +1,51 @@
+"""The chain solver's two-segment finish checks a few chains' limits in plain floats first, on each chain's first
+candidate clear of the boxes (solver/chain_finish.py, _first_clear_holds): chain solves with joint limits, with and
+without boxes in the way, give the very same positions, iterations and statuses as when numpy checks every
+candidate."""
+
+import numpy as np
+import pytest
+
+from fullbody_adjust.solver import solve_chain_batch
+from fullbody_adjust.solver import chain_finish
+
+from .test_obstacle_response import _problems
+
+
+def _near_full_stretch(seed, count=40):
+    """The same chains and limits, with a cone at joint 0, toward targets near the full stretch (where the finish
+    acts), without boxes."""
+    rng = np.random.default_rng(1000 + seed)
+    for starts, targets, limits, parents, _ in _problems(seed, count):
+        reach = np.linalg.norm(np.diff(starts, axis=1), axis=2).sum(axis=1)
+        stretched = targets / np.linalg.norm(targets, axis=1)[:, None] * (reach * rng.uniform(0.85, 0.99))[:, None]
+        yield starts, stretched, limits.with_cone(0, 1.2), parents, None
+
+
+def _solve(problem):
+    starts, targets, limits, parents, boxes = problem
+    return solve_chain_batch(starts, targets, limits=limits, parent_directions=parents, obstacles=boxes)
+
+
+@pytest.mark.parametrize("seed", range(2))
+@pytest.mark.parametrize("problems", [_problems, _near_full_stretch])
+def test_the_first_clear_candidate_checked_alone_gives_what_checking_every_candidate_gives(problems, seed,
+                                                                                          monkeypatch):
+    one = chain_finish.TwoBoneFinish._limits_hold_one
+    answers = []
+
+    def counted(self, *args):
+        answers.append(one(self, *args))
+        return answers[-1]
+
+    for problem in problems(seed):
+        monkeypatch.setattr(chain_finish.TwoBoneFinish, "_limits_hold_one", counted)
+        first = _solve(problem)
+        monkeypatch.setattr(chain_finish, "_FEW_CHAINS", 0)
+        every = _solve(problem)
+        monkeypatch.undo()
+        np.testing.assert_array_equal(first.positions, every.positions)
+        np.testing.assert_array_equal(first.iterations, every.iterations)
+        assert list(first.status) == list(every.status) and list(first.reason) == list(every.reason)
+    # Both ways were taken: candidates that hold, and chains whose every candidate numpy checked.
+    assert answers.count(True) >= 10 and answers.count(False) >= 10
