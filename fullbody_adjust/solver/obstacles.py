@@ -173,6 +173,11 @@ def points_inside(points, boxes):
     return within[..., 0] & within[..., 1] & within[..., 2]
 
 
+# A segment's step along an axis below which segments_cross divides under np.errstate: beyond it no quotient of
+# scene coordinates (below 1e18) overflows.
+_TINY_STEP = 1e-290
+
+
 def segments_cross(a, b, boxes):
     """Segments a->b (...,3), K boxes -> (..., K) bool: the closed segment meets the closed box (slab test).
     A segment with an end inside a box counts as crossing it."""
@@ -180,13 +185,17 @@ def segments_cross(a, b, boxes):
     b = np.asarray(b, dtype=np.float64)
     if a.shape == b.shape and _few(a, boxes):
         return _few_tests(_crosses_one, boxes, a, b)
-    if a.shape != b.shape:
-        a, b = np.broadcast_arrays(a, b)
-    mins, maxs, axes = _box_arrays(boxes, a.ndim - 1)
+    # Ends of different shapes (one anchor, many candidates) broadcast in the arithmetic: broadcast_arrays cost
+    # more than the test on the obstacle response's candidates.
+    mins, maxs, axes = _box_arrays(boxes, max(a.ndim, b.ndim) - 1)
     p = _in_box_frames(a, axes)
     d = _in_box_frames(b, axes) - p
     flat = d == 0.0
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+    if any_set(np.abs(d) < _TINY_STEP):  # a division may overflow, or divide by zero: quietly (inf, handled below)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            t1 = (mins - p) / d
+            t2 = (maxs - p) / d
+    else:  # np.errstate costs as much as the divisions
         t1 = (mins - p) / d
         t2 = (maxs - p) / d
     lo = np.minimum(t1, t2)

@@ -109,3 +109,29 @@ def test_penetrations_counts_joints_and_segments():
     np.testing.assert_array_equal(crossing, [1, 1, 1])
     inside, crossing = penetrations(positions, [[0, 1]], Boxes.empty())
     assert (int(inside), int(crossing)) == (0, 0)
+
+
+@pytest.mark.parametrize("oriented", [False, True])
+@pytest.mark.parametrize("per_problem", [False, True])
+def test_one_anchor_with_many_ends_equals_the_anchor_repeated(oriented, per_problem):
+    """segments_cross of anchors (b,1,3) to candidates (b,c,3), as the obstacle response asks it, gives what the
+    anchors repeated to (b,c,3) give, also for candidates level with the anchor along an axis (a step of 0) or a hair
+    off it (a step of 1e-300, where the quotients overflow)."""
+    rng = np.random.default_rng(7)
+    b, c, k = 3, 40, 2
+    anchors = rng.uniform(-1.0, 1.0, (b, 1, 3))
+    ends = anchors + rng.uniform(-1.5, 1.5, (b, c, 3))
+    ends[:, :10, 0] = anchors[:, :, 0]  # level along x
+    ends[:, 10:20, 1] = anchors[:, :, 1] + 1e-300
+    centres = rng.uniform(-0.8, 0.8, (b, k, 3) if per_problem else (k, 3))
+    half = rng.uniform(0.1, 0.6, centres.shape)
+    axes = None
+    if oriented:
+        q, _ = np.linalg.qr(rng.normal(size=centres.shape[:-1] + (3, 3)))
+        axes = q
+    boxes = Boxes(centres - half, centres + half, axes)
+    with np.errstate(all="raise"):  # the overflowing quotients stay quiet
+        one = segments_cross(anchors, ends, boxes)
+    repeated = segments_cross(np.repeat(anchors, c, axis=1), ends, boxes)
+    np.testing.assert_array_equal(one, repeated)
+    assert one.any() and not one.all()
