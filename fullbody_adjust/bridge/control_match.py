@@ -32,6 +32,7 @@ import numpy as np
 from mathutils import Matrix
 
 from ..solver import geometry_plain as g
+from ..solver.geometry import affine_inverse
 from .pose import ROTATION_PROPERTY, continuous_rotation
 
 
@@ -151,14 +152,14 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
                     if step is None:
                         continue
                 else:
-                    step = desired[pair.bone] @ np.linalg.inv(bone)
+                    step = desired[pair.bone] @ affine_inverse(bone)
                 if carry is None:
                     moves.append((pair, control, step, step @ _matrix(control)))
                 else:
                     # Blender turns an armature-space matrix into channels against the parent's evaluated
                     # matrix, which the carry has not reached yet: hand it the matrix relative to that.
                     new = step @ carry @ _matrix(control)
-                    moves.append((pair, control, step @ carry, np.linalg.inv(carry) @ new))
+                    moves.append((pair, control, step @ carry, affine_inverse(carry) @ new))
             if not moves and not scales:
                 continue
             for pair, control, step, new in moves:
