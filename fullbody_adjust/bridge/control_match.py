@@ -14,15 +14,17 @@ Each control is paired with one bone it drives, in one of two ways:
 - scale: the control is the first bone of a stretchy IK chain (Rigify's IK shrinks or stretches its bones to
   reach), scaled by the ratio of the bone's desired to its evaluated axis lengths, as Rigify's own IK-to-FK
   snapping does.
-Pairs are applied level by level, parents' controls first, and the sweep is repeated until every driven bone is
-within tolerance or a sweep stops helping; the controls are left as the best sweep placed them. An evaluation of the
-rig costs about as much as Blender's own IK on it, so a level is evaluated only when the moves since the last
-evaluation leave its pairs' matrices unknown: a rigid pair whose control hangs (in the pose hierarchy) below a
-control moved since, or below the bone that control drives, is carried by that move, control and bone alike, and is
-placed from the carried matrices; pairs of other limbs are unaffected (limbs are independent given the trunk, which
-carries them all); anything else (a bend or scale pair after a move of its limb, a control not below what moved, a
-limb between IK and FK) is evaluated first. Nothing here knows a rig's names: the rig module (``control_rig``) says
-which control drives which bone.
+Pairs are applied level by level, parents' controls first, and the sweep is repeated until every driven bone is within
+tolerance or a sweep stops helping; the controls are left as the best sweep placed them. An evaluation of the rig costs
+about as much as Blender's own IK on it, so a level is evaluated only when the moves since the last evaluation leave its
+pairs' matrices unknown: a rigid pair whose control hangs (in the pose hierarchy) below a control moved since, or below
+the bone that control drives, is carried by that move, control and bone alike, and is placed from the carried matrices;
+pairs of other limbs are unaffected (limbs are independent given the trunk, which carries them all); the bone of an IK
+chain's end control stays with that control when a control it does not hang below moved (a clavicle, the trunk: the
+chain still reaches the control; where it cannot, the sweep's closing evaluation finds the error and the next sweep
+corrects it); anything else (a bend or scale pair after a move of its limb, a control not below what moved, a limb
+between IK and FK) is evaluated first. Nothing here knows a rig's names: the rig module (``control_rig``) says which
+control drives which bone.
 """
 
 import math
@@ -60,6 +62,9 @@ class ControlPair:
     # The limb (or TRUNK_GROUP) whose bones the pair poses; pairs of different limbs do not affect each other.
     # None: unknown, every move is evaluated before the pair is placed.
     group: str = None
+    # A rigid pair whose bone goes where its control goes, whatever else moves (an IK chain's end control: the
+    # chain reaches it): a move of a control it does not hang below leaves the bone with its unmoved control.
+    follows_control: bool = False
 
     @property
     def bends(self):
@@ -208,7 +213,11 @@ def _carried_or_apart(pair, pending, above):
         groups = (moved.group, pair.group)
         if None not in groups and TRUNK_GROUP not in groups and moved.group != pair.group:
             continue  # another limb
-        if None in groups or pair.kind != "rigid" or not ({moved.control, moved.bone} & above[pair.control]):
+        if None in groups or pair.kind != "rigid":
+            return None
+        if not {moved.control, moved.bone} & above[pair.control]:
+            if pair.follows_control:
+                continue  # its control stays, and its bone with it
             return None
         carry = step
     return carry

@@ -145,9 +145,9 @@ def control_pairs(obj, bone_map):
     mapped = {bone for _group, bone in bone_map.items()}
     pairs = []
 
-    def add(control, bone, level, end=None, kind="rigid", group=None):
+    def add(control, bone, level, end=None, kind="rigid", group=None, follows_control=False):
         if control in bones and bone in mapped:
-            pairs.append(ControlPair(control, bone, level, end, kind, group))
+            pairs.append(ControlPair(control, bone, level, end, kind, group, follows_control))
 
     for name, (control, level) in _TRUNK.items():
         add(control, ORG + name, level, group=TRUNK_GROUP)
@@ -163,7 +163,8 @@ def control_pairs(obj, bone_map):
             for k, control in enumerate(fk):
                 add(f"{control}.{side}", org[k], _CLAVICLE_LEVEL + 1 + k, group=group)
         if mode.ik_fk < 1.0:
-            add(f"{ik_end}.{side}", org[2], _CLAVICLE_LEVEL + 1, group=group)
+            # In IK alone, the end bone is where its control is, whatever the clavicle or the trunk do.
+            add(f"{ik_end}.{side}", org[2], _CLAVICLE_LEVEL + 1, group=group, follows_control=mode.ik_fk == 0.0)
             bend_control = f"{pole}.{side}" if mode.pole else f"{ik_base}.{side}"
             add(bend_control, org[0], _CLAVICLE_LEVEL + 2, end=org[2], kind="bend", group=group)
             # Scaled from the same evaluation as the bend: turning the chain about its axis leaves its scale.
