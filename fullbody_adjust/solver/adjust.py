@@ -222,8 +222,12 @@ class _Problem(SubBasePlacement, LimbPlacement):
         # Fixed-width string arrays would cut a longer status or reason copied in from a re-solve short.
         result.status, result.reasons = result.status.astype(object), result.reasons.astype(object)
         tol = self.settings.chain.tolerance
+        # A frame whose re-solve was not taken would be re-solved from the same result, so with the same cut
+        # reaches, into the same pose again, and not taken again: it has no further pass.
+        rejected = np.zeros(self.F, dtype=bool)
         for _ in range(self.settings.limit_passes):
             held = ((result.status == "limited") | (result.status == "max_iterations")) & (result.residuals > tol)
+            held &= ~rejected[:, None]
             if not self.settings.help_held_limbs:
                 # Rule (i) read literally: a limb's reach is cut only where its sub-base already had to move.
                 for k, e in enumerate(self.effectors):
@@ -248,6 +252,7 @@ class _Problem(SubBasePlacement, LimbPlacement):
             smaller = np.nansum(again.residuals, axis=1) < np.nansum(result.residuals[rows], axis=1) - 1e-12
             better = (met_new > met_old) | ((met_new == met_old) & smaller)
             take = rows[better]
+            rejected[rows[~better]] = True
             for f in ("heads", "tails", "rotations", "residuals", "status", "reasons", "moved",
                       "sc_displacement", "root_displacement"):
                 getattr(result, f)[take] = getattr(again, f)[better]

@@ -7,11 +7,14 @@ parent's frame.
 """
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
+from fullbody_adjust.solver import adjust
 from fullbody_adjust.solver.adjust import adjust_frames
+from fullbody_adjust.solver.adjust_types import AdjustSettings
 from fullbody_adjust.solver.body import default_limits
 from fullbody_adjust.solver.errors import SolverInputError
 from fullbody_adjust.solver.limits import HINGE
@@ -121,6 +124,38 @@ def test_x_and_z_locked_hold_the_elbow(body):
     # Held relative to the upper arm too (not only the angle): the forearm keeps its rest direction.
     np.testing.assert_allclose(local_direction(model, axes, locked, "forearm.L"),
                                np.broadcast_to([0.0, 1.0, 0.0], (len(targets), 3)), atol=1e-7)
+
+
+def test_a_limit_pass_not_taken_is_not_run_again(body, monkeypatch):
+    """With the elbow locked the left hand falls short of most pulling goals. The first limit pass solves those
+    frames again with the arm's reach cut to what it achieved; where that re-solve is not taken, a further pass
+    would start from the same result with the same cut reach and give the same pose, not taken again: such a
+    frame has no further pass. Five passes cost what one does and give the same poses."""
+    model, h0, t0, a0 = body
+    heads, tails, axes, targets = pulled(model, h0, t0, a0)
+    limits = rig_limits(default_limits(model, heads, tails, bone_x_axes=axes[..., 0]), model, heads, tails, axes,
+                        spec(model, a0, "forearm.L", locked=(True, False, True)))
+    solved_frames = []
+    solve_once = adjust._Problem._solve_once
+
+    def counted(problem):
+        solved_frames.append(problem.F)
+        return solve_once(problem)
+
+    monkeypatch.setattr(adjust._Problem, "_solve_once", counted)
+    runs = {}
+    for passes in (0, 1, 5):
+        solved_frames.clear()
+        result = adjust_frames(model, heads, tails, targets, EFFECTORS, limits=limits,
+                               settings=replace(AdjustSettings(), limit_passes=passes))
+        runs[passes] = (result, list(solved_frames))
+    held = int(np.sum(runs[0][0].status[:, 0] == "limited"))
+    assert held >= 3 and runs[1][1] == [len(targets), held]  # the first pass re-solves every held frame
+    for field in ("heads", "tails", "rotations", "residuals", "status"):
+        # ... and takes none of them here, so a second would only repeat it
+        np.testing.assert_array_equal(getattr(runs[1][0], field), getattr(runs[0][0], field))
+        np.testing.assert_array_equal(getattr(runs[5][0], field), getattr(runs[1][0], field))
+    assert runs[5][1] == runs[1][1]
 
 
 def rolled(model, axes, bone, angle):
