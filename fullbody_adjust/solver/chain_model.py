@@ -7,6 +7,7 @@ import numpy as np
 from . import geometry_plain as g
 from . import limits_plain
 from .chain_finish import _MIN_FINISH_TWIST, TwoBoneFinish
+from .chain_iterate_plain import PlainIterations
 from .chain_obstacles import ObstacleResponse
 from .chain_settled import SettledChains
 from .chain_types import (_COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL, ChainBatchResult, _final_status,
@@ -39,7 +40,7 @@ def _per_problem(a, b, m):
     return a if a.shape == (b, m, 3) else np.broadcast_to(a, (b, m, 3))
 
 
-class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains):
+class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations):
     """Per-solve constant data of B chains and the two FABRIK passes on any subset of them.
 
     Built from the start positions: segment lengths and directions, limits (per joint), obstacles, and the
@@ -339,6 +340,10 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains):
         tolerance only iterate if `force` (bool or per row (b,)). Returns per-row (iterations, residual,
         stalled, limit binding, obstacle responses in the returned iterate, penetrations of the returned
         iterate)."""
+        if self.boxes is None and self.limits is not None and rows.size <= _FEW_CHAINS:
+            plain = self._iterate_plain(P, rows, force)  # the same bits (chain_iterate_plain.py)
+            if plain is not None:
+                return plain
         s = self.settings
         tol = s.tolerance
         stall = tol * _STALL

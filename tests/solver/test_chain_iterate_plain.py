@@ -1,0 +1,111 @@
+"""A few limited chains without obstacles iterate in plain floats (solver/chain_iterate_plain.py): chain solves and
+whole-body solves give the very same positions, iterations, residuals and statuses as numpy's iterations."""
+
+import numpy as np
+import pytest
+
+from fullbody_adjust.solver import solve_chain_batch
+from fullbody_adjust.solver.adjust import adjust_frames
+from fullbody_adjust.solver.body import default_limits
+from fullbody_adjust.solver.chain_iterate_plain import PlainIterations
+from fullbody_adjust.solver.rig_limits import rig_limits
+
+from .test_adjust import EFFECTORS
+from .test_obstacle_response import _problems
+from .test_rig_limits import bone_axes, pulled, spec, synthetic_humanoid
+
+
+def _chain_problems(seed, count=60):
+    """Batches of 1-3 chains (3-5 joints, cones and hinges, twist or none) without boxes, toward targets within
+    reach, near full stretch (where the two-segment finish acts) and beyond reach of what the limits allow."""
+    rng = np.random.default_rng(2000 + seed)
+    for k, (starts, targets, limits, parents, _boxes) in enumerate(_problems(seed, count)):
+        reach = np.linalg.norm(np.diff(starts, axis=1), axis=2).sum(axis=1)
+        scale = [rng.uniform(0.2, 0.8), rng.uniform(0.85, 0.99), rng.uniform(0.95, 1.0)][k % 3]
+        targets = targets / np.linalg.norm(targets, axis=1)[:, None] * (reach * scale)[:, None]
+        if k % 4 == 0:
+            limits = limits.with_cone(0, float(rng.uniform(0.3, 1.2)))
+        yield starts, targets, limits, parents
+
+
+def _both_ways(solve, monkeypatch, calls):
+    plain_iterate = PlainIterations._iterate_plain
+
+    def counted(self, *args):
+        out = plain_iterate(self, *args)
+        calls.append(out is not None)
+        return out
+
+    monkeypatch.setattr(PlainIterations, "_iterate_plain", counted)
+    plain = solve()
+    monkeypatch.setattr(PlainIterations, "_iterate_plain", lambda self, *args: None)
+    numpy = solve()
+    monkeypatch.undo()
+    return plain, numpy
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_chain_solves_iterate_the_same_in_plain_floats(seed, monkeypatch):
+    calls, iterations = [], []
+    for starts, targets, limits, parents in _chain_problems(seed):
+        plain, numpy = _both_ways(lambda: solve_chain_batch(starts, targets, limits=limits,
+                                                            parent_directions=parents), monkeypatch, calls)
+        np.testing.assert_array_equal(plain.positions, numpy.positions)
+        np.testing.assert_array_equal(plain.iterations, numpy.iterations)
+        np.testing.assert_array_equal(plain.residual, numpy.residual)
+        assert list(plain.status) == list(numpy.status) and list(plain.reason) == list(numpy.reason)
+        iterations.extend(numpy.iterations.tolist())
+    # The plain path ran, on chains that iterate long (limits holding them short) as well as briefly.
+    assert calls.count(True) >= 20 and max(iterations) >= 20 and min(iterations) <= 2
+
+
+def test_body_solves_with_a_rigs_locks_iterate_the_same_in_plain_floats(monkeypatch):
+    """The elbow locked, so the arm is held short of most goals and the limit passes run: every result field of
+    the whole-body solve is the same as with numpy's iterations, frame by frame (one frame at a time, as clicks
+    solve, and the frames as one batch)."""
+    model, h0, t0 = synthetic_humanoid()
+    a0 = bone_axes(model, h0, t0)
+    heads, tails, axes, targets = pulled(model, h0, t0, a0)
+    calls = []
+    for frames in [[f] for f in range(len(targets))] + [list(range(len(targets)))]:
+        h, t, x = heads[frames], tails[frames], axes[frames]
+        limits = rig_limits(default_limits(model, h, t, bone_x_axes=x[..., 0]), model, h, t, x,
+                            spec(model, a0, "forearm.L", locked=(True, False, True)))
+
+        def solve(h=h, t=t, goals=targets[frames], limits=limits):
+            return adjust_frames(model, h, t, goals, EFFECTORS, limits=limits)
+        plain, numpy = _both_ways(solve, monkeypatch, calls)
+        for field in ("heads", "tails", "rotations", "residuals", "iterations", "sc_displacement",
+                      "root_displacement"):
+            np.testing.assert_array_equal(getattr(plain, field), getattr(numpy, field), err_msg=field)
+        assert plain.status.tolist() == numpy.status.tolist() and plain.reasons.tolist() == numpy.reasons.tolist()
+    assert calls.count(True) >= len(targets)
+
+
+def test_straight_chains_nudged_off_their_line_iterate_the_same_in_plain_floats(monkeypatch):
+    """Straight chains whose targets lie on their own line, short of the last two segments' range: FABRIK stalls
+    there and pushes the joints sideways (the nudge), here as numpy does."""
+    from fullbody_adjust.solver.limits import JointLimits
+
+    nudged_one = PlainIterations._nudged_one
+    nudges, calls = [], []
+
+    def counted(self, *args):
+        nudges.append(args)
+        return nudged_one(self, *args)
+
+    rng = np.random.default_rng(7)
+    for _ in range(30):
+        d = rng.normal(size=3)
+        d /= np.linalg.norm(d)
+        lengths = rng.uniform(0.3, 1.0, 4)
+        starts = np.concatenate([np.zeros((1, 3)), np.cumsum(d[None] * lengths[:, None], axis=0)])[None]
+        targets = (d * lengths.sum() * 0.2)[None]
+        limits = JointLimits.free(5).with_cone(0, 2.5)
+        monkeypatch.setattr(PlainIterations, "_nudged_one", counted)
+        plain, numpy = _both_ways(lambda: solve_chain_batch(starts, targets, limits=limits, parent_directions=d[None]),
+                                  monkeypatch, calls)
+        np.testing.assert_array_equal(plain.positions, numpy.positions)
+        np.testing.assert_array_equal(plain.iterations, numpy.iterations)
+        assert list(plain.status) == list(numpy.status)
+    assert len(nudges) >= 2 and all(calls)
