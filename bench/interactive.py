@@ -21,6 +21,12 @@ Each measure of a case starts from the rest pose without keys (clicks then go on
   outside_solver_median  the part of ours spent outside the solver (reading, checks, writing, keys, the
                   handler, Blender's evaluation of the result);
   *_over_ik       ours / Blender's, medians of the same run;
+  live_floor_ms   Live Adjust's update with a solve that costs nothing: the same target moves, the handler, and
+                  the pose each real update showed written again (the channels not at rest, through
+                  pose.apply_channels) and evaluated by Blender. What no solver can take off a Live update;
+                  live_floor_over_ik is the least live_update_over_ik could be;
+  rig_evaluations_per_update  (the generated rig) how often placing its controls evaluated the rig, on average
+                  per click or Live update: each evaluation costs about what Blender's IK update of that rig does;
   hand_residual   after the last repetition, the largest wrist-to-goal distance in arm lengths (so the
                   reference is seen to act: ~0 in the near case for both).
 Times are the median (and the best) of --repeat repetitions. A row that fails records its error and the
@@ -34,6 +40,7 @@ import statistics
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
@@ -45,11 +52,15 @@ from mathutils import Matrix, Vector  # noqa: E402
 import fullbody_adjust  # noqa: E402
 from bench.command_line import stdout_to_stderr, whole_number_options  # noqa: E402
 from fullbody_adjust.bpy_exit import leave  # noqa: E402
-from fullbody_adjust.bridge import adjustment, live, pose, rig_cache  # noqa: E402
+from fullbody_adjust.bridge import adjustment, control_match, live, pose, rig_cache  # noqa: E402
 
 RIGS = ("basic", "full", "generated")
 CASES = ("near", "far", "obstacle")
 GOALS = {"adjust_pose_ms_full": 5.0, "live_update_ms_full": 4.0, "over_ik": 5.0}
+# A pose bone's channels at rest (Scene.reset puts every bone there).
+REST_CHANNELS = {"location": (0.0, 0.0, 0.0), "rotation_quaternion": (1.0, 0.0, 0.0, 0.0),
+                 "rotation_euler": (0.0, 0.0, 0.0), "rotation_axis_angle": (0.0, 0.0, 1.0, 0.0),
+                 "scale": (1.0, 1.0, 1.0)}
 # The generated rig's IK controls standing in for the targets.
 RIGIFY_IK_CONTROLS = {"hand.L": "hand_ik.L", "hand.R": "hand_ik.R", "foot.L": "foot_ik.L", "foot.R": "foot_ik.R"}
 
@@ -118,6 +129,18 @@ class Scene:
             pose_bone.matrix_basis = Matrix.Identity(4)
         bpy.context.view_layer.update()
 
+    def posed(self):
+        """{bone: {channel: values}} of the channels not at rest (reset() leaves every bone at rest), as
+        pose.apply_channels writes them."""
+        out = {}
+        for bone in self.obj.pose.bones:
+            props = ("location", pose.ROTATION_PROPERTY[bone.rotation_mode], "scale")
+            moved = {prop: np.array(getattr(bone, prop)) for prop in props
+                     if tuple(getattr(bone, prop)) != REST_CHANNELS[prop]}
+            if moved:
+                out[bone.name] = moved
+        return out
+
     def place(self, goals):
         for effector, position in goals.items():
             self.slots[effector].target.location = position  # the targets have no parent
@@ -157,6 +180,31 @@ class SolverClock:
 SOLVER = None  # the SolverClock, made in main()
 
 
+class EvaluationCounter:
+    """How many times placing a control rig's controls (control_match.match_controls) evaluated the rig since
+    reset."""
+
+    def __init__(self):
+        self.count = 0
+        match = control_match.match_controls
+        counter = self
+
+        class CountingViewLayer:
+            def __init__(self, view_layer):
+                self.view_layer = view_layer
+
+            def update(self):
+                counter.count += 1
+                self.view_layer.update()
+
+        def counted_match(obj, view_layer, *args, **kwargs):
+            return match(obj, CountingViewLayer(view_layer), *args, **kwargs)
+        control_match.match_controls = counted_match
+
+
+EVALUATIONS = None  # the EvaluationCounter, made in main()
+
+
 def timed(function):
     """(total ms, ms of it outside the solver) of one call."""
     SOLVER.ms = 0.0
@@ -191,10 +239,13 @@ def time_live(scene, case, repeat):
     try:
         state = live.state_of(obj)
         before = state.solves
+        # The poses shown: by the solve that turning Live on runs, then by each update.
+        scene.shown = [scene.posed()]
         times = []
         for k in range(repeat):
             goals = scene.goals(case, k)
             times.append(timed(lambda: (scene.place(goals), bpy.context.view_layer.update())))
+            scene.shown.append(scene.posed())
         scene.residual = scene.hand_residual(goals)
         if state.error:
             raise RuntimeError(state.error)
@@ -203,6 +254,23 @@ def time_live(scene, case, repeat):
     finally:
         obj.fullbody_adjust.live = False
     return times
+
+
+def time_live_floor(scene, case, repeat):
+    """Live updates whose solve writes the pose the real one showed (scene.shown, from time_live) and nothing
+    else."""
+    shown = iter(scene.shown)
+
+    def replay(context, obj, *args, **kwargs):
+        pose_now = next(shown)
+        pose.apply_channels(obj, pose_now)
+        return SimpleNamespace(moved_bones=tuple(pose_now))
+    solve = live.adjustment.adjust_pose
+    live.adjustment.adjust_pose = replay
+    try:
+        return time_live(scene, case, min(repeat, len(scene.shown) - 1))
+    finally:
+        live.adjustment.adjust_pose = solve
 
 
 def add_blender_ik(scene):
@@ -262,16 +330,21 @@ def measure(kind, repeat):
             except Exception as ex:
                 result["obstacle_error"] = f"{type(ex).__name__}: {ex}"
         for name, function in (("adjust_pose_ms", time_adjust_pose), ("live_update_ms", time_live),
-                               ("blender_ik_ms", time_blender_ik)):
+                               ("live_floor_ms", time_live_floor), ("blender_ik_ms", time_blender_ik)):
             if scene is None:
                 continue
             try:
+                EVALUATIONS.count = 0
                 result[name] = summary(function(scene, case, repeat))
-                result[name]["hand_residual"] = round(scene.residual if name != "blender_ik_ms" else scene.ik_residual, 6)
+                if name != "live_floor_ms":
+                    result[name]["hand_residual"] = round(scene.residual if name != "blender_ik_ms"
+                                                          else scene.ik_residual, 6)
+                if EVALUATIONS.count and name != "live_floor_ms":
+                    result[name]["rig_evaluations_per_update"] = round(EVALUATIONS.count / repeat, 2)
             except Exception as ex:
                 result[name] = {"error": f"{type(ex).__name__}: {ex}"}
         reference = result.get("blender_ik_ms", {}).get("median")
-        for name in ("adjust_pose_ms", "live_update_ms"):
+        for name in ("adjust_pose_ms", "live_update_ms", "live_floor_ms"):
             ours = result.get(name, {}).get("median")
             if ours is not None and reference:
                 result[name.replace("_ms", "_over_ik")] = round(ours / reference, 2)
@@ -293,8 +366,8 @@ def goals_met(rigs):
 
 def main():
     args = whole_number_options(__doc__, ("--repeat", 15, "repetitions per case and measure"))
-    global SOLVER
-    SOLVER = SolverClock()
+    global SOLVER, EVALUATIONS
+    SOLVER, EVALUATIONS = SolverClock(), EvaluationCounter()
     with stdout_to_stderr():
         bpy.ops.wm.read_factory_settings(use_empty=True)
         fullbody_adjust.register()

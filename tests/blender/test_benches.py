@@ -25,8 +25,13 @@ def test_interactive_bench_measures_every_rig_and_case(tmp_path):
     for kind, rig in report["rigs"].items():
         assert set(rig["cases"]) == {"near", "far", "obstacle"}
         for case, measures in rig["cases"].items():
-            for name in ("adjust_pose_ms", "live_update_ms", "blender_ik_ms"):
-                assert measures[name]["median"] > 0.0
+            for name in ("adjust_pose_ms", "live_update_ms", "live_floor_ms", "blender_ik_ms"):
+                assert measures[name]["median"] > 0.0, (kind, case, name, measures[name])
+            # The floor replays the poses Live showed without solving: below the real update by the solve's time.
+            assert measures["live_floor_ms"]["median"] < measures["live_update_ms"]["median"], (kind, case)
+            for name in ("adjust_pose_ms", "live_update_ms"):  # only a control rig is evaluated to place controls
+                evaluations = measures[name].get("rig_evaluations_per_update")
+                assert (evaluations >= 2) if kind == "generated" else (evaluations is None), (kind, case, name)
             for name in ("adjust_pose_ms", "live_update_ms"):  # wrists from the evaluated pose, in arm lengths
                 if case == "far":
                     assert measures[name]["hand_residual"] > 0.1, (kind, name)  # 2.5 arm lengths away
