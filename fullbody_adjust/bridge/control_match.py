@@ -21,10 +21,11 @@ pairs' matrices unknown: a rigid pair whose control hangs (in the pose hierarchy
 the bone that control drives, is carried by that move, control and bone alike, and is placed from the carried matrices;
 pairs of other limbs are unaffected (limbs are independent given the trunk, which carries them all); the bone of an IK
 chain's end control stays with that control when a control it does not hang below moved (a clavicle, the trunk: the
-chain still reaches the control; where it cannot, the sweep's closing evaluation finds the error and the next sweep
-corrects it); anything else (a bend or scale pair after a move of its limb, a control not below what moved, a limb
-between IK and FK) is evaluated first. Nothing here knows a rig's names: the rig module (``control_rig``) says which
-control drives which bone.
+chain still reaches the control; where that does not hold, a chain that cannot reach or a control that follows a moved
+one through a constraint, as a Rigify IK parent switch makes it, the sweep's closing evaluation finds the error and the
+next sweep corrects it); anything else (a bend or scale pair after a move of its limb, a control not below what moved, a
+limb between IK and FK) is evaluated first. Nothing here knows a rig's names: the rig module (``control_rig``) says
+which control drives which bone.
 """
 
 import math
@@ -63,7 +64,8 @@ class ControlPair:
     # None: unknown, every move is evaluated before the pair is placed.
     group: str = None
     # A rigid pair whose bone goes where its control goes, whatever else moves (an IK chain's end control: the
-    # chain reaches it): a move of a control it does not hang below leaves the bone with its unmoved control.
+    # chain reaches it): a move of a control it does not hang below is taken to leave the control, and so the bone,
+    # where they were (module notes: the sweep's closing evaluation catches where that is wrong).
     follows_control: bool = False
 
     @property

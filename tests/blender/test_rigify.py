@@ -148,13 +148,15 @@ def test_live_on_a_generated_rig_keeps_what_it_placed_before(limbs):
                 (side, done)
 
 
-@pytest.mark.parametrize("task", ["trunk", "pelvis"])
+@pytest.mark.parametrize("task, ik_parent", [("trunk", 1), ("pelvis", 1), ("trunk", 2)])
 def test_an_ik_hand_control_is_placed_without_evaluating_the_trunk_move(extension_module_name, capfd, monkeypatch,
-                                                                       task):
+                                                                       task, ik_parent):
     """The trunk bends (and the pelvis comes down), so the trunk's and the clavicle's controls move before the IK
     hand control is placed. The IK hand goes where its control goes, so it is placed from the matrices read before
     those moves, without evaluating the rig: the same click reaches as well with fewer evaluations than when every
-    such move is evaluated first (the pairs told not to follow their controls)."""
+    such move is evaluated first (the pairs told not to follow their controls). Also where Rigify's IK parent
+    switch makes the hand control follow the torso (2; 1, the default, is the root): the torso's move then carries
+    it, which the sweep's closing evaluation finds."""
     control_match = importlib.import_module(f"{extension_module_name}.bridge.control_match")
     control_rig = importlib.import_module(f"{extension_module_name}.bridge.control_rig")
     pairs_of, match = control_rig.control_pairs, control_match.match_controls
@@ -175,6 +177,9 @@ def test_an_ik_hand_control_is_placed_without_evaluating_the_trunk_move(extensio
     for follows in (True, False):
         bpy.ops.wm.read_homefile(use_empty=True)
         rig = generated_rig("basic", "IK")
+        for side in "LR":
+            rig.pose.bones[f"upper_arm_parent.{side}"]["IK_parent"] = ik_parent
+        rig.update_tag()
         following = set()
 
         def pairs(*args, follows=follows, following=following):
