@@ -180,6 +180,7 @@ def test_an_ik_hand_control_is_placed_without_evaluating_the_trunk_move(extensio
         for side in "LR":
             rig.pose.bones[f"upper_arm_parent.{side}"]["IK_parent"] = ik_parent
         rig.update_tag()
+        assert _control_follows(rig, "hand_ik.L", "torso") == (ik_parent == 2)  # the switch took
         following = set()
 
         def pairs(*args, follows=follows, following=following):
@@ -199,6 +200,19 @@ def test_an_ik_hand_control_is_placed_without_evaluating_the_trunk_move(extensio
         assert results[follows][1] and results[follows][2] <= REACH * before.height(), (follows, results)
         assert following == {"hand_ik.L", "hand_ik.R", "foot_ik.L", "foot_ik.R"}
     assert results[True][0] < results[False][0], results
+
+
+def _control_follows(rig, control, moved):
+    """Whether moving the control ``moved`` (then back) moves ``control``."""
+    bones = rig.pose.bones
+    bpy.context.view_layer.update()
+    before, kept = np.array(bones[control].head), tuple(bones[moved].location)
+    bones[moved].location = (kept[0] + 0.1, kept[1] + 0.1, kept[2] + 0.1)
+    bpy.context.view_layer.update()
+    follows = bool(np.linalg.norm(np.array(bones[control].head) - before) > 1e-4)
+    bones[moved].location = kept
+    bpy.context.view_layer.update()
+    return follows
 
 
 def test_placing_controls_calls_no_lapack_inverse(monkeypatch, capfd):
@@ -227,6 +241,7 @@ def test_placing_controls_calls_no_lapack_inverse(monkeypatch, capfd):
     place(slot(rig, "hand.L").target, goal)
     after = Pose(rig)  # evaluates the scene: the live handler solves
     assert np.linalg.norm(world_head(after, "DEF-hand.L") - goal) <= REACH * before.height()
+
 
 @pytest.mark.parametrize("kind, limbs, task, moved", [
     ("basic", "FK", "arm", False), ("basic", "FK", "trunk", False), ("basic", "IK", "arm", False),
