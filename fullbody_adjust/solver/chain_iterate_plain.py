@@ -8,10 +8,8 @@ the numpy path."""
 import numpy as np
 
 from . import geometry_plain as g
-from .chain_types import _COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL
+from .chain_types import _COINCIDENT, _NUDGES, _PATIENCE, _STALL
 from .limits import FREE, HINGE
-
-_NO_PENETRATION_YET = np.iinfo(np.int64).max  # _iterate's best penetration count before the first iterate
 
 
 class PlainIterations:
@@ -47,7 +45,7 @@ class PlainIterations:
         if not (residual > tol or forced):
             return chain, 0, residual, False, False
         iterations = nudges = best_iter = 0
-        best, best_pen, best_res = chain, _NO_PENETRATION_YET, np.inf
+        best, best_res = chain, np.inf
         while True:
             prev = chain
             placed = list(prev)
@@ -62,11 +60,13 @@ class PlainIterations:
                 chain = self._nudged_one(r, placed, nudges)
                 nudges += 1
                 stalled = False
-            # No boxes: every iterate has 0 penetrations, so the best is the first one, then each nearer one.
-            if 0 < best_pen or res < best_res - stall:  # (against the best before this iterate)
+            # No boxes: every iterate has 0 penetrations, fewer than _iterate's start count, so the best is the
+            # first iterate (whatever its residual), then each nearer one.
+            first = iterations == 1
+            if first or res < best_res - stall:  # (against the best before this iterate)
                 best_iter = iterations
-            if 0 < best_pen or res < best_res:
-                best, best_pen, best_res = placed, 0, res
+            if first or res < best_res:
+                best, best_res = placed, res
             stalled = stalled or (res > tol and iterations - best_iter >= _PATIENCE)
             if res <= tol or stalled or iterations >= s.max_iterations:
                 return best, iterations, best_res, stalled, binding
@@ -140,11 +140,8 @@ class PlainIterations:
         return binding
 
     def _nudged_one(self, r, P, nudges):
-        """_nudge of problem r's pose P (its nudges-th nudge), as numpy computes it on the one chain."""
-        from .chain_model import _nudge_directions  # the numpy twin lives with the numpy passes
-        one = np.array([r])
-        u = _nudge_directions(self.targets[one] - self.base[one], np.array([P[1]]) - self.base[one], nudges)
-        shift = self.lengths[one, :-1] * _NUDGE
-        moved = np.array([P])
-        moved[:, 1:-1] = moved[:, 1:-1] + u[:, None, :] * shift[:, :, None]
-        return [tuple(joint) for joint in moved[0].tolist()]
+        """Problem r's pose P after its nudges-th nudge: ChainModel._nudge itself, on problem r's row of a batch."""
+        batch = np.zeros((self.B, self.n, 3))
+        batch[r] = P
+        self._nudge(batch, np.array([r]), np.array([nudges]), np.array([0]))
+        return [tuple(joint) for joint in batch[r].tolist()]

@@ -8,6 +8,7 @@ from fullbody_adjust.solver import solve_chain_batch
 from fullbody_adjust.solver.adjust import adjust_frames
 from fullbody_adjust.solver.body import default_limits
 from fullbody_adjust.solver.chain_iterate_plain import PlainIterations
+from fullbody_adjust.solver.limits import JointLimits
 from fullbody_adjust.solver.rig_limits import rig_limits
 
 from .test_adjust import EFFECTORS
@@ -85,8 +86,6 @@ def test_body_solves_with_a_rigs_locks_iterate_the_same_in_plain_floats(monkeypa
 def test_straight_chains_nudged_off_their_line_iterate_the_same_in_plain_floats(monkeypatch):
     """Straight chains whose targets lie on their own line, short of the last two segments' range: FABRIK stalls
     there and pushes the joints sideways (the nudge), here as numpy does."""
-    from fullbody_adjust.solver.limits import JointLimits
-
     nudged_one = PlainIterations._nudged_one
     nudges, calls = [], []
 
