@@ -213,12 +213,9 @@ def _replace_one_key(fcurve, points, count, frame, value):
         distance = abs(existing[at] - frame)
     if not distance < SAME_FRAME:
         return False
-    key = points[at]
-    delta = value - float(co[at, 1])
-    left, right = key.handle_left[1], key.handle_right[1]
-    key.co[1] = value
-    key.handle_left[1] = left + delta
-    key.handle_right[1] = right + delta
+    # co_ui moves the key's handles by the same offset as the key, as moving it in the Graph Editor does: one
+    # write where setting the value and both handles took three reads and writes (~4 us of ~12 per curve).
+    points[at].co_ui = (float(co[at, 0]), value)
     fcurve.update()
     return True
 
