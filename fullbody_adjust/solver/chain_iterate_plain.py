@@ -1,25 +1,29 @@
-"""A few limited chains' FABRIK iterations without obstacles in plain floats (PlainIterations._iterate_plain, mixed
-into ChainModel): ChainModel._iterate's operations in its order, one chain at a time, so the same bits. Where the
-limits hold a chain short it iterates until its patience runs out, each numpy iteration paying numpy's per-call cost
-on every joint's 3-vectors: a rig's own IK locks made one Adjust Pose run some 300 of them. The two-segment finish
-and the nudge of a stalled chain stay numpy's (on the one chain); a division by zero hands the whole call back to
-the numpy path."""
+"""A few constrained chains' FABRIK iterations in plain floats (PlainIterations._iterate_plain, mixed into
+ChainModel): ChainModel._iterate's operations in its order, one chain at a time, so the same bits. Where the limits
+hold a chain short it iterates until its patience runs out, each numpy iteration paying numpy's per-call cost on
+every joint's 3-vectors: a rig's own IK locks made one Adjust Pose run some 300 of them; among obstacles, the joints
+the boxes leave alone were most of an iteration's cost. The obstacle response of a joint that meets a box, the
+two-segment finish and the nudge of a stalled chain stay numpy's (on the one chain); a division by zero hands the
+whole call back to the numpy path. Oriented boxes are left to numpy."""
 
 import numpy as np
 
 from . import geometry_plain as g
 from .chain_types import _COINCIDENT, _NUDGES, _PATIENCE, _STALL
 from .limits import FREE, HINGE
+from .obstacles import count_penetrations_one, penetrates_one
+
+_NO_PENETRATION_YET = np.iinfo(np.int64).max  # _iterate's best penetration count before the first iterate
 
 
 class PlainIterations:
-    """ChainModel's plain-float twin of _iterate for chains with limits and no boxes; it uses the model's targets,
-    base, lengths, limits, the plain limit step (_plain_limit_one), the two-segment finish and the nudge
-    directions."""
+    """ChainModel's plain-float twin of _iterate for chains with limits or axis-aligned boxes; it uses the model's
+    targets, base, lengths, limits, the plain limit step (_plain_limit_one), boxes and what each chain ignores, the
+    obstacle response (_avoid), the two-segment finish and the nudge directions."""
 
     def _iterate_plain(self, P, rows, force):
-        """_iterate(P, rows, force) for limited chains without boxes, or None (nothing written) where plain floats
-        cannot take a chain (numpy would divide by zero)."""
+        """_iterate(P, rows, force) for limited or obstructed chains (boxes axis-aligned), or None (nothing written)
+        where plain floats cannot take a chain (numpy would divide by zero)."""
         force = np.broadcast_to(np.asarray(force, dtype=bool), rows.shape).tolist()
         solved = []
         try:
@@ -27,55 +31,91 @@ class PlainIterations:
                 solved.append(self._iterate_one(r, P[r].tolist(), forced))
         except ZeroDivisionError:
             return None
-        b = rows.size
         for r, one in zip(rows.tolist(), solved):
             P[r] = one[0]
-        iterations, residual, stalled, binding = (np.array([one[k] for one in solved]) for k in range(1, 5))
+        iterations, residual, stalled, binding, responded, pen = (np.array([one[k] for one in solved])
+                                                                  for k in range(1, 7))
         return (iterations.astype(np.int64), residual.astype(np.float64), stalled.astype(bool),
-                binding.astype(bool), np.zeros(b, dtype=bool), np.zeros(b, dtype=np.int64))
+                binding.astype(bool), responded.astype(bool), pen.astype(np.int64))
 
     def _iterate_one(self, r, chain, forced):
-        """(pose, iterations, residual, stalled, limit binding) of problem r from its pose ``chain`` (lists)."""
+        """(pose, iterations, residual, stalled, limit binding, obstacle responded, penetrations) of problem r from
+        its pose ``chain`` (lists): the best iterate, with the binding and response of the last one as _iterate
+        reports them."""
         s = self.settings
         tol = s.tolerance
         stall = tol * _STALL
         target = self.targets[r].tolist()
         lengths = self.lengths[r].tolist()
+        boxes = self._boxes_of(r)
         residual = g.norm(g.sub(chain[-1], target))
         if not (residual > tol or forced):
-            return chain, 0, residual, False, False
+            return chain, 0, residual, False, False, False, self._penetrations_one(chain, boxes)
         iterations = nudges = best_iter = 0
-        best, best_res = chain, np.inf
+        best, best_res, best_pen = chain, np.inf, _NO_PENETRATION_YET
         while True:
             prev = chain
             placed = list(prev)
-            self._forward_one(r, placed, prev, target, lengths)
-            binding = self._backward_one(r, placed, list(placed), prev, lengths)
+            responded = self._forward_one(r, placed, prev, target, lengths, boxes)
+            binding, responded_back = self._backward_one(r, placed, list(placed), prev, lengths, boxes)
+            responded = responded or responded_back
             iterations += 1
             res = g.norm(g.sub(placed[-1], target))
             moved = g.norm(g.sub(placed[-1], prev[-1]))
             stalled = res > tol and moved < stall
             chain = placed
-            if stalled and nudges < _NUDGES and iterations < s.max_iterations and not binding:
+            if stalled and nudges < _NUDGES and iterations < s.max_iterations and not binding and not responded:
                 chain = self._nudged_one(r, placed, nudges)
                 nudges += 1
                 stalled = False
-            # No boxes: every iterate has 0 penetrations, fewer than _iterate's start count, so the best is the
-            # first iterate (whatever its residual), then each nearer one.
-            first = iterations == 1
-            if first or res < best_res - stall:  # (against the best before this iterate)
+            pen = self._penetrations_one(placed, boxes)  # of the iterate, not of the nudged pose
+            if pen < best_pen or res < best_res - stall:  # (against the best before this iterate)
                 best_iter = iterations
-            if first or res < best_res:
-                best, best_res = placed, res
+            if pen < best_pen or (pen == best_pen and res < best_res):
+                best, best_res, best_pen = placed, res, pen
             stalled = stalled or (res > tol and iterations - best_iter >= _PATIENCE)
             if res <= tol or stalled or iterations >= s.max_iterations:
-                return best, iterations, best_res, stalled, binding
+                return best, iterations, best_res, stalled, binding, responded, best_pen
 
-    def _forward_one(self, r, P, prev, target, lengths):
-        """forward() of problem r in place on its pose P (a list of joints), without boxes."""
+    def _boxes_of(self, r):
+        """Problem r's boxes as plain lists (mins, maxs, ignored at the end, ignored at the base), or None."""
+        if self.boxes is None:
+            return None
+        mins, maxs = self.boxes.mins, self.boxes.maxs
+        if self.boxes.batched:
+            mins, maxs = mins[r], maxs[r]
+        return mins.tolist(), maxs.tolist(), self.ignore_end[r].tolist(), self.ignore_base[r].tolist()
+
+    def _penetrations_one(self, chain, boxes):
+        """penetration_counts of one chain, joints and segments added (0 without boxes)."""
+        if boxes is None:
+            return 0
+        inside, crossing = count_penetrations_one(chain, *boxes)
+        return inside + crossing
+
+    def _avoid_one(self, r, anchor, cand, L, ref, joint, segment, boxes, limit_fn):
+        """_avoid for problem r's one joint: (position, responded). The plain test first (the joint and its
+        segment clear of every box it does not ignore: the position as it is); numpy's response otherwise."""
+        lo, hi, skip_end, skip_base = boxes
+        last = self.n - 1
+        skip_segment = None
+        if segment == last - 1:
+            skip_segment = skip_end
+        if segment == 0:
+            skip_segment = skip_base if skip_segment is None else [a or b for a, b in zip(skip_segment, skip_base)]
+        if not penetrates_one(lo, hi, anchor, cand, skip_end if joint == last else None, skip_segment):
+            return cand, False
+        out, responded, _ = self._avoid(np.array([r]), np.array([anchor]), np.array([cand]), np.array([L]),
+                                        np.array([ref]), joint, segment, limit_fn)
+        return tuple(out[0].tolist()), bool(responded[0])
+
+    def _forward_one(self, r, P, prev, target, lengths, boxes):
+        """forward() of problem r in place on its pose P (a list of joints); returns whether the obstacles moved
+        a joint."""
         limits = self.limits
         n = self.n
         P[-1] = target
+        responded = False
         for i in range(n - 2, -1, -1):
             anchor = P[i + 1]
             d = g.sub(P[i], anchor)
@@ -84,25 +124,30 @@ class PlainIterations:
             if not dn > L * _COINCIDENT:
                 d = g.sub(prev[i], prev[i + 1])
                 dn = g.norm(d)
-            if i < n - 2 and limits.kind[i + 1] != FREE:
+            if limits is not None and i < n - 2 and limits.kind[i + 1] != FREE:
                 child = g.divided(g.sub(P[i + 2], anchor), lengths[i + 1])
                 child = g.divided(child, g.norm(child))
                 fallback = g.sub(prev[i + 1], prev[i])
                 fallback = g.divided(fallback, g.norm(fallback))
                 u = self._plain_limit_one(i + 1, r, child, (-d[0] / dn, -d[1] / dn, -d[2] / dn), fallback,
                                           reverse=True)[0]
-                P[i] = (anchor[0] - u[0] * L, anchor[1] - u[1] * L, anchor[2] - u[2] * L)
+                cand = (anchor[0] - u[0] * L, anchor[1] - u[1] * L, anchor[2] - u[2] * L)
             else:
                 k = L / dn
-                P[i] = (anchor[0] + d[0] * k, anchor[1] + d[1] * k, anchor[2] + d[2] * k)
+                cand = (anchor[0] + d[0] * k, anchor[1] + d[1] * k, anchor[2] + d[2] * k)
+            if boxes is not None and i > 0:  # joint 0 is re-pinned by the backward pass anyway
+                cand, moved = self._avoid_one(r, anchor, cand, L, prev[i], i, i, boxes, None)
+                responded = responded or moved
+            P[i] = cand
+        return responded
 
-    def _backward_one(self, r, P, aims, prev, lengths):
+    def _backward_one(self, r, P, aims, prev, lengths, boxes):
         """backward() of problem r in place on its pose P, aiming at ``aims`` (the forward pass's joints), without
-        boxes, root or stretch; returns whether a limit bound."""
+        root or stretch; returns (a limit bound, the obstacles moved a joint)."""
         limits = self.limits
         n = self.n
         P[0] = tuple(self.base[r].tolist())
-        binding = False
+        binding = responded = False
         pivot = n - 3 if self._finishes else -1
         finished = False
         for i in range(n - 1):
@@ -112,14 +157,15 @@ class PlainIterations:
                 elbow, wrist = tuple(elbow[0].tolist()), tuple(wrist[0].tolist())
             anchor = P[i]
             d = g.sub(aims[i + 1], anchor)
-            if i + 1 < n - 1 and limits.kind[i + 1] == HINGE:
+            if limits is not None and i + 1 < n - 1 and limits.kind[i + 1] == HINGE:
                 d = g.sub(aims[i + 1], aims[i])  # as backward(): the hinge's parent keeps its forward direction
             L = lengths[i]
             dn = g.norm(d)
             if not dn > L * _COINCIDENT:
                 d = g.sub(prev[i + 1], prev[i])
                 dn = g.norm(d)
-            if limits.kind[i] != FREE:
+            limit_fn = None
+            if limits is not None and limits.kind[i] != FREE:
                 if i == 0:
                     parent = self.parent_dirs[r].tolist()
                 else:
@@ -130,14 +176,20 @@ class PlainIterations:
                 u, bind = self._plain_limit_one(i, r, parent, g.divided(d, dn), fallback)
                 binding = binding or bool(bind)
                 cand = (anchor[0] + u[0] * L, anchor[1] + u[1] * L, anchor[2] + u[2] * L)
+
+                def limit_fn(h, dirs, i=i, parent=parent, fallback=fallback):  # backward()'s, on this one row
+                    return self._limit(i, np.array([r])[h], np.array([parent])[h], dirs, np.array([fallback])[h])[0]
             else:
                 k = L / dn
                 cand = (anchor[0] + d[0] * k, anchor[1] + d[1] * k, anchor[2] + d[2] * k)
+            if boxes is not None:
+                cand, moved = self._avoid_one(r, anchor, cand, L, prev[i + 1], i + 1, i, boxes, limit_fn)
+                responded = responded or moved
             if finished and i >= pivot:
                 cand = elbow if i == pivot else wrist
-                binding = False
+                binding = responded = False
             P[i + 1] = cand
-        return binding
+        return binding, responded
 
     def _nudged_one(self, r, P, nudges):
         """Problem r's pose P after its nudges-th nudge: ChainModel._nudge itself, on problem r's row of a batch."""

@@ -21,6 +21,9 @@ from .obstacles import as_boxes, count_penetrations_few, points_inside, segments
 # Up to this many problems, the limit steps (of the passes and of the limit check) run in plain floats
 # (limits_plain.py).
 _FEW_CHAINS = 4
+# Up to this many axis-aligned boxes, a few chains iterate in plain floats among them too (each joint is tested
+# against every box in plain floats: beyond a few, numpy's one test of all of them costs less).
+_FEW_BOXES = 16
 
 
 def _nudge_directions(v, first, k):
@@ -341,7 +344,8 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
         tolerance only iterate if `force` (bool or per row (b,)). Returns per-row (iterations, residual,
         stalled, limit binding, obstacle responses in the returned iterate, penetrations of the returned
         iterate)."""
-        if self.boxes is None and self.limits is not None and rows.size <= _FEW_CHAINS:
+        few_boxes = self.boxes is None or (self.boxes.axes is None and len(self.boxes) <= _FEW_BOXES)
+        if (self.limits is not None or self.boxes is not None) and few_boxes and rows.size <= _FEW_CHAINS:
             plain = self._iterate_plain(P, rows, force)  # the same bits (chain_iterate_plain.py)
             if plain is not None:
                 return plain

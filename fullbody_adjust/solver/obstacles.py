@@ -249,11 +249,21 @@ def penetrates_few(anchors, points, boxes, ignore_point=None, ignore_segment=Non
     skip_segment = None if ignore_segment is None else ignore_segment.tolist()
     for r, (a, p) in enumerate(zip(anchors.tolist(), points.tolist())):
         lo, hi = (mins[r], maxs[r]) if boxes.batched else (mins, maxs)
-        for k in range(len(lo)):
-            if (skip_point is None or not skip_point[r][k]) and _inside_one(lo[k], hi[k], p):
-                return True
-            if (skip_segment is None or not skip_segment[r][k]) and _crosses_one(lo[k], hi[k], a, p):
-                return True
+        if penetrates_one(lo, hi, a, p, None if skip_point is None else skip_point[r],
+                          None if skip_segment is None else skip_segment[r]):
+            return True
+    return False
+
+
+def penetrates_one(lo, hi, anchor, point, skip_point=None, skip_segment=None):
+    """penetrates_few of one point and its segment from ``anchor`` (3-lists), against axis-aligned boxes given as
+    lists of their mins ``lo`` and maxs ``hi``; skip_point, skip_segment: a list of K bools (the boxes ignored) or
+    None."""
+    for k in range(len(lo)):
+        if (skip_point is None or not skip_point[k]) and _inside_one(lo[k], hi[k], point):
+            return True
+        if (skip_segment is None or not skip_segment[k]) and _crosses_one(lo[k], hi[k], anchor, point):
+            return True
     return False
 
 
@@ -272,15 +282,25 @@ def count_penetrations_few(chains, boxes, ignore_end, ignore_base):
     mins, maxs = boxes.mins.tolist(), boxes.maxs.tolist()
     skip_end, skip_base = ignore_end.tolist(), ignore_base.tolist()
     inside, crossing = [], []
-    last = n - 1
     for r, chain in enumerate(chains.tolist()):
         lo, hi = (mins[r], maxs[r]) if boxes.batched else (mins, maxs)
-        boxes_of = range(len(lo))
-        inside.append(sum(any(_inside_one(lo[k], hi[k], chain[i]) and not (i == last and skip_end[r][k])
-                              for k in boxes_of) for i in range(1, n)))
-        crossing.append(sum(any(_crosses_one(lo[k], hi[k], chain[i], chain[i + 1])
-                                and not (i == last - 1 and skip_end[r][k]) and not (i == 0 and skip_base[r][k])
-                                for k in boxes_of) for i in range(n - 1)))
+        counts = count_penetrations_one(chain, lo, hi, skip_end[r], skip_base[r])
+        inside.append(counts[0])
+        crossing.append(counts[1])
+    return inside, crossing
+
+
+def count_penetrations_one(chain, lo, hi, skip_end, skip_base):
+    """count_penetrations_few of one chain (a list of n joints) against axis-aligned boxes (lists of their mins
+    ``lo`` and maxs ``hi``), skip_end and skip_base lists of K bools: (joints inside, segments meeting a box)."""
+    n = len(chain)
+    last = n - 1
+    boxes_of = range(len(lo))
+    inside = sum(any(_inside_one(lo[k], hi[k], chain[i]) and not (i == last and skip_end[k]) for k in boxes_of)
+                 for i in range(1, n))
+    crossing = sum(any(_crosses_one(lo[k], hi[k], chain[i], chain[i + 1])
+                       and not (i == last - 1 and skip_end[k]) and not (i == 0 and skip_base[k]) for k in boxes_of)
+                   for i in range(n - 1))
     return inside, crossing
 
 

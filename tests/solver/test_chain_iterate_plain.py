@@ -1,4 +1,4 @@
-"""A few limited chains without obstacles iterate in plain floats (solver/chain_iterate_plain.py): chain solves and
+"""A few limited or obstructed chains iterate in plain floats (solver/chain_iterate_plain.py): chain solves and
 whole-body solves give the very same positions, iterations, residuals and statuses as numpy's iterations."""
 
 import numpy as np
@@ -8,6 +8,7 @@ from fullbody_adjust.solver import solve_chain_batch
 from fullbody_adjust.solver.adjust import adjust_frames
 from fullbody_adjust.solver.body import default_limits
 from fullbody_adjust.solver.chain_iterate_plain import PlainIterations
+from fullbody_adjust.solver.chain_obstacles import ObstacleResponse
 from fullbody_adjust.solver.limits import JointLimits
 from fullbody_adjust.solver.rig_limits import rig_limits
 
@@ -58,6 +59,34 @@ def test_chain_solves_iterate_the_same_in_plain_floats(seed, monkeypatch):
         iterations.extend(numpy.iterations.tolist())
     # The plain path ran, on chains that iterate long (limits holding them short) as well as briefly.
     assert calls.count(True) >= 20 and max(iterations) >= 20 and min(iterations) <= 2
+
+
+@pytest.mark.parametrize("seed", [1, 5])  # among them: an iterate with fewer penetrations and a larger residual
+def test_chains_among_boxes_iterate_the_same_in_plain_floats(seed, monkeypatch):
+    """Chains with one or two boxes on the way, with their limits and without, toward targets within reach, near
+    their base and beyond reach: the joints the boxes move are moved by the same response, a stalled chain the
+    boxes pushed is not nudged, and the best iterate (fewest penetrations, then the nearest), its penetrations and
+    the notes are the same."""
+    calls, responses = [], []
+    avoid = ObstacleResponse._avoid
+
+    def counted_avoid(self, *args):
+        out = avoid(self, *args)
+        responses.append(bool(out[1].any()))
+        return out
+
+    for starts, targets, limits, parents, boxes in _problems(seed, 40):
+        for scale, limited in ((1.0, True), (1.0, False), (1.6, True), (0.5, True)):
+            kwargs = {"limits": limits, "parent_directions": parents} if limited else {}
+            monkeypatch.setattr(ObstacleResponse, "_avoid", counted_avoid)
+            plain, numpy = _both_ways(lambda: solve_chain_batch(starts, targets * scale, obstacles=boxes, **kwargs),
+                                      monkeypatch, calls)
+            np.testing.assert_array_equal(plain.positions, numpy.positions)
+            np.testing.assert_array_equal(plain.iterations, numpy.iterations)
+            np.testing.assert_array_equal(plain.residual, numpy.residual)
+            assert list(plain.status) == list(numpy.status) and list(plain.reason) == list(numpy.reason)
+    # The plain path ran, and the boxes made it respond.
+    assert calls.count(True) >= 100 and responses.count(True) >= 50
 
 
 def test_body_solves_with_a_rigs_locks_iterate_the_same_in_plain_floats(monkeypatch):
