@@ -1,6 +1,6 @@
 """The batch-first numpy chain solver: B chains (B, n, 3) with joint limits and obstacles, each problem leaving
 the active set when it converges, so a problem's result does not depend on what else is in the batch. A few
-problems' joint limits are applied in plain floats (limits_plain.py), and a few limited chains without obstacles
+problems' joint limits are applied in plain floats (limits_plain.py), and a few limited or obstructed chains
 iterate in plain floats (chain_iterate_plain.py), with the same bits."""
 
 import numpy as np
