@@ -453,8 +453,27 @@ class LimitStart:
             parent_dir = segs[:, 0]
             for i in range(m):
                 set_cone(i, human.neck)
-        limits = JointLimits(kind, cone, axes, lo, hi, twist)
+        limits = _checked_ranges(kind, cone, lo, hi, twist).derived(hinge_axis=axes)
         return LimbLimits(limits, None if parent_dir is None else normalize(parent_dir))
+
+
+# JointLimits' checks of a limb's kinds and ranges (cone angles, hinge ranges and twists: the HumanLimits it was
+# given), done once per such set: Adjust Pose builds every moved limb's limits again on every click, and the checks
+# cost as much as the rest of limb_limits. The hinge axes need none: _hinge_axis returns unit vectors.
+_CHECKED_RANGES = {}
+_CHECKED_CAPACITY = 64
+
+
+def _checked_ranges(kind, cone, lo, hi, twist):
+    """A validated JointLimits with these per-joint arrays (hinge axes: placeholders for derived())."""
+    key = tuple(a.tobytes() for a in (kind, cone, lo, hi, twist))
+    checked = _CHECKED_RANGES.get(key)
+    if checked is None:
+        checked = JointLimits(kind, cone, np.tile([0.0, 0.0, 1.0], (kind.shape[0], 1)), lo, hi, twist)
+        if len(_CHECKED_RANGES) >= _CHECKED_CAPACITY:
+            _CHECKED_RANGES.clear()
+        _CHECKED_RANGES[key] = checked
+    return checked
 
 
 def _hinge_axis(parent_seg, child_seg, bend_side, x_axis, bent_angle):

@@ -8,7 +8,7 @@ import pytest
 from fullbody_adjust.solver.body import BodyModel, HumanLimits, Skeleton, default_limits
 from fullbody_adjust.solver.errors import SolverInputError
 from fullbody_adjust.solver.geometry import swing_rotation
-from fullbody_adjust.solver.limits import CONE, HINGE
+from fullbody_adjust.solver.limits import CONE, HINGE, JointLimits
 from tests.helpers.bvh import CMU_CLIPS, CMU_GROUPS, read_bvh, read_cmu
 
 
@@ -255,6 +255,23 @@ def test_elbow_and_knee_hinges_get_the_twist_ranges(walk, cmu_model):
         assert list(lim.hinge_twist) == list(expected) and np.sum(lim.kind == HINGE) == 1
     for name in ("trunk", "head"):
         assert not np.any(limits[name].limits.hinge_twist)
+
+
+@pytest.mark.parametrize("bad", [{"shoulder": 3.5}, {"elbow": (0.5, -0.5)}, {"knee_twist": 1.6}])
+def test_default_limits_refuse_impossible_human_limits_every_time(walk, cmu_model, bad):
+    """The limits' ranges are checked once per set of ranges and kept: a set that fails its check is refused on
+    every call, not kept; a good set gives the same limits as JointLimits' own checked construction."""
+    heads, tails = walk.bones([100])
+    for _ in range(2):
+        with pytest.raises(SolverInputError):
+            default_limits(cmu_model, heads, tails, HumanLimits(**bad))
+    for limb in default_limits(cmu_model, heads, tails).values():
+        lim = limb.limits
+        checked = JointLimits(lim.kind, lim.cone_angle, lim.hinge_axis, lim.hinge_min, lim.hinge_max,
+                              lim.hinge_twist)
+        for field in ("kind", "cone_angle", "hinge_axis", "hinge_min", "hinge_max", "hinge_twist"):
+            np.testing.assert_array_equal(getattr(lim, field), getattr(checked, field))
+            assert not getattr(lim, field).flags.writeable
 
 
 def test_twist_ranges_cover_most_captured_pose_changes():
