@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import geometry_plain as gp
 from . import limb_rotations_plain
 from .geometry import any_perpendicular, any_set, apply_matrix, norm, stack_rows, swing_rotation
 from .limits import HINGE, hinge_twist_angle
@@ -139,6 +140,10 @@ def _rotation_about(axis, angle):
 
 
 def chest_rotation(trunk0, trunk_new):
-    """(F,3,3) swing of the last trunk segment: the chest's world rotation delta."""
-    return swing_rotation(trunk0[:, -1] - trunk0[:, -2], trunk_new[:, -1] - trunk_new[:, -2])
+    """(F,3,3) swing of the last trunk segment: the chest's world rotation delta (one frame in plain floats, the
+    same bits: numpy's per-call cost was most of it)."""
+    old, new = trunk0[:, -1] - trunk0[:, -2], trunk_new[:, -1] - trunk_new[:, -2]
+    if old.shape[0] == 1:
+        return np.array([gp.swing_rotation(old[0].tolist(), new[0].tolist())])
+    return swing_rotation(old, new)
 
