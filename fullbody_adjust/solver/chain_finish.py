@@ -10,12 +10,14 @@ from . import geometry_plain as g
 from . import limits_plain
 from .geometry import any_set, cross, dot, norm, outward_angles, unit_or_perpendicular
 from .limits import CONE, FREE, HINGE, apply_cone, apply_hinge, carry_axis, carry_axis_plain
+from .obstacles import penetrates_one
 
 # Two-segment finish (ChainModel._two_bone_finish): swivel angles of the middle joint around the pivot ->
 # target line, from FABRIK's proposal outward (0, +d, -d, +2d, ...), and the least hinge twist range that
 # leaves an interval of them to pick from (a twist-free hinge fits one swivel angle, never a sample).
 _SWIVEL_ANGLES = outward_angles(48)
 _SWIVEL_COS, _SWIVEL_SIN = np.cos(_SWIVEL_ANGLES), np.sin(_SWIVEL_ANGLES)
+_SWIVEL_COS_LIST, _SWIVEL_SIN_LIST = _SWIVEL_COS.tolist(), _SWIVEL_SIN.tolist()
 _MIN_FINISH_TWIST = math.radians(5)
 # Up to this many chains, the limits are first checked in plain floats (the same bits) on each chain's first
 # candidate clear of the boxes alone: where that one holds, it is the pick (every finish of bench/interactive.py's
@@ -90,6 +92,64 @@ class TwoBoneFinish:
         middle[h] = E[np.arange(h.size), pick]
         end[h] = wrist[np.arange(h.size), pick]
         return finished, middle, end
+
+    def _two_bone_finish_one(self, r, P, aims):
+        """_two_bone_finish of problem r alone, in plain floats (P, aims: its joints as lists): (finished, middle,
+        end), or None where numpy decides (the first candidate clear of the boxes breaks a limit, or a division by
+        zero). The candidates are made and tested against the boxes in order, up to the first clear one: numpy
+        made and tested all 48 first, most of a finish's cost where the boxes leave an early one clear."""
+        if self.boxes is not None and self.boxes.axes is not None:
+            return None  # oriented boxes: numpy's tests
+        j = self.n - 3
+        none = (0.0, 0.0, 0.0)
+        lengths = self.lengths[r].tolist()
+        a, c = lengths[j], lengths[j + 1]
+        S = tuple(P[j])
+        T = self.targets[r].tolist()
+        to_t = g.sub(T, S)
+        d = g.norm(to_t)
+        if not (d > abs(a - c) * (1.0 + 1e-9) and d < (a + c) * (1.0 - 1e-9)):
+            return False, none, none
+        try:
+            e = g.divided(to_t, d)
+            along = (a * a + d * d - c * c) / (2.0 * d)
+            rho = math.sqrt(max(a * a - along * along, 0.0))
+            centre = g.add(S, g.scaled(e, along))
+            w = g.sub(aims[j + 1], centre)
+            w = g.sub(w, g.scaled(e, g.dot(w, e)))
+            wn = g.norm(w)
+            e1 = g.divided(w, wn) if wn > 1e-12 * a else g.any_perpendicular(e)
+            e2 = g.cross(e, e1)
+            boxes = None if self.boxes is None else self._finish_boxes(r)
+            first = None
+            for cos_k, sin_k in zip(_SWIVEL_COS_LIST, _SWIVEL_SIN_LIST):
+                ring = (cos_k * e1[0] + sin_k * e2[0], cos_k * e1[1] + sin_k * e2[1], cos_k * e1[2] + sin_k * e2[2])
+                middle = (centre[0] + rho * ring[0], centre[1] + rho * ring[1], centre[2] + rho * ring[2])
+                v = g.sub(T, middle)
+                v = g.divided(v, g.norm(v))
+                end = (middle[0] + c * v[0], middle[1] + c * v[1], middle[2] + c * v[2])
+                if first is None:
+                    first = g.divided(g.sub(middle, S), a)  # the pivot limit's fallback: the first candidate's
+                if boxes is not None and (penetrates_one(boxes[0], boxes[1], S, middle, None, boxes[2])
+                                          or penetrates_one(boxes[0], boxes[1], middle, end, boxes[3], boxes[3])):
+                    continue
+                u = g.divided(g.sub(middle, S), a)
+                holds = self._limits_hold_one(r, [list(joint) for joint in P], g.divided(u, g.norm(u)),
+                                              g.divided(first, g.norm(first)), list(v))
+                return (True, middle, end) if holds else None
+        except ZeroDivisionError:
+            return None
+        return False, none, none  # no candidate clear of the boxes
+
+    def _finish_boxes(self, r):
+        """Problem r's boxes for the finish's segments, as plain lists: (mins, maxs, what the pivot's segment
+        ignores (None, or the boxes holding the base when the pivot is the base), what the last joint and segment
+        ignore)."""
+        mins, maxs = self.boxes.mins, self.boxes.maxs
+        if self.boxes.batched:
+            mins, maxs = mins[r], maxs[r]
+        base = self.ignore_base[r].tolist() if self.n == 3 else None
+        return mins.tolist(), maxs.tolist(), base, self.ignore_end[r].tolist()
 
     def _first_clear_holds(self, rows, P, E, S, a, v, clear):
         """clear & _limits_hold(...) (h,K), as far as the pick needs it: a few chains' first candidate clear of the

@@ -2,9 +2,10 @@
 ChainModel): ChainModel._iterate's operations in its order, one chain at a time, so the same bits. Where the limits
 hold a chain short it iterates until its patience runs out, each numpy iteration paying numpy's per-call cost on
 every joint's 3-vectors: a rig's own IK locks made one Adjust Pose run some 300 of them; among obstacles, the joints
-the boxes leave alone were most of an iteration's cost. The obstacle response of a joint that meets a box, the
-two-segment finish and the nudge of a stalled chain stay numpy's (on the one chain); a division by zero hands the
-whole call back to the numpy path. Oriented boxes are left to numpy."""
+the boxes leave alone were most of an iteration's cost. The two-segment finish is the plain one where it can be
+(TwoBoneFinish._two_bone_finish_one); the obstacle response of a joint that meets a box and the nudge of a stalled
+chain stay numpy's (on the one chain); a division by zero hands the whole call back to the numpy path. Oriented
+boxes are left to numpy."""
 
 import numpy as np
 
@@ -152,9 +153,11 @@ class PlainIterations:
         finished = False
         for i in range(n - 1):
             if i == pivot:
-                done, elbow, wrist = self._two_bone_finish(np.array([P]), np.array([r]), np.array([aims]))
-                finished = bool(done[0])
-                elbow, wrist = tuple(elbow[0].tolist()), tuple(wrist[0].tolist())
+                one = self._two_bone_finish_one(r, P, aims)
+                if one is None:  # numpy's finish on the one chain
+                    done, elbow, wrist = self._two_bone_finish(np.array([P]), np.array([r]), np.array([aims]))
+                    one = bool(done[0]), tuple(elbow[0].tolist()), tuple(wrist[0].tolist())
+                finished, elbow, wrist = one
             anchor = P[i]
             d = g.sub(aims[i + 1], anchor)
             if limits is not None and i + 1 < n - 1 and limits.kind[i + 1] == HINGE:

@@ -8,8 +8,11 @@ from fullbody_adjust.solver import solve_chain_batch
 from fullbody_adjust.solver.adjust import adjust_frames
 from fullbody_adjust.solver.body import default_limits
 from fullbody_adjust.solver.chain_iterate_plain import PlainIterations
+from fullbody_adjust.solver.chain_model import ChainModel
+from fullbody_adjust.solver.chain_types import ChainSettings
 from fullbody_adjust.solver.chain_obstacles import ObstacleResponse
 from fullbody_adjust.solver.limits import JointLimits
+from fullbody_adjust.solver.obstacles import Boxes
 from fullbody_adjust.solver.rig_limits import rig_limits
 
 from .test_adjust import EFFECTORS
@@ -87,6 +90,47 @@ def test_chains_among_boxes_iterate_the_same_in_plain_floats(seed, monkeypatch):
             assert list(plain.status) == list(numpy.status) and list(plain.reason) == list(numpy.reason)
     # The plain path ran, and the boxes made it respond.
     assert calls.count(True) >= 100 and responses.count(True) >= 50
+
+
+def test_the_plain_two_segment_finish_picks_what_numpys_picks():
+    """TwoBoneFinish._two_bone_finish_one against _two_bone_finish on the same chain: random chains among boxes, with
+    forward-pass joints moved off the chain, targets within the last two segments' range, just inside and just
+    outside its ends (where the finish declines), and a middle joint on the pivot-target line (no swivel
+    direction: any perpendicular), some with a box around the base. Where it answers, the same finish, middle and end joints, bit for bit."""
+    rng = np.random.default_rng(11)
+    answers = []
+    for k, (starts, targets, limits, parents, boxes) in enumerate(_problems(3, 60)):
+        if k % 2:  # a box around the base (at the origin), which the base's segment ignores
+            boxes = Boxes(np.concatenate([boxes.mins, [[-0.05] * 3]]), np.concatenate([boxes.maxs, [[0.05] * 3]]))
+        model = ChainModel(starts, targets, ChainSettings(), limits, boxes, parents)
+        if not model._finishes:
+            continue
+        j = model.n - 3
+        for r in range(model.B):
+            a, c = model.lengths[r, j], model.lengths[r, j + 1]
+            pivot = starts[r, j]
+            for case in range(5):
+                P = starts[r] + rng.normal(scale=0.05, size=starts[r].shape)
+                aims = starts[r] + rng.normal(scale=0.2, size=starts[r].shape)
+                P[j] = pivot
+                direction = rng.normal(size=3)
+                direction /= np.linalg.norm(direction)
+                reach = [rng.uniform(abs(a - c), a + c), (a + c) * (1 - 5e-10), (a + c) * (1 - 2e-9),
+                         abs(a - c) * (1 + 5e-10), rng.uniform(abs(a - c), a + c)][case]
+                model.targets[r] = pivot + direction * reach
+                if case == 4:
+                    aims[j + 1] = pivot + direction * 0.3 * reach
+                plain = model._two_bone_finish_one(r, P.tolist(), aims.tolist())
+                done, middle, end = model._two_bone_finish(P[None], np.array([r]), aims[None])
+                if plain is None:
+                    answers.append("numpy")
+                    continue
+                assert plain[0] == bool(done[0]), (case, plain, done)
+                if plain[0]:
+                    np.testing.assert_array_equal(plain[1], middle[0])
+                    np.testing.assert_array_equal(plain[2], end[0])
+                answers.append(("declined", "finished")[plain[0]])
+    assert answers.count("finished") >= 20 and answers.count("declined") >= 20
 
 
 def test_body_solves_with_a_rigs_locks_iterate_the_same_in_plain_floats(monkeypatch):
