@@ -7,12 +7,17 @@ the boxes leave alone were most of an iteration's cost. The two-segment finish i
 chain stay numpy's (on the one chain); a division by zero hands the whole call back to the numpy path. Oriented
 boxes are left to numpy."""
 
+import math
+
 import numpy as np
 
 from . import geometry_plain as g
+from .chain_obstacles import _CIRCLE_COS, _CIRCLE_SIN
 from .chain_types import _COINCIDENT, _NUDGES, _PATIENCE, _STALL
 from .limits import FREE, HINGE
-from .obstacles import count_penetrations_one, penetrates_one
+from .obstacles import count_penetrations_one, first_box_holding, penetrates_one
+
+_CIRCLE_COS_LIST, _CIRCLE_SIN_LIST = _CIRCLE_COS.tolist(), _CIRCLE_SIN.tolist()
 
 _NO_PENETRATION_YET = np.iinfo(np.int64).max  # _iterate's best penetration count before the first iterate
 
@@ -94,21 +99,67 @@ class PlainIterations:
         inside, crossing = count_penetrations_one(chain, *boxes)
         return inside + crossing
 
-    def _avoid_one(self, r, anchor, cand, L, ref, joint, segment, boxes, limit_fn):
+    def _avoid_one(self, r, anchor, cand, L, ref, joint, segment, boxes, limit):
         """_avoid for problem r's one joint: (position, responded). The plain test first (the joint and its
-        segment clear of every box it does not ignore: the position as it is); numpy's response otherwise."""
+        segment clear of every box it does not ignore: the position as it is), then the paper's circle in plain
+        floats (_circle_point_one); numpy's whole response where that finds no clear point. ``limit``: (joint,
+        parent direction, fallback) of the backward pass's limit on the joint's direction, or None."""
         lo, hi, skip_end, skip_base = boxes
         last = self.n - 1
+        skip_point = skip_end if joint == last else None
         skip_segment = None
         if segment == last - 1:
             skip_segment = skip_end
         if segment == 0:
             skip_segment = skip_base if skip_segment is None else [a or b for a, b in zip(skip_segment, skip_base)]
-        if not penetrates_one(lo, hi, anchor, cand, skip_end if joint == last else None, skip_segment):
+        if not penetrates_one(lo, hi, anchor, cand, skip_point, skip_segment):
             return cand, False
+        point = self._circle_point_one(r, anchor, cand, L, ref, lo, hi, skip_point, skip_segment, limit)
+        if point is not None:
+            return point, True
+        limit_fn = None
+        if limit is not None:
+            i, parent, fallback = limit
+
+            def limit_fn(h, dirs):  # backward()'s, on this one row
+                return self._limit(i, np.array([r])[h], np.array([parent])[h], dirs, np.array([fallback])[h])[0]
         out, responded, _ = self._avoid(np.array([r]), np.array([anchor]), np.array([cand]), np.array([L]),
                                         np.array([ref]), joint, segment, limit_fn)
         return tuple(out[0].tolist()), bool(responded[0])
+
+    def _circle_point_one(self, r, a, p, L, ref, lo, hi, skip_point, skip_segment, limit):
+        """_avoid's answer for a joint at p inside a box when the paper's circle has a point clear of every box (the
+        first, in _CIRCLE_ANGLES' order), in plain floats; None otherwise (numpy's whole response decides)."""
+        k = first_box_holding(lo, hi, p, skip_point)
+        if k < 0:
+            return None  # only the segment crosses a box: every candidate is weighed (numpy)
+        corners = (self.corners[r, k] if self.boxes.batched else self.corners[k]).tolist()
+        dis = max(g.norm(g.sub(corner, p)) for corner in corners) + self.settings.margin
+        axis = g.sub(p, a)
+        dd = g.norm(axis)
+        nvec = g.divided(axis, dd)
+        along = (dd * dd + L * L - dis * dis) / (2.0 * dd)
+        rho2 = L * L - along * along
+        if not rho2 > 0.0:
+            return None  # no circle
+        rho = math.sqrt(rho2)
+        center = g.add(a, g.scaled(nvec, along))
+        w = g.sub(ref, center)
+        w = g.sub(w, g.scaled(nvec, g.dot(w, nvec)))
+        wn = g.norm(w)
+        e1 = g.divided(w, wn) if wn > 1e-12 * L else g.any_perpendicular(nvec)
+        e2 = g.cross(nvec, e1)
+        for cos_k, sin_k in zip(_CIRCLE_COS_LIST, _CIRCLE_SIN_LIST):
+            ring = (cos_k * e1[0] + sin_k * e2[0], cos_k * e1[1] + sin_k * e2[1], cos_k * e1[2] + sin_k * e2[2])
+            point = (center[0] + rho * ring[0], center[1] + rho * ring[1], center[2] + rho * ring[2])
+            d = ((point[0] - a[0]) / L, (point[1] - a[1]) / L, (point[2] - a[2]) / L)
+            d = g.divided(d, g.norm(d))
+            if limit is not None:
+                d = self._plain_limit_one(limit[0], r, limit[1], d, limit[2])[0]
+            q = (a[0] + L * d[0], a[1] + L * d[1], a[2] + L * d[2])
+            if not penetrates_one(lo, hi, a, q, skip_point, skip_segment):
+                return q
+        return None
 
     def _forward_one(self, r, P, prev, target, lengths, boxes):
         """forward() of problem r in place on its pose P (a list of joints); returns whether the obstacles moved
@@ -167,7 +218,7 @@ class PlainIterations:
             if not dn > L * _COINCIDENT:
                 d = g.sub(prev[i + 1], prev[i])
                 dn = g.norm(d)
-            limit_fn = None
+            limit = None
             if limits is not None and limits.kind[i] != FREE:
                 if i == 0:
                     parent = self.parent_dirs[r].tolist()
@@ -179,14 +230,12 @@ class PlainIterations:
                 u, bind = self._plain_limit_one(i, r, parent, g.divided(d, dn), fallback)
                 binding = binding or bool(bind)
                 cand = (anchor[0] + u[0] * L, anchor[1] + u[1] * L, anchor[2] + u[2] * L)
-
-                def limit_fn(h, dirs, i=i, parent=parent, fallback=fallback):  # backward()'s, on this one row
-                    return self._limit(i, np.array([r])[h], np.array([parent])[h], dirs, np.array([fallback])[h])[0]
+                limit = (i, parent, fallback)
             else:
                 k = L / dn
                 cand = (anchor[0] + d[0] * k, anchor[1] + d[1] * k, anchor[2] + d[2] * k)
             if boxes is not None:
-                cand, moved = self._avoid_one(r, anchor, cand, L, prev[i + 1], i + 1, i, boxes, limit_fn)
+                cand, moved = self._avoid_one(r, anchor, cand, L, prev[i + 1], i + 1, i, boxes, limit)
                 responded = responded or moved
             if finished and i >= pivot:
                 cand = elbow if i == pivot else wrist

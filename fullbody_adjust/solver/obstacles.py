@@ -267,6 +267,15 @@ def penetrates_one(lo, hi, anchor, point, skip_point=None, skip_segment=None):
     return False
 
 
+def first_box_holding(lo, hi, point, skip=None):
+    """The index of the first axis-aligned box (lists of mins ``lo`` and maxs ``hi``) that holds ``point`` and is not
+    skipped (``skip``: a list of K bools, or None), or -1: np.argmax of points_inside's row, in plain floats."""
+    for k in range(len(lo)):
+        if (skip is None or not skip[k]) and _inside_one(lo[k], hi[k], point):
+            return k
+    return -1
+
+
 # Up to this many joint-box tests, count_penetrations_few answers in plain floats: the chain solver counts the
 # penetrations of one or two chains after every iteration, where numpy's per-call cost was most of the count.
 _FEW_COUNTS = 48

@@ -67,7 +67,7 @@ def test_chain_solves_iterate_the_same_in_plain_floats(seed, monkeypatch):
 @pytest.mark.parametrize("seed", [1, 5])  # among them: an iterate with fewer penetrations and a larger residual
 def test_chains_among_boxes_iterate_the_same_in_plain_floats(seed, monkeypatch):
     """Chains with one or two boxes on the way, with their limits and without, toward targets within reach, near
-    their base and beyond reach: the joints the boxes move are moved by the same response, a stalled chain the
+    their base, beyond reach and inside a box: the joints the boxes move are moved by the same response, a stalled chain the
     boxes pushed is not nudged, and the best iterate (fewest penetrations, then the nearest), its penetrations and
     the notes are the same."""
     calls, responses = [], []
@@ -79,10 +79,13 @@ def test_chains_among_boxes_iterate_the_same_in_plain_floats(seed, monkeypatch):
         return out
 
     for starts, targets, limits, parents, boxes in _problems(seed, 40):
-        for scale, limited in ((1.0, True), (1.0, False), (1.6, True), (0.5, True)):
+        # Also a box around every target, which the last joint and segment ignore.
+        held = Boxes(np.concatenate([boxes.mins, targets - 0.1]), np.concatenate([boxes.maxs, targets + 0.1]))
+        for scale, limited, obstacles in ((1.0, True, boxes), (1.0, False, boxes), (1.6, True, boxes),
+                                          (0.5, True, boxes), (1.0, True, held)):
             kwargs = {"limits": limits, "parent_directions": parents} if limited else {}
             monkeypatch.setattr(ObstacleResponse, "_avoid", counted_avoid)
-            plain, numpy = _both_ways(lambda: solve_chain_batch(starts, targets * scale, obstacles=boxes, **kwargs),
+            plain, numpy = _both_ways(lambda: solve_chain_batch(starts, targets * scale, obstacles=obstacles, **kwargs),
                                       monkeypatch, calls)
             np.testing.assert_array_equal(plain.positions, numpy.positions)
             np.testing.assert_array_equal(plain.iterations, numpy.iterations)
@@ -93,10 +96,11 @@ def test_chains_among_boxes_iterate_the_same_in_plain_floats(seed, monkeypatch):
 
 
 def test_the_plain_two_segment_finish_picks_what_numpys_picks():
-    """TwoBoneFinish._two_bone_finish_one against _two_bone_finish on the same chain: random chains among boxes, with
-    forward-pass joints moved off the chain, targets within the last two segments' range, just inside and just
-    outside its ends (where the finish declines), and a middle joint on the pivot-target line (no swivel
-    direction: any perpendicular), some with a box around the base. Where it answers, the same finish, middle and end joints, bit for bit."""
+    """TwoBoneFinish._two_bone_finish_one against _two_bone_finish on the same chain: random chains among boxes (some
+    with a box around the base), with forward-pass joints moved off the chain, targets within the last two segments'
+    range, just inside and just outside its ends (where the finish declines), and a middle joint on the pivot-target
+    line (no swivel direction: any perpendicular). Where it answers, the same finish, middle and end joints, bit for
+    bit."""
     rng = np.random.default_rng(11)
     answers = []
     for k, (starts, targets, limits, parents, boxes) in enumerate(_problems(3, 60)):
