@@ -2,10 +2,10 @@
 ChainModel): ChainModel._iterate's operations in its order, one chain at a time, so the same bits. Where the limits
 hold a chain short it iterates until its patience runs out, each numpy iteration paying numpy's per-call cost on
 every joint's 3-vectors: a rig's own IK locks made one Adjust Pose run some 300 of them; among obstacles, the joints
-the boxes leave alone were most of an iteration's cost. The two-segment finish is the plain one where it can be
-(TwoBoneFinish._two_bone_finish_one); the obstacle response of a joint that meets a box and the nudge of a stalled
-chain stay numpy's (on the one chain); a division by zero hands the whole call back to the numpy path. Oriented
-boxes are left to numpy."""
+the boxes leave alone were most of an iteration's cost. The two-segment finish and the paper's circle for a joint
+inside a box are plain where they find their answer (TwoBoneFinish._two_bone_finish_one, _circle_point_one); the
+rest of the obstacle response and the nudge of a stalled chain stay numpy's (on the one chain); a division by zero
+hands the whole call back to the numpy path. Oriented boxes are left to numpy."""
 
 import math
 
