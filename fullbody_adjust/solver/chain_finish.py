@@ -120,7 +120,11 @@ class TwoBoneFinish:
             wn = g.norm(w)
             e1 = g.divided(w, wn) if wn > 1e-12 * a else g.any_perpendicular(e)
             e2 = g.cross(e, e1)
-            boxes = None if self.boxes is None else self._finish_boxes(r)
+            boxes = None if self.boxes is None else self._boxes_one(r)
+            if boxes is not None:
+                # The pivot's segment ignores the boxes holding the base when the pivot is the base.
+                lo, hi, skip_end, skip_base = boxes
+                skip_base = skip_base if j == 0 else None
             first = None
             for cos_k, sin_k in zip(_SWIVEL_COS_LIST, _SWIVEL_SIN_LIST):
                 ring = (cos_k * e1[0] + sin_k * e2[0], cos_k * e1[1] + sin_k * e2[1], cos_k * e1[2] + sin_k * e2[2])
@@ -130,8 +134,8 @@ class TwoBoneFinish:
                 end = (middle[0] + c * v[0], middle[1] + c * v[1], middle[2] + c * v[2])
                 if first is None:
                     first = g.divided(g.sub(middle, S), a)  # the pivot limit's fallback: the first candidate's
-                if boxes is not None and (penetrates_one(boxes[0], boxes[1], S, middle, None, boxes[2])
-                                          or penetrates_one(boxes[0], boxes[1], middle, end, boxes[3], boxes[3])):
+                if boxes is not None and (penetrates_one(lo, hi, S, middle, None, skip_base)
+                                          or penetrates_one(lo, hi, middle, end, skip_end, skip_end)):
                     continue
                 u = g.divided(g.sub(middle, S), a)
                 holds = self._limits_hold_one(r, [list(joint) for joint in P], g.divided(u, g.norm(u)),
@@ -140,16 +144,6 @@ class TwoBoneFinish:
         except ZeroDivisionError:
             return None
         return False, none, none  # no candidate clear of the boxes
-
-    def _finish_boxes(self, r):
-        """Problem r's boxes for the finish's segments, as plain lists: (mins, maxs, what the pivot's segment
-        ignores (None, or the boxes holding the base when the pivot is the base), what the last joint and segment
-        ignore)."""
-        mins, maxs = self.boxes.mins, self.boxes.maxs
-        if self.boxes.batched:
-            mins, maxs = mins[r], maxs[r]
-        base = self.ignore_base[r].tolist() if self.n == 3 else None
-        return mins.tolist(), maxs.tolist(), base, self.ignore_end[r].tolist()
 
     def _first_clear_holds(self, rows, P, E, S, a, v, clear):
         """clear & _limits_hold(...) (h,K), as far as the pick needs it: a few chains' first candidate clear of the

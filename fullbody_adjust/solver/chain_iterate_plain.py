@@ -53,7 +53,7 @@ class PlainIterations:
         stall = tol * _STALL
         target = self.targets[r].tolist()
         lengths = self.lengths[r].tolist()
-        boxes = self._boxes_of(r)
+        boxes = None if self.boxes is None else self._boxes_one(r)
         residual = g.norm(g.sub(chain[-1], target))
         if not (residual > tol or forced):
             return chain, 0, residual, False, False, False, self._penetrations_one(chain, boxes)
@@ -82,15 +82,6 @@ class PlainIterations:
             stalled = stalled or (res > tol and iterations - best_iter >= _PATIENCE)
             if res <= tol or stalled or iterations >= s.max_iterations:
                 return best, iterations, best_res, stalled, binding, responded, best_pen
-
-    def _boxes_of(self, r):
-        """Problem r's boxes as plain lists (mins, maxs, ignored at the end, ignored at the base), or None."""
-        if self.boxes is None:
-            return None
-        mins, maxs = self.boxes.mins, self.boxes.maxs
-        if self.boxes.batched:
-            mins, maxs = mins[r], maxs[r]
-        return mins.tolist(), maxs.tolist(), self.ignore_end[r].tolist(), self.ignore_base[r].tolist()
 
     def _penetrations_one(self, chain, boxes):
         """penetration_counts of one chain, joints and segments added (0 without boxes)."""

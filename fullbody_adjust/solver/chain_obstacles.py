@@ -34,6 +34,14 @@ class ObstacleResponse:
     """ChainModel's obstacle methods; they use the model's boxes, corners, ignore_end/ignore_base, n and
     settings.margin."""
 
+    def _boxes_one(self, r):
+        """Problem r's boxes as plain lists, for the plain-float paths: (mins, maxs, the boxes its last joint and
+        segment ignore, the boxes its first segment ignores). Axis-aligned boxes only."""
+        mins, maxs = self.boxes.mins, self.boxes.maxs
+        if self.boxes.batched:
+            mins, maxs = mins[r], maxs[r]
+        return mins.tolist(), maxs.tolist(), self.ignore_end[r].tolist(), self.ignore_base[r].tolist()
+
     def _ignored(self, rows, joint, segment):
         """(b,K) boxes ignored for `joint` and (b,K) for `segment` (None: nothing ignored)."""
         last = self.n - 1
