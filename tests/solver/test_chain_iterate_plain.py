@@ -9,8 +9,8 @@ from fullbody_adjust.solver.adjust import adjust_frames
 from fullbody_adjust.solver.body import default_limits
 from fullbody_adjust.solver.chain_iterate_plain import PlainIterations
 from fullbody_adjust.solver.chain_model import ChainModel
-from fullbody_adjust.solver.chain_types import ChainSettings
 from fullbody_adjust.solver.chain_obstacles import ObstacleResponse
+from fullbody_adjust.solver.chain_types import ChainSettings
 from fullbody_adjust.solver.limits import JointLimits
 from fullbody_adjust.solver.obstacles import Boxes
 from fullbody_adjust.solver.rig_limits import rig_limits
@@ -67,9 +67,9 @@ def test_chain_solves_iterate_the_same_in_plain_floats(seed, monkeypatch):
 @pytest.mark.parametrize("seed", [1, 5])  # among them: an iterate with fewer penetrations and a larger residual
 def test_chains_among_boxes_iterate_the_same_in_plain_floats(seed, monkeypatch):
     """Chains with one or two boxes on the way, with their limits and without, toward targets within reach, near
-    their base, beyond reach and inside a box: the joints the boxes move are moved by the same response, a stalled chain the
-    boxes pushed is not nudged, and the best iterate (fewest penetrations, then the nearest), its penetrations and
-    the notes are the same."""
+    their base, beyond reach and inside a box: the joints the boxes move are moved by the same response, a stalled
+    chain the boxes pushed is not nudged, and the best iterate (fewest penetrations, then the nearest), its
+    penetrations and the notes are the same."""
     calls, responses = [], []
     avoid = ObstacleResponse._avoid
 
@@ -85,8 +85,11 @@ def test_chains_among_boxes_iterate_the_same_in_plain_floats(seed, monkeypatch):
                                           (0.5, True, boxes), (1.0, True, held)):
             kwargs = {"limits": limits, "parent_directions": parents} if limited else {}
             monkeypatch.setattr(ObstacleResponse, "_avoid", counted_avoid)
-            plain, numpy = _both_ways(lambda: solve_chain_batch(starts, targets * scale, obstacles=obstacles, **kwargs),
-                                      monkeypatch, calls)
+
+            def solve(goals=targets * scale, obstacles=obstacles, kwargs=kwargs):
+                return solve_chain_batch(starts, goals, obstacles=obstacles, **kwargs)
+
+            plain, numpy = _both_ways(solve, monkeypatch, calls)
             np.testing.assert_array_equal(plain.positions, numpy.positions)
             np.testing.assert_array_equal(plain.iterations, numpy.iterations)
             np.testing.assert_array_equal(plain.residual, numpy.residual)
