@@ -121,10 +121,10 @@ class TwoBoneFinish:
             e1 = g.divided(w, wn) if wn > 1e-12 * a else g.any_perpendicular(e)
             e2 = g.cross(e, e1)
             boxes = None if self.boxes is None else self._boxes_one(r)
-            if boxes is not None:
-                # The pivot's segment ignores the boxes holding the base when the pivot is the base.
-                lo, hi, skip_end, skip_base = boxes
-                skip_base = skip_base if j == 0 else None
+            if boxes is not None:  # what the two segments (and the joints at their ends) ignore, as _ignored says
+                lo, hi = boxes[0], boxes[1]
+                skip_middle, skip_pivot_segment = self._ignored_one(boxes, j + 1, j)
+                skip_end, skip_end_segment = self._ignored_one(boxes, j + 2, j + 1)
             first = None
             for cos_k, sin_k in zip(_SWIVEL_COS_LIST, _SWIVEL_SIN_LIST):
                 ring = (cos_k * e1[0] + sin_k * e2[0], cos_k * e1[1] + sin_k * e2[1], cos_k * e1[2] + sin_k * e2[2])
@@ -134,8 +134,8 @@ class TwoBoneFinish:
                 end = (middle[0] + c * v[0], middle[1] + c * v[1], middle[2] + c * v[2])
                 if first is None:
                     first = g.divided(g.sub(middle, S), a)  # the pivot limit's fallback: the first candidate's
-                if boxes is not None and (penetrates_one(lo, hi, S, middle, None, skip_base)
-                                          or penetrates_one(lo, hi, middle, end, skip_end, skip_end)):
+                if boxes is not None and (penetrates_one(lo, hi, S, middle, skip_middle, skip_pivot_segment)
+                                          or penetrates_one(lo, hi, middle, end, skip_end, skip_end_segment)):
                     continue
                 u = g.divided(g.sub(middle, S), a)
                 holds = self._limits_hold_one(r, [list(joint) for joint in P], g.divided(u, g.norm(u)),

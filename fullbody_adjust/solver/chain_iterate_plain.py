@@ -95,14 +95,8 @@ class PlainIterations:
         segment clear of every box it does not ignore: the position as it is), then the paper's circle in plain
         floats (_circle_point_one); numpy's whole response where that finds no clear point. ``limit``: (joint,
         parent direction, fallback) of the backward pass's limit on the joint's direction, or None."""
-        lo, hi, skip_end, skip_base = boxes
-        last = self.n - 1
-        skip_point = skip_end if joint == last else None
-        skip_segment = None
-        if segment == last - 1:
-            skip_segment = skip_end
-        if segment == 0:
-            skip_segment = skip_base if skip_segment is None else [a or b for a, b in zip(skip_segment, skip_base)]
+        lo, hi = boxes[0], boxes[1]
+        skip_point, skip_segment = self._ignored_one(boxes, joint, segment)
         if not penetrates_one(lo, hi, anchor, cand, skip_point, skip_segment):
             return cand, False
         point = self._circle_point_one(r, anchor, cand, L, ref, lo, hi, skip_point, skip_segment, limit)

@@ -42,6 +42,16 @@ class ObstacleResponse:
             mins, maxs = mins[r], maxs[r]
         return mins.tolist(), maxs.tolist(), self.ignore_end[r].tolist(), self.ignore_base[r].tolist()
 
+    def _ignored_one(self, boxes, joint, segment):
+        """_ignored of one problem from its _boxes_one lists: (the boxes ignored for ``joint``, for ``segment``),
+        each a list of K bools or None (nothing ignored)."""
+        _lo, _hi, skip_end, skip_base = boxes
+        last = self.n - 1
+        skip_segment = skip_end if segment == last - 1 else None
+        if segment == 0:
+            skip_segment = skip_base if skip_segment is None else [a or b for a, b in zip(skip_segment, skip_base)]
+        return (skip_end if joint == last else None), skip_segment
+
     def _ignored(self, rows, joint, segment):
         """(b,K) boxes ignored for `joint` and (b,K) for `segment` (None: nothing ignored)."""
         last = self.n - 1
