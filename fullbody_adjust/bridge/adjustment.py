@@ -17,6 +17,7 @@ from ..solver import Boxes, ChainSettings, SolverInputError
 from ..solver.adjust import AdjustSettings, adjust_frames as solve_frames
 from ..solver.body import CHAIN, END, ROOT
 from ..solver.geometry import norm
+from ..solver.joint_ends import end_points
 from ..solver.obstacle_reach import body_reach, skeleton_reach
 from ..solver.obstacles import penetrations
 from . import control_rig, frames as frames_module, ik_limits, keyframes, mapping, obstacles, pose, rig_cache, targets
@@ -220,7 +221,7 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
     priorities = _priorities(obj)
     progress("solving", 0.3)
 
-    to_arm, heads, tails = snapshot.derived("armature space", lambda: _armature_space(snapshot))
+    to_arm, heads, tails = snapshot.derived("armature space", lambda: _armature_space(snapshot, rig.ends), of=rig)
     arm_targets = _apply(to_arm, world_targets)
     end_turns, poles = _end_goals(model, snapshot, goals, to_arm)
     solve_settings = _in_armature_units(settings, snapshot.derived("object scales", lambda: _object_scales(snapshot)))
@@ -328,11 +329,12 @@ def _object_scales(snapshot):
     return float(scales.max()), float(scales.min())
 
 
-def _armature_space(snapshot):
+def _armature_space(snapshot, ends):
     """(to_arm (F,4,4), heads, tails (F,B,3)): the world-to-armature matrices and the bones in armature
-    space, read-only (they are kept with the snapshot)."""
+    space, read-only (they are kept with the snapshot). The tails are where the bones end as joints (``ends``,
+    rig_cache.Rig.ends), not where the importer left them."""
     to_arm = pose.affine_inverse(snapshot.matrix_world)
-    out = (to_arm, _apply(to_arm, snapshot.heads), _apply(to_arm, snapshot.tails))
+    out = (to_arm, _apply(to_arm, snapshot.heads), end_points(snapshot.pose_matrices, ends))
     for array in out:
         array.flags.writeable = False
     return out

@@ -1,0 +1,52 @@
+"""Joints, not tails: a rig whose tails an importer left far past the next joint (as Blender's glTF importer
+does) is solved exactly as the same rig with its tails on the joints."""
+
+import bpy
+import numpy as np
+import pytest
+
+from .scene_tools import Pose, add_rig, bone_map, parse_report, place, slot
+from .test_adjust_pose import reach_left_hand
+
+
+def _far_tails(obj, factor):
+    """Every bone disconnected, its tail moved ``factor`` times as far from its head (direction and roll kept)."""
+    bpy.context.view_layer.objects.active = obj
+    bpy.ops.object.mode_set(mode='EDIT')
+    for bone in obj.data.edit_bones:
+        bone.use_connect = False
+    for bone in obj.data.edit_bones:
+        roll = bone.roll
+        bone.tail = bone.head + factor * (bone.tail - bone.head)
+        bone.roll = roll
+    bpy.ops.object.mode_set(mode='OBJECT')
+    bpy.context.view_layer.update()
+
+
+def _solve(task, factor, capfd):
+    obj = add_rig("basic")  # a second rig in the same file is solved on its own (its own targets)
+    if factor != 1.0:
+        _far_tails(obj, factor)
+    bpy.ops.fullbody_adjust.create_targets()
+    before = Pose(obj)
+    reach_left_hand(obj, before, task)
+    capfd.readouterr()
+    assert bpy.ops.fullbody_adjust.adjust_pose() == {'FINISHED'}
+    report = parse_report(capfd.readouterr().out)
+    after = Pose(obj)
+    return obj, before, after, report
+
+
+@pytest.mark.parametrize("task", ("trunk", "pelvis"))
+def test_far_tails_solve_as_joints(task, capfd):
+    obj, before, after, report = _solve(task, 1.0, capfd)
+    joints = after.heads.copy()
+    far_obj, far_before, far_after, far_report = _solve(task, 100.0, capfd)
+    np.testing.assert_allclose(far_before.heads, before.heads, atol=1e-5)  # the same rest joints (float32)
+    height = before.height()
+    # The same solve: every joint where the tidy rig's went, the same targets met.
+    assert far_report[:2] == report[:2] and report[0] == report[1]
+    np.testing.assert_allclose(far_after.heads, joints, atol=1e-5 * height)
+    root = bone_map(far_obj)["root"][0]
+    moved = np.linalg.norm(far_after.head(root) - far_before.head(root))
+    assert (moved > 0.05 * height) == (task == "pelvis")
