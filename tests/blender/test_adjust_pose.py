@@ -110,6 +110,25 @@ def test_reachable_target_is_met(kind, task, capfd):
         assert root_moved > 0.05 * before.height()
 
 
+@pytest.mark.parametrize("kind", RIG_KINDS)
+def test_planted_feet_keep_their_world_orientation(kind, capfd):
+    """The pelvis comes down and the shins turn: the feet, planted where they stand, keep their world
+    orientation (they are keyed although their own world transform did not change), so the toes stay put."""
+    obj = rig_with_targets(kind)
+    before = Pose(obj)
+    reach_left_hand(obj, before, "pelvis")
+    adjust(capfd)
+    after = Pose(obj)
+    groups = bone_map(obj)
+    for side in "LR":
+        shin = before.index[groups[f"leg.{side}"][-1]]
+        assert not np.allclose(after.matrices[shin, :3, :3], before.matrices[shin, :3, :3], atol=1e-3)
+        foot = groups[f"foot.{side}"][0]
+        below = [i for i, name in enumerate(before.names) if name == foot
+                 or obj.data.bones[name].parent_recursive and foot in {b.name for b in obj.data.bones[name].parent_recursive}]
+        np.testing.assert_allclose(after.matrices[below], before.matrices[below], atol=1e-5 * before.height())
+
+
 @pytest.mark.parametrize("transform", ("moved_rotated_scaled", "non_uniform_scale"))
 def test_object_transform(transform, capfd):
     obj = rig_with_targets("basic")

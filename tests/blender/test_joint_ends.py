@@ -1,6 +1,8 @@
 """Joints, not tails: a rig whose tails an importer left far past the next joint (as Blender's glTF importer
 does) is solved exactly as the same rig with its tails on the joints."""
 
+import re
+
 import bpy
 import numpy as np
 import pytest
@@ -50,3 +52,43 @@ def test_far_tails_solve_as_joints(task, capfd):
     root = bone_map(far_obj)["root"][0]
     moved = np.linalg.norm(far_after.head(root) - far_before.head(root))
     assert (moved > 0.05 * height) == (task == "pelvis")
+
+
+def _in_centimetres(obj):
+    """The armature's data in centimetres (every rest position ×100) under an object scale of 0.01, as FBX
+    imports from some tools come: the same character in the world."""
+    bpy.context.view_layer.objects.active = obj
+    obj.select_set(True)
+    obj.scale = (100.0, 100.0, 100.0)
+    bpy.ops.object.transform_apply(location=False, rotation=False, scale=True)
+    obj.scale = (0.01, 0.01, 0.01)
+    bpy.context.view_layer.update()
+
+
+def _numbers(text):
+    return [float(x) for x in re.findall(r"\d+\.\d+(?:e-?\d+)?", text)]
+
+
+def test_units_and_object_scale_give_world_figures(capfd):
+    """A far target beyond every reach on the same character in metres and in centimetres under an object scale
+    of 0.01: the same world pose, and a report whose every figure (residual, the reach in its reason) is the same
+    world distance."""
+    reports, poses = [], []
+    for centimetres in (False, True):
+        obj = add_rig("basic")
+        if centimetres:
+            _in_centimetres(obj)
+        bpy.ops.fullbody_adjust.create_targets()
+        before = Pose(obj)
+        reach_left_hand(obj, before, "trunk")
+        place(slot(obj, "hand.L").target, before.to_world(before.head(bone_map(obj)["hand.L"][0]))
+              + np.array([0.0, -3.0, 0.5]) * before.height())
+        capfd.readouterr()
+        assert bpy.ops.fullbody_adjust.adjust_pose() == {'FINISHED'}
+        reports.append(capfd.readouterr().out.strip().splitlines()[-1])
+        poses.append(Pose(obj).world_heads)
+    assert "beyond" in reports[0], reports[0]
+    np.testing.assert_allclose(poses[1], poses[0], atol=1e-5 * Pose(obj).height())
+    plain, scaled = _numbers(reports[0]), _numbers(reports[1])
+    assert len(plain) == len(scaled) >= 2, reports
+    np.testing.assert_allclose(scaled, plain, rtol=1e-3)
