@@ -21,7 +21,8 @@ from ..solver.geometry import norm
 from ..solver.joint_ends import end_points
 from ..solver.obstacle_reach import body_reach, skeleton_reach
 from ..solver.obstacles import penetrations
-from . import control_rig, frames as frames_module, ik_limits, keyframes, mapping, obstacles, pose, rig_cache, targets
+from . import (control_rig, frames as frames_module, ik_limits, keyframes, limb_thickness, mapping, obstacles, pose,
+               rig_cache, targets)
 from .control_match import control_channels
 from .errors import AdjustError
 
@@ -229,10 +230,14 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
                                      unit)
     boxes = None
     if corners.shape[1]:  # a set's meshes far from the character are left out before they are built into boxes
+        # Each limb keeps its mesh's radius plus the margin from the boxes (limb_thickness; none without a mesh).
+        solve_settings = replace(solve_settings, clearance=limb_thickness.limb_clearances(
+            obj, rig, unit, solve_settings.chain.margin))
         centre, radius = body_reach(model, heads, tails, arm_targets,
                                     snapshot.derived("skeleton reach", lambda: skeleton_reach(model, heads, tails),
                                                      of=model))
-        boxes = _armature_boxes(corners, to_solve, centre, radius + solve_settings.chain.margin)
+        pad = max([solve_settings.chain.margin] + [clearance for _limb, clearance in solve_settings.clearance])
+        boxes = _armature_boxes(corners, to_solve, centre, radius + pad)
     try:
         limits = ik_limits.joint_limits(obj, model, heads, tails, snapshot.pose_matrices, settings,
                                         controls=rig.fk_controls)
