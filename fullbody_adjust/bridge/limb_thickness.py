@@ -24,8 +24,10 @@ from ..solver.joint_ends import end_points
 
 # A vertex farther from its bone's segment than the median distance plus this many scaled MADs is an outlier.
 _OUTLIER = 4.0
-# 1.4826 MAD estimates the standard deviation of normally distributed distances.
+# 1.4826 MAD estimates the standard deviation of normally distributed distances; it is taken as at least this
+# fraction of the median (a limb modelled as an exact cylinder has a MAD of 0: its wrist ring would be an outlier).
 _MAD_SCALE = 1.4826
+_LEAST_SPREAD = 0.1
 # A deform bone outside the body model belongs to a chain bone when its head and end lie within this fraction of
 # that bone's joint segment length from the segment.
 _ALONG = 0.05
@@ -73,21 +75,23 @@ def bone_radii(obj, rig, meshes, weights, placements):
     model = rig.model
     rest = rig.rest["rest_matrices"]
     heads, ends = rest[:, :3, 3], end_points(rest, rig.ends)
-    carrier = _carriers(model, heads, ends, _deform_flags(obj))
-    index = {name: j for j, name in enumerate(model.names)}
+    deform = _deform_flags(obj)
+    carrier = _carriers(model, heads, ends, deform)
+    index = {name: j for j, name in enumerate(model.names) if deform[j]}  # the groups the armature deforms by
     points, owners = [], []
     for mesh, (vertex, group, weight), placement in zip(meshes, weights, placements):
-        group_bone = np.array([carrier[index[g.name]] if g.name in index else -1 for g in mesh.vertex_groups] + [-1])
+        group_bone = np.array([index.get(g.name, -1) for g in mesh.vertex_groups] + [-1])
         bone = group_bone[np.minimum(group, len(group_bone) - 1)]
         counted = (bone >= 0) & (weight > 0.0)
         vertex, bone, weight = vertex[counted], bone[counted], weight[counted]
-        if not vertex.size:
-            continue
         order = np.lexsort((weight, vertex))  # by vertex, the largest weight last
-        last = np.r_[vertex[order][1:] != vertex[order][:-1], True]
-        owners.append(bone[order][last])
-        co = _rest_positions(mesh)[vertex[order][last]]
-        points.append(co @ placement[:3, :3].T + placement[:3, 3])
+        last = np.r_[vertex[order][1:] != vertex[order][:-1], True] if vertex.size else np.zeros(0, dtype=bool)
+        owner = carrier[bone[order][last]]  # the chain bone the vertex's own bone counts for
+        kept = vertex[order][last][owner >= 0]
+        if not kept.size:
+            continue
+        owners.append(owner[owner >= 0])
+        points.append(_rest_positions(mesh)[kept] @ placement[:3, :3].T + placement[:3, 3])
     radii = np.full(len(model.names), np.nan)
     if not points:
         return radii
@@ -100,7 +104,7 @@ def bone_radii(obj, rig, meshes, weights, placements):
 def robust_radius(distances):
     """The largest of ``distances`` (n,) that is not an outlier (module docstring)."""
     median = float(np.median(distances))
-    spread = _MAD_SCALE * float(np.median(np.abs(distances - median)))
+    spread = max(_MAD_SCALE * float(np.median(np.abs(distances - median))), _LEAST_SPREAD * median)
     return float(distances[distances <= median + _OUTLIER * spread].max())
 
 

@@ -109,6 +109,18 @@ def test_limb_radii_are_the_arm_bones_not_the_torso(extension_module_name):
     thickness = importlib.import_module(f"{extension_module_name}.bridge.limb_thickness")
     rig_cache = importlib.import_module(f"{extension_module_name}.bridge.rig_cache")
     obj, _body, _owner, _rest = arm_scene()
+    # A glove: 300 vertices 20 cm from the wrist weighted 0.3 to the forearm and 0.7 to the hand, whose vertices
+    # they are (more than the forearm's own: they would make it thick if they counted for it).
+    hand = obj.data.bones["hand.L"]
+    angles = np.linspace(0.0, 2.0 * np.pi, 300, endpoint=False)
+    ring = np.array(hand.head_local) + 0.2 * np.stack([np.cos(angles), np.zeros_like(angles), np.sin(angles)], 1)
+    mesh = bpy.data.meshes.new("Glove")
+    mesh.from_pydata(ring.tolist(), [], [])
+    glove = bpy.data.objects.new("Glove", mesh)
+    bpy.context.scene.collection.objects.link(glove)
+    for bone, weight in (("forearm.L", 0.3), ("hand.L", 0.7)):
+        glove.vertex_groups.new(name=bone).add(list(range(len(ring))), weight, 'REPLACE')
+    glove.modifiers.new("Armature", 'ARMATURE').object = obj
     radii = thickness.limb_radii(obj, rig_cache.rig_of(obj))
     # arm.L: its upper arm's (the thicker of upper arm and forearm), not its shoulder's (the torso's 0.12).
     assert set(radii) == {"arm.L", "trunk"}
