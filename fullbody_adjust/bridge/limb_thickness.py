@@ -1,18 +1,19 @@
 """How thick the limbs are: each bone's radius read from the meshes the armature deforms, so that obstacles keep
 a limb's surface out, not only its bones' centre line (solver AdjustSettings.clearance: radius plus Margin).
 
-A bone's radius is measured at rest, in armature units: the vertices weighted mostly to it (their largest weight
-among the armature's deform bones is its vertex group's, or that of a deform bone lying along its joint segment: a
-twist bone, a generated rig's DEF- bones along its ORG- bone), their distances from its joint segment (its head
-to its chain successor's head, solver.joint_ends), and of those the largest that is not an outlier (at most the
-median plus _OUTLIER scaled median absolute deviations: a stray vertex painted to the wrong bone does not make the
-limb thick). A limb's radius is the largest of its bones' but an arm's clavicle (from the neck's base to the
-shoulder), whose vertices are the torso's: arm.L's radius is its upper arm's or forearm's. A bone with no vertex
-has none, and a limb with none keeps the paper's behaviour (no mesh: no radius).
+A bone's radius is measured at rest, in armature units: the vertices weighted mostly to it (more than half
+their weight over the armature's deform bones is its vertex group's, or that of a deform bone lying along its
+joint segment: a twist bone, a generated rig's DEF- bones along its ORG- bone), their distances from its joint
+segment (its head to its chain successor's head, solver.joint_ends), and of those the largest that is not an
+outlier (at most the median plus _OUTLIER scaled median absolute deviations: a stray vertex painted to the wrong
+bone does not make the limb thick). A limb's radius is the largest of its bones' but an arm's clavicle (from the
+neck's base to the shoulder), whose vertices are the torso's: arm.L's radius is its upper arm's or forearm's. A
+bone with no vertex has none, and a limb with none keeps the paper's behaviour (no mesh: no radius).
 
 The weights are read vertex by vertex (Blender has no bulk access to them: about 0.15 s for 25 000 vertices), so
-the radii are kept per armature while its meshes' vertices, vertex groups, placement and the rig stay the same;
-weights repainted without any of these changing are read again once a file is loaded (clear()).
+they are kept per mesh while its vertices' positions and its vertex groups stay the same (and the radii per
+armature while, besides, the meshes' placement and the rig do): weights repainted without any of these changing
+are read again only in a new session or file (the meshes' session ids change) or after clear().
 """
 
 from collections import OrderedDict
@@ -86,7 +87,9 @@ def bone_radii(obj, rig, meshes, weights, placements):
         vertex, bone, weight = vertex[counted], bone[counted], weight[counted]
         order = np.lexsort((weight, vertex))  # by vertex, the largest weight last
         last = np.r_[vertex[order][1:] != vertex[order][:-1], True] if vertex.size else np.zeros(0, dtype=bool)
-        owner = carrier[bone[order][last]]  # the chain bone the vertex's own bone counts for
+        total = np.bincount(vertex, weight)[vertex[order][last]]
+        mostly = weight[order][last] > 0.5 * total  # more than half its weight: not a tie between two bones
+        owner = np.where(mostly, carrier[bone[order][last]], -1)  # the chain bone its own bone counts for
         kept = vertex[order][last][owner >= 0]
         if not kept.size:
             continue
