@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from fullbody_adjust.solver import Boxes, SolverInputError
-from fullbody_adjust.solver.adjust import AdjustSettings, adjust_pose
+from fullbody_adjust.solver.adjust import AdjustSettings, adjust_frames, adjust_pose
 from fullbody_adjust.solver.obstacles import distances_to_boxes, grown_clear_of, points_inside
 from tests.helpers import metarig
 
@@ -81,10 +81,10 @@ def test_clearances_are_kept_as_sorted_pairs():
     assert settings == AdjustSettings(clearance=[("arm.L", 0.05), ("leg.L", 0.2)])
 
 
-def _obstacle_case(along=0.25):
+def _obstacle_case(along=0.25, turn=0.0):
     """The full metarig, its feet planted and its left hand's target in front of it with the elbow bent (0.65 of
     the arm's reach from its base, up and forward), and a 6 cm box `along` the way from the elbow to the wrist
-    of the pose solved without it."""
+    of the pose solved without it, turned by `turn` radians about the vertical (an oriented box)."""
     model, heads, tails, x_axes = metarig.load()
     targets = metarig.wrists_and_ankles(model, heads)
     arm = model.limbs["arm.L"]
@@ -95,7 +95,9 @@ def _obstacle_case(along=0.25):
     free = adjust_pose(model, heads, tails, targets, metarig.EFFECTORS, metarig.PRIORITIES, bone_x_axes=x_axes)
     elbow, wrist = free.heads[arm.bones[-1]], free.heads[arm.end_bone]
     centre = elbow + along * (wrist - elbow)
-    boxes = Boxes(centre[None] - 0.03, centre[None] + 0.03)
+    axes = _rotation((0.0, 0.0, turn))
+    local = axes.T @ centre
+    boxes = Boxes(local[None] - 0.03, local[None] + 0.03, axes[None] if turn else None)
     return model, heads, tails, x_axes, targets, boxes
 
 
@@ -107,8 +109,9 @@ def _arm_clearance(model, result, boxes):
     return float(distances_to_boxes(samples, boxes).min())
 
 
-def test_the_arm_keeps_its_clearance_from_the_box_and_reaches():
-    model, heads, tails, x_axes, targets, boxes = _obstacle_case()
+@pytest.mark.parametrize("turn", [0.0, 0.5])
+def test_the_arm_keeps_its_clearance_from_the_box_and_reaches(turn):
+    model, heads, tails, x_axes, targets, boxes = _obstacle_case(turn=turn)
 
     def solve(settings):
         return adjust_pose(model, heads, tails, targets, metarig.EFFECTORS, metarig.PRIORITIES, obstacles=boxes,
@@ -136,3 +139,21 @@ def test_a_clearance_that_keeps_the_hand_from_its_target_is_eased():
     assert result.status[0] == "reached", result.reasons[0]
     assert "clearance" in result.reasons[0]
     assert _arm_clearance(model, result, boxes) > 0.0
+
+
+def test_per_frame_boxes_each_frame_keeps_its_clearance_as_solved_alone():
+    """adjust_frames with a box per frame (two frames, the second box turned): each frame's pose is the one
+    solved alone with its box, and keeps the clearance from it."""
+    model, heads, tails, x_axes, targets, aligned = _obstacle_case()
+    *_, turned = _obstacle_case(turn=0.5)
+    settings = AdjustSettings(clearance={"arm.L": 0.04})
+    frames = Boxes(np.stack([aligned.mins, turned.mins]), np.stack([aligned.maxs, turned.maxs]),
+                   np.stack([np.eye(3)[None], turned.axes]))
+    both = adjust_frames(model, np.stack([heads, heads]), np.stack([tails, tails]), np.stack([targets, targets]),
+                         metarig.EFFECTORS, metarig.PRIORITIES, obstacles=frames, settings=settings,
+                         bone_x_axes=np.stack([x_axes, x_axes]))
+    for f, boxes in enumerate((aligned, turned)):
+        alone = adjust_pose(model, heads, tails, targets, metarig.EFFECTORS, metarig.PRIORITIES, obstacles=boxes,
+                            settings=settings, bone_x_axes=x_axes)
+        np.testing.assert_allclose(both[f].heads, alone.heads, atol=1e-9)
+        assert _arm_clearance(model, both[f], boxes) >= 0.04 - 1e-9
