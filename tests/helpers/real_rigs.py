@@ -192,8 +192,14 @@ def set_arm_rest(armature, degrees_down):
         axis = np.cross(horizontal / np.linalg.norm(horizontal), UP)  # turning about it by +a raises the arm
         turn = Matrix.Rotation(now - math.radians(degrees_down), 4, axis.tolist())
         matrix = Matrix.Translation(shoulder.tolist()) @ turn @ Matrix.Translation((-shoulder).tolist())
-        for bone in [upper] + list(upper.children_recursive):
+        chain = [upper] + list(upper.children_recursive)
+        connected = [bone.use_connect for bone in chain]
+        for bone in chain[1:]:  # a connected child's head would follow its parent's tail and turn twice
+            bone.use_connect = False
+        for bone in chain:
             bone.transform(matrix)
+        for bone, flag in zip(chain, connected):
+            bone.use_connect = flag
     bpy.ops.object.mode_set(mode='OBJECT')
 
 
