@@ -9,10 +9,11 @@ is used only through its operators and its command line, as a user would:
 
   mapping    bpy.ops.fullbody_adjust.map_bones(): "ok" or its one line; the bones it gave the hands and feet and
              whether each lies on the character's own side (from the rig's known facing);
-  near       Create Targets (a head target, if it makes one, disabled), then the right hand's target moved to 0.7 of the arm's reach (shoulder to elbow to
-             wrist) in front of the shoulder, the other three where they stand; Adjust Pose. keyed_bones, the
-             largest rotation change (degrees, each bone's local orientation) of any bone outside the right arm
-             (the upper arm, its descendants and its clavicle), which bone, and the right wrist's residual (m);
+  near       Create Targets (a head target, if it makes one, disabled), then the right hand's target moved to
+             0.7 of the arm's reach (shoulder to elbow to wrist) in front of the shoulder, the other three where
+             they stand; Adjust Pose. keyed_bones, the largest rotation change (degrees, each bone's local
+             orientation) of any bone outside the right arm (the upper arm, its descendants and its clavicle),
+             which bone, and the right wrist's residual (m);
   far        the right hand's target 1.8 arm lengths in front of the shoulder; Adjust Pose. residual (m), how far
              the target lay beyond the arm alone (m), how much nearer the wrist got (m), and each knee's
              movement along the hips' line (mm);
@@ -24,7 +25,8 @@ is used only through its operators and its command line, as a user would:
              (cli.main); exit code, and from the written file: the mesh soles on the source's planted frames (p95
              of |height|, min, in mm; min over all frames), slide p95 (mm), limb directions against the source
              (median degrees), heading error against the source's travel (degrees), pop frames (a bone turning
-             more than 30 degrees between frames) against the source's; and what the product's report says.
+             more than 30 degrees between frames) against the source's; the product's report's foot contact and
+             floor figures against the same measured on the written file.
 A row that fails records its error and the bench goes on.
 
 Run: .ci/with-bpy python bench/real_rigs.py [--rigs NAME,NAME] [--skip retarget]   (one JSON object on stdout)

@@ -21,7 +21,7 @@ from tests.helpers.bvh import CMU_SCALE, MOCAP_DIR
 WALK = MOCAP_DIR / "cmu_07_01_walk.bvh"
 FPS = 24
 FIRST_FRAME = 2  # frame 1 is the BVH conversion's T-pose
-CMU_JOINTS = real_rigs._side_joints("Hips", real_rigs._lr("Left", "Right", {
+CMU_JOINTS = real_rigs.side_joints("Hips", real_rigs.left_right("Left", "Right", {
     "shoulder": "{s}Arm", "elbow": "{s}ForeArm", "wrist": "{s}Hand", "hip": "{s}UpLeg", "knee": "{s}Leg",
     "ankle": "{s}Foot", "ball": "{s}ToeBase"}))
 
@@ -128,8 +128,9 @@ def map_case(saved):
 
 
 def adjust(rig, goal, setup=None):
-    """Create Targets (the head's slot, if any, disabled); the right hand's target moved to ``goal(rig)`` (the other three where they stand);
-    ``setup(rig, target)`` (obstacles); Adjust Pose. Returns (target, rotation changes, keyed bones)."""
+    """Create Targets (the head's slot, if any, disabled); the right hand's target moved to ``goal(rig)`` (the
+    other three where they stand); ``setup(rig, target)`` (obstacles); Adjust Pose. Returns (target, rotation
+    changes, keyed bones)."""
     bpy.ops.fullbody_adjust.create_targets()
     for slot in rig.armature.fullbody_adjust.targets:  # the four hands and feet; no head target
         slot.enabled = slot.effector != "head"
