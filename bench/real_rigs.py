@@ -27,6 +27,10 @@ is used only through its operators and its command line, as a user would:
              (median degrees), heading error against the source's travel (degrees), pop frames (a bone turning
              more than 30 degrees between frames) against the source's; the product's report's foot contact and
              floor figures against the same measured on the written file.
+  fbx_clip   the corpus's FBX clip kenney_run.fbx (Kenney's skeleton, in place) through
+             `retarget FILE --target RIG --source-file CLIP --jobs 1`; exit code, pop frames of the written action
+             and of the clip itself (as Blender's FBX importer gives it) on the same frames, limb directions
+             against the clip (median degrees).
 A row that fails records its error and the bench goes on.
 
 Run: .ci/with-bpy python bench/real_rigs.py [--rigs NAME,NAME] [--skip retarget]   (one JSON object on stdout)
@@ -52,10 +56,10 @@ from bench.command_line import stdout_to_stderr  # noqa: E402
 from fullbody_adjust.bpy_exit import leave  # noqa: E402
 from fullbody_adjust import cli  # noqa: E402
 from tests.helpers import real_rigs  # noqa: E402
-from tests.helpers.rig_scenarios import (FPS, WALK, Saved, far_case, map_case, near_case,  # noqa: E402
-                                         obstacle_case, retarget_case)
+from tests.helpers.rig_scenarios import (FPS, WALK, Saved, clip_case, far_case, map_case,  # noqa: E402
+                                         near_case, obstacle_case, retarget_case)
 
-CASES = ("mapping", "near", "far", "obstacle", "retarget")
+CASES = ("mapping", "near", "far", "obstacle", "retarget", "fbx_clip")
 
 
 def parse():
@@ -86,7 +90,8 @@ def bench_rig(name, folder, skip):
                      "object_scale": float(np.mean(saved.rig.armature.matrix_world.to_scale())),
                      "bones": len(saved.rig.armature.data.bones), "build_seconds": time.perf_counter() - started}
     cases = {"mapping": map_case, "near": near_case, "far": far_case, "obstacle": obstacle_case,
-             "retarget": lambda s: retarget_case(s, folder, cli)}
+             "retarget": lambda s: retarget_case(s, folder, cli),
+             "fbx_clip": lambda s: clip_case(s, folder, cli)}
     for case, run in cases.items():
         if case in skip:
             continue

@@ -273,7 +273,8 @@ def test_corpus_files_are_the_credited_copies():
 @pytest.mark.parametrize("rig", RIGS)
 def test_each_rig_is_what_its_traits_say(rig):
     """The traits tests assert against hold on the loaded rig: the known joints exist, the left hip lies on the
-    character's own left, toes point where it faces, soles rest on the floor, the rest pose is as named."""
+    character's own left, toes point where it faces, soles rest on the floor, the rest pose is as named, the
+    object scale and the height (CREDITS.md's, in metres whatever the units) are as listed."""
     loaded = real_rigs.load(rig)
     arm = loaded.armature
     missing = [bone for bone in loaded.joints.values() if bone and bone not in arm.pose.bones]
@@ -294,10 +295,7 @@ def test_each_rig_is_what_its_traits_say(rig):
     scale = loaded.traits.get("object_scale")
     if scale is not None:
         assert np.mean(arm.matrix_world.to_scale()) == pytest.approx(scale)
-    assert height * loaded.metres_per_unit == pytest.approx(
-        {"kenney": 3.77, "quaternius_matt": 1.5, "kaykit_manny": 2.2, "godot_plush": 1.63, "godot_robot": 2.12,
-         "gdquest_mannequiny": 1.8}.get(rig, 1.81 if "mannequin_f" in rig else 2.04 if "low_soles" in rig else 1.98),
-        rel=0.03)
+    assert height * loaded.metres_per_unit == pytest.approx(loaded.traits["height_m"], rel=0.03)
 
 
 # --- the goals ---------------------------------------------------------------------------------------------------

@@ -72,33 +72,38 @@ def left_right(left, right, roles):
 
 # --- the corpus -------------------------------------------------------------------------------------------------
 
+def _joints(hips, left, right, roles):
+    return side_joints(hips, left_right(left, right, roles))
+
+
 CORPUS = {
-    "kenney": dict(file="kenney_characterMedium.fbx", rest="T", joints=side_joints("Hips", left_right(
-        "Left", "Right", {"shoulder": "{s}Arm", "elbow": "{s}ForeArm", "wrist": "{s}Hand", "hip": "{s}UpLeg",
-                                "knee": "{s}Leg", "ankle": "{s}Foot", "ball": "{s}Toes"}))),
+    "kenney": dict(file="kenney_characterMedium.fbx", height_m=3.77, rest="T", joints=_joints(
+        "Hips", "Left", "Right", {"shoulder": "{s}Arm", "elbow": "{s}ForeArm", "wrist": "{s}Hand", "hip": "{s}UpLeg",
+                                  "knee": "{s}Leg", "ankle": "{s}Foot", "ball": "{s}Toes"})),
     # Fingers hang off LowerArm (no wrist bone); Foot.L/R hang off Root (IK-style, not in the leg chain).
-    "quaternius_matt": dict(file="quaternius_Characters_Matt.gltf", rest="T", joints=side_joints("Hips", left_right(
-        "L", "R", {"shoulder": "UpperArm.{s}", "elbow": "LowerArm.{s}", "wrist": None, "hip": "UpperLeg.{s}",
-                         "knee": "LowerLeg.{s}", "ankle": "Foot.{s}", "ball": None}))),
-    "quaternius_mannequin_f": dict(file="quaternius_Mannequin_F.glb", rest="T", joints=side_joints("pelvis", left_right(
-        "l", "r", {"shoulder": "upperarm_{s}", "elbow": "lowerarm_{s}", "wrist": "hand_{s}", "hip": "thigh_{s}",
-                         "knee": "calf_{s}", "ankle": "foot_{s}", "ball": "ball_{s}"}))),
-    "kaykit_manny": dict(file="kaykit_manny/manny_med_mod.gltf", rest="T", joints=side_joints("hips", left_right(
-        "l", "r", {"shoulder": "upperarm.{s}", "elbow": "lowerarm.{s}", "wrist": "wrist.{s}",
-                         "hip": "upperleg.{s}", "knee": "lowerleg.{s}", "ankle": "foot.{s}", "ball": "toes.{s}"}))),
-    "godot_plush": dict(file="godot_plush_model.glb", rest="A", joints=side_joints("DEF-hips", left_right(
-        "L", "R", {"shoulder": "DEF-upper_arm.{s}", "elbow": "DEF-forearm.{s}", "wrist": "DEF-hand.{s}",
-                         "hip": "DEF-thigh.{s}", "knee": "DEF-shin.{s}", "ankle": "DEF-foot.{s}",
-                         "ball": "DEF-toe.{s}"}))),
+    "quaternius_matt": dict(file="quaternius_Characters_Matt.gltf", height_m=1.5, rest="T", joints=_joints(
+        "Hips", "L", "R", {"shoulder": "UpperArm.{s}", "elbow": "LowerArm.{s}", "wrist": None, "hip": "UpperLeg.{s}",
+                           "knee": "LowerLeg.{s}", "ankle": "Foot.{s}", "ball": None})),
+    "quaternius_mannequin_f": dict(file="quaternius_Mannequin_F.glb", height_m=1.81, rest="T", joints=_joints(
+        "pelvis", "l", "r", {"shoulder": "upperarm_{s}", "elbow": "lowerarm_{s}", "wrist": "hand_{s}",
+                             "hip": "thigh_{s}", "knee": "calf_{s}", "ankle": "foot_{s}", "ball": "ball_{s}"})),
+    "kaykit_manny": dict(file="kaykit_manny/manny_med_mod.gltf", height_m=2.21, rest="T", joints=_joints(
+        "hips", "l", "r", {"shoulder": "upperarm.{s}", "elbow": "lowerarm.{s}", "wrist": "wrist.{s}",
+                           "hip": "upperleg.{s}", "knee": "lowerleg.{s}", "ankle": "foot.{s}", "ball": "toes.{s}"})),
+    "godot_plush": dict(file="godot_plush_model.glb", height_m=1.63, rest="A", joints=_joints(
+        "DEF-hips", "L", "R", {"shoulder": "DEF-upper_arm.{s}", "elbow": "DEF-forearm.{s}", "wrist": "DEF-hand.{s}",
+                               "hip": "DEF-thigh.{s}", "knee": "DEF-shin.{s}", "ankle": "DEF-foot.{s}",
+                               "ball": "DEF-toe.{s}"})),
     # The `l-` bones lie on the character's RIGHT (-X, it faces -Y): its own left is `r-`. No hand bones.
-    "godot_robot": dict(file="godot_platformer_player.glb", rest="A", joints=side_joints("hip", left_right(
-        "r", "l", {"shoulder": "{s}-arm", "elbow": "{s}-forearm", "wrist": None, "hip": "{s}-thigh",
-                         "knee": "{s}-leg", "ankle": "{s}-foot", "ball": None}))),
-    "gdquest_mannequiny": dict(file="gdquest_mannequiny-0.3.0.glb", rest="T", joints=side_joints("pelvis", left_right(
-        "l", "r", {"shoulder": "upperarm.{s}", "elbow": "lowerarm.{s}", "wrist": "hand.{s}", "hip": "thigh.{s}",
-                         "knee": "calf.{s}", "ankle": "foot.{s}", "ball": "ball.{s}"}))),
+    "godot_robot": dict(file="godot_platformer_player.glb", height_m=2.12, rest="A", joints=_joints(
+        "hip", "r", "l", {"shoulder": "{s}-arm", "elbow": "{s}-forearm", "wrist": None, "hip": "{s}-thigh",
+                          "knee": "{s}-leg", "ankle": "{s}-foot", "ball": None})),
+    "gdquest_mannequiny": dict(file="gdquest_mannequiny-0.3.0.glb", height_m=1.8, rest="T", joints=_joints(
+        "pelvis", "l", "r", {"shoulder": "upperarm.{s}", "elbow": "lowerarm.{s}", "wrist": "hand.{s}",
+                             "hip": "thigh.{s}", "knee": "calf.{s}", "ankle": "foot.{s}", "ball": "ball.{s}"})),
 }
-CLIP_FILES = {"kenney_run": "kenney_run.fbx"}
+CLIP_FILES = {"kenney_run": "kenney_run.fbx"}  # animation-only FBX files of the corpus
+CLIP_CHARACTER = {"kenney_run": "kenney"}  # ... and the corpus character whose skeleton (and joints) they share
 
 
 def to_rest(armature):
@@ -121,7 +126,7 @@ def _load_corpus(name, animation):
         to_rest(armature)
     activate(armature)
     return Rig(name, armature, skinned_meshes(armature), np.array(FACINGS["-Y"]), spec["rest"],
-               _metres_per_unit(), dict(spec["joints"]), {"file": spec["file"]})
+               _metres_per_unit(), dict(spec["joints"]), {"file": spec["file"], "height_m": spec["height_m"]})
 
 
 def _metres_per_unit():
@@ -130,6 +135,7 @@ def _metres_per_unit():
 
 # --- the generated variants -------------------------------------------------------------------------------------
 
+METARIG_HEIGHT_M = 1.98  # the basic metarig from its soles (the generated mesh's, at z = 0) to its head's top
 METARIG_JOINTS = side_joints("spine", left_right("L", "R", {
     "shoulder": "upper_arm.{s}", "elbow": "forearm.{s}", "wrist": "hand.{s}", "hip": "thigh.{s}", "knee": "shin.{s}",
     "ankle": "foot.{s}", "ball": "toe.{s}"}))
@@ -179,9 +185,11 @@ def _build_variant(name):
             traits["sole_below_ankle_m"] = 0.085 - sole
         rest = spec.get("rest", "A")  # the metarig's arms are 28° down
         joints = dict(METARIG_JOINTS)
+        traits["height_m"] = METARIG_HEIGHT_M - sole
     else:
         base = _load_corpus(spec["base"], animation=False)
         armature, rest, joints = base.armature, base.rest, dict(base.joints)
+        traits["height_m"] = base.traits["height_m"]
         mesh = None
         for ob in base.meshes:  # bake each mesh's placement into its data so a turn of the data turns all
             ob.parent = None

@@ -114,6 +114,15 @@ def animating_fcurves(obj):
     return list(bag.fcurves) if bag is not None else []
 
 
+def assign_action(obj, action):
+    """Make ``action`` animate ``obj`` (its first slot on 4.4+, where assigning leaves none chosen)."""
+    anim = obj.animation_data or obj.animation_data_create()
+    anim.action = action
+    if bpy.app.version >= (4, 4, 0) and anim.action_slot is None and len(action.slots):
+        anim.action_slot = action.slots[0]
+    bpy.context.view_layer.update()
+
+
 def keys_snapshot(obj):
     """{(data_path, index): keyframe coordinates as bytes}."""
     out = {}

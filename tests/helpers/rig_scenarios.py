@@ -322,3 +322,44 @@ def measure_walk(saved, last, contacts):
         "largest_step_deg": rm.largest_step(rots), "source_largest_step_deg": rm.largest_step(source_rots),
         "report_vs_measured": report_agreement(rig, contacts, frames, soles),
     }
+
+
+def clip_case(saved, folder, cli, clip_name="kenney_run"):
+    """An FBX clip of the corpus (its own character's skeleton) retargeted onto the saved rig with
+    `retarget FILE --target RIG --source-file CLIP --jobs 1` (cli.main); the written action and the clip imported
+    again with Blender's FBX importer (defaults: the action it makes active is the one the batch carries, which
+    for Kenney's files is the 1-frame 'Targeting Pose', not the run: source_action and frames say which) are
+    measured on the same frames: pop frames of each, and the limb directions against each other."""
+    saved.open()
+    clip = real_rigs.RIGS_DIR / real_rigs.CLIP_FILES[clip_name]
+    source_joints = real_rigs.CORPUS[real_rigs.CLIP_CHARACTER[clip_name]]["joints"]
+    path_in, path_out, report_path = (folder / f"{saved.name}_{clip_name}{ext}"
+                                      for ext in (".blend", "_out.blend", ".json"))
+    bpy.ops.wm.save_as_mainfile(filepath=str(path_in))
+    said = io.StringIO()
+    with contextlib.redirect_stderr(said):
+        code = cli.main(["retarget", str(path_in), "--target", saved.armature_name, "--source-file", str(clip),
+                         "--jobs", "1", "--output", str(path_out), "--report", str(report_path), "--quiet"])
+    out = {"exit_code": code}
+    row = json.loads(report_path.read_text())["rows"][0] if report_path.exists() else {}
+    if row.get("status") != "done":
+        out["error"] = f"exit {code}: {row.get('reason') or said.getvalue().strip()[-300:]}"
+        return out
+    reopen(path_out)
+    target = bpy.data.objects[saved.armature_name]
+    rm.assign_action(target, bpy.data.actions[row["action"]])
+    source = next(ob for ob in real_rigs.import_file(clip) if ob.type == 'ARMATURE')
+    frames = np.arange(int(row["frame_start"]), int(row["frame_end"]) + 1)
+    roles = [r for r, b in saved.rig.joints.items() if b and source_joints.get(r)]
+    (heads, source_heads), (rots, source_rots), _ = rm.sample(
+        frames, [(target, [saved.rig.joints[r] for r in roles]), (source, [source_joints[r] for r in roles])])
+    limbs = [i for i, r in enumerate(roles) if r.split(".")[0] in rm.POP_ROLES]
+    angles = rm.limb_direction_angles({r: heads[:, i] for i, r in enumerate(roles)},
+                                      {r: source_heads[:, i] for i, r in enumerate(roles)})
+    out.update({"clip": clip.name, "source_action": source.animation_data.action.name, "frames": len(frames),
+                "pop_frames": len(rm.pop_frames(rots[:, limbs])),
+                "source_pop_frames": len(rm.pop_frames(source_rots[:, limbs])),
+                "largest_step_deg": rm.largest_step(rots[:, limbs]),
+                "source_largest_step_deg": rm.largest_step(source_rots[:, limbs]),
+                "limb_direction_median_deg": float(np.median(angles)) if angles.size else None})
+    return out
