@@ -41,8 +41,6 @@ KNOWN = {
         "Cannot adjust 'root': effector 'head' needs a head group with neck bones and a head bone",
     ("near", "metarig_gltf_unnamed_face_px"): "Cannot map rig 'metarig': no right leg found",
     ("far", "quaternius_matt"): "Cannot map rig 'CharacterArmature': no left foot found",
-    ("far", "kaykit_manny"):
-        "Cannot adjust 'Rig_Medium': effector 'head' needs a head group with neck bones and a head bone",
     ("far", "godot_plush"): "Cannot map rig 'Rig': no hips (root) bone found",
     ("far", "godot_robot"): "Cannot map rig 'Skeleton': no left leg found",
     ("far", "gdquest_mannequiny"):
