@@ -535,7 +535,7 @@ def test_bone_map_rejects_a_zero_length_segment():
     desc = RigDescription.from_bones([("a", None, (0, 0, 0), (0, 0, 1)), ("b", "a", (0, 0, 0), (0, 0, 1)),
                                       ("c", "b", (0, 0, 1), (0, 0, 2))], name="Zero")
     assert BoneMap({"trunk": ["a", "b", "c"]}).problems(desc)[-1] == \
-        "trunk: 'a' ends where it starts (zero-length segment)"
+        "trunk: 'a' has no length (its head is where 'b' starts)"
 
 
 # --- names and descriptions -----------------------------------------------------------------------------------

@@ -29,6 +29,8 @@ which the solve moves and its controls follow. A rig with only DEF- bones (a gam
 import numpy as np
 
 from ..solver.vocabulary import REQUIRED_GROUPS
+from . import body_sides
+from .body_sides import Limb
 from .bone_map import GROUP_LABELS, BoneMap, MappingError
 from .mapping_detection import REPORT_ORDER, NotFound, detect, detect_map, missing_message
 from .pose import parent_indices
@@ -49,7 +51,7 @@ def map_rig(desc):
     attempts = preset_maps(desc)
     for label, bone_map, problems in attempts:
         if not problems:
-            return bone_map
+            return with_body_sides(desc, bone_map)
     try:
         return detect(desc)
     except NotFound as failure:
@@ -64,6 +66,26 @@ def map_rig(desc):
             raise MappingError(missing_message(desc, group, matched=f"other bones have {label} names"))
         raise MappingError(f"Cannot map rig '{desc.name}': it has {label} names but {problems[0]}")
     raise MappingError(missing_message(desc, detected.group, detected.detail))
+
+
+def with_body_sides(desc, bone_map):
+    """``bone_map`` with its .L and .R groups swapped when the skeleton clearly faces the other way than its
+    side names say (``body_sides``: mirrored labels, as on the Godot platformer robot); else itself."""
+    sk = desc._skeleton
+    idx = {g: [desc.index(b) for b in bones] for g, bones in bone_map.groups.items()}
+    legs = [Limb(tuple(idx[f"leg.{s}"]), idx[f"foot.{s}"][0]) for s in "LR"]
+    arms = [Limb(tuple(idx[f"arm.{s}"]), idx[f"hand.{s}"][0]) for s in "LR"]
+    lat = body_sides.lateral(sk, *legs)
+    if lat is None:
+        return bone_map
+    # Only a map whose left arm is on its left leg's side can be mirrored as a whole.
+    if float((sk.heads[arms[0].end] - sk.heads[arms[1].end]) @ lat) <= 0:
+        return bone_map
+    if body_sides.left_pair(sk, legs, arms).left == 0:
+        return bone_map
+    swap = {"L": "R", "R": "L"}
+    groups = {(g[:-1] + swap[g[-1]] if g[-2:] in (".L", ".R") else g): bones for g, bones in bone_map.groups.items()}
+    return BoneMap(groups, source=f"{bone_map.source}, sides from the skeleton's facing")
 
 
 # --- Blender ------------------------------------------------------------------------------------------------
