@@ -92,6 +92,11 @@ class BoneMap:
                     out.append(f"{end}.{s}: '{desc.names[tip[0]]}' does not hang below '{desc.names[chain[-1]]}'")
         if len(out) > len(missing):
             return out
+        for s in "LR":  # a leg goes down: its ankle is below its hip joint
+            chain, tip = idx.get(f"leg.{s}"), idx.get(f"foot.{s}")
+            if chain and tip and sk.heads[tip[0], 2] >= sk.heads[chain[0], 2]:
+                out.append(f"foot.{s}: the ankle ('{desc.names[tip[0]]}') is not below the hip joint "
+                           f"('{desc.names[chain[0]]}')")
         for group, chain in idx.items():
             if group not in CHAIN_GROUPS:
                 continue
