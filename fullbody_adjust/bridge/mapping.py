@@ -34,7 +34,7 @@ from ..solver.vocabulary import REQUIRED_GROUPS
 from . import body_sides
 from .body_sides import Limb
 from .bone_map import GROUP_LABELS, BoneMap, MappingError
-from .mapping_detection import REPORT_ORDER, NotFound, detect, detect_map, missing_message
+from .mapping_detection import REPORT_ORDER, STAGE, NotFound, detect, detect_map, missing_message
 from .pose import parent_indices
 from .preset_matching import preset_maps
 from .rig_description import RigDescription, side_of_name
@@ -58,15 +58,18 @@ def map_rig(desc):
         return detect(desc)
     except NotFound as failure:
         detected = failure
-    # Report what a preset nearly found when it got at least half the groups, else detection's failure.
+    # Report what a preset nearly found when it got at least half the groups, unless detection got further
+    # through the body (REPORT_ORDER stages: a missing root or trunk comes before a missing foot or hand),
+    # else detection's failure, which names the bone where it stopped.
     nearest = max(attempts, key=lambda a: len(REQUIRED_GROUPS) - len(a[1].missing()), default=None)
     if nearest is not None and len(REQUIRED_GROUPS) - len(nearest[1].missing()) >= len(REQUIRED_GROUPS) / 2:
         label, bone_map, problems = nearest
         missing = bone_map.missing()
-        if missing:
-            group = min(missing, key=REPORT_ORDER.index)
-            raise MappingError(missing_message(desc, group, matched=f"other bones have {label} names"))
-        raise MappingError(f"Cannot map rig '{desc.name}': it has {label} names but {problems[0]}")
+        group = min(missing, key=REPORT_ORDER.index) if missing else None
+        if group is None or STAGE[group] >= STAGE[detected.group]:
+            if group:
+                raise MappingError(missing_message(desc, group, matched=f"other bones have {label} names"))
+            raise MappingError(f"Cannot map rig '{desc.name}': it has {label} names but {problems[0]}")
     raise MappingError(missing_message(desc, detected.group, detected.detail))
 
 

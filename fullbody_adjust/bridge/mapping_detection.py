@@ -26,7 +26,7 @@ _SHAPE = {
 }
 # Order in which missing groups are reported, and how far detection got when it failed at a group.
 REPORT_ORDER = ("root", "leg.L", "leg.R", "foot.L", "foot.R", "trunk", "arm.L", "arm.R", "hand.L", "hand.R")
-_STAGE = {"root": 0, "leg.L": 1, "leg.R": 1, "foot.L": 2, "foot.R": 2, "trunk": 3, "arm.L": 4, "arm.R": 4,
+STAGE = {"root": 0, "leg.L": 1, "leg.R": 1, "foot.L": 2, "foot.R": 2, "trunk": 3, "arm.L": 4, "arm.R": 4,
           "hand.L": 5, "hand.R": 5}
 
 # Detection thresholds (fractions of the rig's height unless said otherwise), chosen on the rigs in the tests.
@@ -90,7 +90,7 @@ def detect(desc):
         try:
             groups = _detect_from_root(sk, root)
         except NotFound as failure:
-            if best is None or _STAGE[failure.group] > _STAGE[best.group]:
+            if best is None or STAGE[failure.group] > STAGE[best.group]:
                 best = failure
             continue
         bone_map = BoneMap({g: [desc.names[b] for b in bones] for g, bones in groups.items()},
@@ -100,7 +100,7 @@ def detect(desc):
             return bone_map
         # Every group found, but they do not fit (e.g. a zero-length segment): report it with its group.
         group = problems[0].split(":")[0]
-        best = NotFound(group if group in _STAGE else "trunk", problems[0])
+        best = NotFound(group if group in STAGE else "trunk", problems[0])
     raise best or NotFound("leg.L", "no bone branches into legs and a spine")
 
 
@@ -154,6 +154,9 @@ def _detect_from_root(sk, root):
     if rise < _TRUNK_MIN_RISE * sk.height or bases[2] - mid[2] < -lean:
         raise NotFound("trunk", f"from '{names[root]}' to '{names[chest]}' the spine does not rise "
                                  f"({rise:.3g} up from the hip joints, {lean:.3g} across)")
+    # The legs say where the body faces: name the arms by the sides they are on.
+    left = body_sides.left_pair(sk, legs, None).left
+    said = ("L", "R") if left == 0 else ("R", "L")
     arms = [_split_arm(sk, arm_paths[k], said[k]) for k in (0, 1)]
     knees = np.mean([sk.heads[leg.chain[-1], 2] for leg in legs])
     for k in (0, 1):
@@ -277,8 +280,8 @@ def _split_arm(sk, path, s):
     Every split of the path into clavicle (optional, one bone), upper arm and forearm (each possibly several
     bones, as with twist bones) and hand + fingers is scored by how far it is from a human arm: upper arm about
     1.15 forearms, hand + fingers 0.25..1.3 forearms (head to head; unknown for a hand bone that ends the path,
-    which then must fit the arm closer), and a hand bone that is neither a branch (fingers) nor where fingers
-    branch is a twist or wrist link, less likely. The best split wins (on a tie the earlier wrist); when
+    which then must fit the arm closer); a hand bone that is neither a branch (fingers) nor where fingers
+    branch is a twist or wrist link, less likely, and so is a forearm with a branching bone inside. The best split wins (on a tie the earlier wrist); when
     nothing fits, the hand or the arm is reported missing.
     """
     names = sk.desc.names
@@ -296,7 +299,10 @@ def _split_arm(sk, path, s):
     # The upper arm starts at the first or second bone (after a clavicle).
     best = (math.inf, None)
     for wrist in range(2, len(path)):
-        link = len(sk.children[path[wrist]]) == 1 and not _fans_out(sk, path[wrist])
+        if sk.end_marker[path[wrist]]:
+            continue
+        kids = [c for c in sk.children[path[wrist]] if not sk.end_marker[c]]
+        link = len(kids) == 1 and not _fans_out(sk, path[wrist])
         ends = after[wrist] <= sk.tiny  # the hand bone ends the path, its length unknown
         for first in range(min(2, wrist - 1)):
             for elbow in range(first + 1, wrist):
@@ -306,7 +312,10 @@ def _split_arm(sk, path, s):
                 fore, hand = float(after[elbow] - after[wrist]), float(after[wrist])
                 if fit == math.inf or (ends and fit > _LEAF_HAND_FIT):
                     continue
-                score = fit + (_NOT_A_HAND if link else 0.0) + (_LEAF_HAND if ends else _HAND_WEIGHT * max(
+                # Bones branching between elbow and wrist: the split's forearm runs on into the hand's fingers.
+                branched = any(len(sk.children[path[k]]) > 1 for k in range(elbow + 1, wrist))
+                score = fit + (_NOT_A_HAND if link else 0.0) + (_NOT_A_HAND if branched else 0.0) + (
+                    _LEAF_HAND if ends else _HAND_WEIGHT * max(
                     0.0, math.log(_HAND_TO_FOREARM[0] * fore / hand), math.log(hand / (_HAND_TO_FOREARM[1] * fore))))
                 if score < best[0] - 1e-9:
                     best = (score, (first, elbow, wrist))

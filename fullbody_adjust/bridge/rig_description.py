@@ -154,6 +154,9 @@ class _Skeleton:
         for b in reversed(order):
             for c in self.children[b]:
                 self.top[b] = max(self.top[b], self.top[c])
+        # Leaf bones FBX exporters add at each chain's end ("<parent>_end"): markers of where it ends, not bones.
+        self.end_marker = [not self.children[b] and self.parent[b] >= 0
+                           and desc.names[b] == desc.names[self.parent[b]] + "_end" for b in range(n)]
         self.leaf_reach = np.zeros(n)
         for b in range(n):
             p = self.parent[b]
