@@ -5,24 +5,24 @@ import math
 
 import numpy as np
 
-from .bone_map import BoneMap, MappingError
-from .preset_matching import looked_for
 from . import body_sides
-from .rig_description import DOWN, MIDLINE, UP, angle_between
+from .bone_map import BoneMap, MappingError
+from .mapping_limbs import LEG_MIN_DROP, SIDE_WORDS, NotFound, split_arm, split_leg
+from .preset_matching import looked_for
+from .rig_description import MIDLINE, UP, angle_between
 
 _WHAT = {
     "root": "hips (root) bone", "trunk": "upright trunk", "arm.L": "left arm", "arm.R": "right arm",
     "hand.L": "left hand", "hand.R": "right hand", "leg.L": "left leg", "leg.R": "right leg",
     "foot.L": "left foot", "foot.R": "right foot",
 }
-_SIDE_WORDS = {"L": "left", "R": "right"}
 _SHAPE = {
     "root": "a bone where two legs and a spine branch",
     "trunk": "a chain rising from the hips to where both arms branch",
-    **{f"arm.{s}": f"a chain of 2+ bones reaching out from the chest on the {w} side" for s, w in _SIDE_WORDS.items()},
-    **{f"hand.{s}": f"a bone at the end of the {w} arm" for s, w in _SIDE_WORDS.items()},
-    **{f"leg.{s}": f"a chain of 2+ bones going down from the hips on the {w} side" for s, w in _SIDE_WORDS.items()},
-    **{f"foot.{s}": f"a bone at the end of the {w} leg, at the ankle" for s, w in _SIDE_WORDS.items()},
+    **{f"arm.{s}": f"a chain of 2+ bones reaching out from the chest on the {w} side" for s, w in SIDE_WORDS.items()},
+    **{f"hand.{s}": f"a bone at the end of the {w} arm" for s, w in SIDE_WORDS.items()},
+    **{f"leg.{s}": f"a chain of 2+ bones going down from the hips on the {w} side" for s, w in SIDE_WORDS.items()},
+    **{f"foot.{s}": f"a bone at the end of the {w} leg, at the ankle" for s, w in SIDE_WORDS.items()},
 }
 # Order in which missing groups are reported, and how far detection got when it failed at a group.
 REPORT_ORDER = ("root", "leg.L", "leg.R", "foot.L", "foot.R", "trunk", "arm.L", "arm.R", "hand.L", "hand.R")
@@ -31,46 +31,32 @@ STAGE = {"root": 0, "leg.L": 1, "leg.R": 1, "foot.L": 2, "foot.R": 2, "trunk": 3
 
 # Detection thresholds (fractions of the rig's height unless said otherwise), chosen on the rigs in the tests.
 _UP_BRANCH_RISE = 0.15  # the spine branch reaches at least this far above the root's head
-_LEG_MIN_DROP = 0.2  # hip joint to ankle
 _TRUNK_MIN_RISE = 0.15  # root head to the arms' bases
 _BODY_TO_LEGS = 0.5  # what rises above the root (trunk, head) is at least this many leg lengths high
-_DOWNWARD = math.radians(40.0)  # a thigh segment is within this of straight down (hip connectors are not)
-_ANKLE_HEIGHT = 0.25  # the ankle is below this fraction of the hip joint's height above the leg's lowest point
 _UPWARD = math.radians(45.0)  # neck/head segments are within this of straight up
-_UPPER_TO_FOREARM = 1.15  # typical upper arm / forearm length ratio
-_HAND_TO_FOREARM = (0.25, 1.3)  # range of (wrist to fingertip) / forearm length
-_HAND_WEIGHT = 0.5  # weight of a hand length outside that range (per unit of log ratio)
-_NOT_A_HAND = 0.25  # penalty for a hand bone with one child that is not one of fingers fanning out from the wrist
-_LEAF_HAND_FIT = 0.5  # worst arm score accepted with a hand bone that ends the path (its length unknown) ...
-_LEAF_HAND = 0.1  # ... and the penalty for not knowing it
-_CLAVICLE = 0.45  # a clavicle is at most this fraction of the upper arm and forearm together
-_ARM_FIT_LIMIT = 0.7  # worst accepted arm score (0.7: upper arm / forearm twice or half the usual ratio)
 _HEAD_END_STEP = 0.08  # a neck step is shorter; a leaf this far above its parent's head marks the skull top
 
 
-class NotFound(Exception):
-    def __init__(self, group, detail=""):
-        super().__init__(group, detail)
-        self.group, self.detail = group, detail
-
-
 def detect_map(desc):
-    """Map a rig by the shape of its hierarchy, its rest positions and side markers only (no preset names):
+    """Map a rig by the shape of its hierarchy and its rest joints (bone heads) only (no preset names):
 
-    1. root: a branching bone (biggest subtree first) with a branch rising above it (the spine's) and, beside
-       that branch, bones on both sides (name marker, else x sign relative to the root);
-    2. legs: per side the path down to the lowest bone of that side: its first clearly downward bone is the
-       thigh (hip connectors like CMU's LHipJoint are skipped), the first bone after thigh and shin whose head
-       is near the leg's lowest point is the foot (the ankle), the joint halving the way between is the knee;
+    1. root: a branching bone (biggest subtree first) with a branch rising above it (the spine's);
+    2. legs: the lowest bone hanging from the root beside that branch, and the lowest one whose path parts
+       from the first's well above both (toes and heels of one foot do not); on each path the first clearly
+       downward bone is the thigh (hip connectors like CMU's LHipJoint are skipped), the first bone after
+       thigh and shin whose head is near the leg's lowest point (or where a tall foot turns forward) is the
+       foot (the ankle), the joint halving the way between is the knee;
     3. trunk: the spine branch must rise at least half a leg length above the root; the chest is where the
-       paths to the most lateral bone of each side part; the trunk runs from the root's child up to it, and
-       the arms' bases must be above the root (more up than across);
+       paths to the bones furthest out on each side of the hips' line part; the trunk runs from the root's
+       child up to it, and the arms' bases must rise above the hip joints;
     4. arms: the longest path out from the chest on each side, split by limb proportions (``_split_arm``);
        the wrists must be above the knees;
-    5. head (optional): the unsided chain rising from the chest (``_find_head``).
+    5. sides: which legs and arms are on the character's own left (``body_sides``: the skeleton's facing,
+       side markers in names when it is unclear);
+    6. head (optional): the chain rising from the chest at the middle (``_find_head``).
 
-    MappingError names what is missing, from the root candidate that got furthest
-    (legs, then feet, trunk, arms, hands)."""
+    MappingError names what is missing and the bone where it stopped, from the root candidate that got
+    furthest (legs, then feet, trunk, arms, hands)."""
     if not len(desc):
         raise MappingError(f"Cannot map rig '{desc.name}': it has no bones")
     try:
@@ -120,7 +106,7 @@ def _detect_from_root(sk, root):
     while shared < min(map(len, paths)) and paths[0][shared] == paths[1][shared]:
         shared += 1
     said = _said_sides(sk, paths[0], paths[1])
-    legs = [_split_leg(sk, paths[k][shared:], said[k]) for k in (0, 1)]
+    legs = [split_leg(sk, paths[k][shared:], said[k]) for k in (0, 1)]
     lat = body_sides.lateral(sk, *legs)
     if lat is None:
         raise NotFound(f"leg.{said[1]}", f"the legs ending at '{names[ends[0]]}' and '{names[ends[1]]}' are "
@@ -157,7 +143,7 @@ def _detect_from_root(sk, root):
     # The legs say where the body faces: name the arms by the sides they are on.
     left = body_sides.left_pair(sk, legs, None).left
     said = ("L", "R") if left == 0 else ("R", "L")
-    arms = [_split_arm(sk, arm_paths[k], said[k]) for k in (0, 1)]
+    arms = [split_arm(sk, arm_paths[k], said[k]) for k in (0, 1)]
     knees = np.mean([sk.heads[leg.chain[-1], 2] for leg in legs])
     for k in (0, 1):
         if sk.heads[arms[k].end, 2] <= knees:
@@ -184,7 +170,7 @@ def _leg_ends(sk, root, lower):
         raise NotFound("leg.L", f"no bones hang from '{names[root]}' beside the spine")
     order = sorted(lower, key=lambda b: (sk.heads[b, 2], -sk.depth[b], b))
     first = order[0]
-    drop = _LEG_MIN_DROP * sk.height
+    drop = LEG_MIN_DROP * sk.height
     for other in order[1:]:
         top = sk.heads[sk.lca(first, other), 2]
         if top - sk.heads[first, 2] >= drop and top - sk.heads[other, 2] >= drop:
@@ -215,129 +201,6 @@ def _with_length(sk, chain, end=None):
         return _with_length(sk, chain[:-1], sk.heads[chain[-1]]) + chain[-1:]
     joints = np.concatenate([sk.heads[chain], np.asarray(end, dtype=np.float64)[None]])
     return [b for k, b in enumerate(chain) if np.linalg.norm(joints[k + 1] - joints[k]) > sk.tiny]
-
-
-def _segments(sk, path):
-    """Joints (heads) of a path, the segments between them and their lengths."""
-    joints = sk.heads[path]
-    segments = joints[1:] - joints[:-1]
-    return joints, segments, np.linalg.norm(segments, axis=1)
-
-
-def _split_leg(sk, path, s):
-    """Limb([thigh, shin], foot) on a path from the hips down to the lowest bone of one leg."""
-    names, group = sk.desc.names, f"leg.{s}"
-    if not path:
-        raise NotFound(group, f"the {_SIDE_WORDS[s]} leg shares all its bones with the other")
-    joints, seg, length = _segments(sk, path)
-    total = float(length.sum())
-    # Thigh: the first clearly downward segment (skips hip-joint connectors like CMU LHipJoint, Daz lButtock).
-    i = 0
-    while i < len(seg) and (length[i] <= max(0.05 * total, sk.tiny) or angle_between(seg[i], DOWN) > _DOWNWARD):
-        i += 1
-    if len(path) - i < 2:
-        raise NotFound(group, f"no chain of 2+ bones goes down from '{names[path[0]]}'")
-    # Foot: the first bone after thigh and shin whose head (the ankle) is close to the leg's lowest point, or
-    # in the leg's lower half where the path turns forward (a tall foot, as on a plush toy).
-    low = joints[i:, 2].min()
-    hip = joints[i, 2] - low
-    foot = next((k for k in range(i + 2, len(path)) if joints[k, 2] - low < _ANKLE_HEIGHT * hip or (
-        k < len(seg) and joints[k, 2] - low < 0.5 * hip and angle_between(seg[k], DOWN) > _DOWNWARD)), None)
-    if foot is None:
-        raise NotFound(f"foot.{s}", f"the {_SIDE_WORDS[s]} leg ends at '{names[path[-1]]}' with no foot "
-                                    f"below it{_loose_foot(sk, path[i:])}")
-    drop = joints[i, 2] - joints[foot, 2]
-    if drop < _LEG_MIN_DROP * sk.height:
-        raise NotFound(group, f"'{names[path[i]]}' reaches only {drop:.3g} down")
-    # Knee: the joint that halves the way from hip joint to ankle (thigh and shin are about equally long).
-    before = np.concatenate([[0.0], np.cumsum(length[i:foot])])
-    knees = [k for k in range(i + 1, foot) if length[k] > sk.tiny]
-    if not knees:
-        raise NotFound(group, f"no knee between '{names[path[i]]}' and '{names[path[foot]]}'")
-    knee = min(knees, key=lambda k: abs(before[k - i] / before[-1] - 0.5))
-    return body_sides.Limb((path[i], path[knee]), path[foot])
-
-
-def _loose_foot(sk, leg):
-    """', and <bone> at its end hangs from <bone>' for a foot bone outside the leg (an IK-style foot), or ''."""
-    names, hip, last = sk.desc.names, sk.heads[leg[0]], sk.heads[leg[-1]]
-    length = float(np.linalg.norm(last - hip))
-    # Where the ankle would be: as far below the last joint as the leg is long so far, straight down.
-    ankle = last + length * DOWN
-    near = [b for b in range(len(sk.desc)) if not sk.is_ancestor(leg[-1], b) and b not in leg
-            and np.linalg.norm(sk.heads[b] - ankle) < 0.4 * length]
-    if not near:
-        return ""
-    foot = min(near, key=lambda b: (np.linalg.norm(sk.heads[b] - ankle), sk.depth[b]))
-    parent = sk.parent[foot]
-    return (f" ('{names[foot]}', at its end, hangs from '{names[parent]}' instead: the body model needs the foot "
-            f"below the shin)" if parent >= 0 else f" ('{names[foot]}', at its end, has no parent)")
-
-
-def _split_arm(sk, path, s):
-    """Limb([clavicle?, upper arm, forearm], hand) on the longest path out from the chest.
-
-    Every split of the path into clavicle (optional, one bone), upper arm and forearm (each possibly several
-    bones, as with twist bones) and hand + fingers is scored by how far it is from a human arm: upper arm about
-    1.15 forearms, hand + fingers 0.25..1.3 forearms (head to head; unknown for a hand bone that ends the path,
-    which then must fit the arm closer); a hand bone that is neither a branch (fingers) nor where fingers
-    branch is a twist or wrist link, less likely, and so is a forearm with a branching bone inside. The best split wins (on a tie the earlier wrist); when
-    nothing fits, the hand or the arm is reported missing.
-    """
-    names = sk.desc.names
-    _, _, length = _segments(sk, path)
-    # Path length from each joint (head) to the tip: the last bone's own length when it is a believable leaf.
-    after = np.concatenate([np.cumsum(length[::-1])[::-1], [0.0]]) + sk.leaf_reach[path[-1]]
-
-    def arm_fit(first, elbow, wrist):
-        upper = float(after[first] - after[elbow])
-        fore = float(after[elbow] - after[wrist])
-        if min(upper, fore) <= sk.tiny:
-            return math.inf
-        return abs(math.log(upper / fore / _UPPER_TO_FOREARM))
-
-    # The upper arm starts at the first or second bone (after a clavicle).
-    best = (math.inf, None)
-    for wrist in range(2, len(path)):
-        if sk.end_marker[path[wrist]]:
-            continue
-        kids = [c for c in sk.children[path[wrist]] if not sk.end_marker[c]]
-        link = len(kids) == 1 and not _fans_out(sk, path[wrist])
-        ends = after[wrist] <= sk.tiny  # the hand bone ends the path, its length unknown
-        for first in range(min(2, wrist - 1)):
-            for elbow in range(first + 1, wrist):
-                fit = arm_fit(first, elbow, wrist)
-                if first and length[0] > _CLAVICLE * (after[first] - after[wrist]):
-                    continue
-                fore, hand = float(after[elbow] - after[wrist]), float(after[wrist])
-                if fit == math.inf or (ends and fit > _LEAF_HAND_FIT):
-                    continue
-                # Bones branching between elbow and wrist: the split's forearm runs on into the hand's fingers.
-                branched = any(len(sk.children[path[k]]) > 1 for k in range(elbow + 1, wrist))
-                score = fit + (_NOT_A_HAND if link else 0.0) + (_NOT_A_HAND if branched else 0.0) + (
-                    _LEAF_HAND if ends else _HAND_WEIGHT * max(
-                    0.0, math.log(_HAND_TO_FOREARM[0] * fore / hand), math.log(hand / (_HAND_TO_FOREARM[1] * fore))))
-                if score < best[0] - 1e-9:
-                    best = (score, (first, elbow, wrist))
-    if best[0] > _ARM_FIT_LIMIT:
-        if len(path) <= 3:
-            raise NotFound(f"hand.{s}", f"the {_SIDE_WORDS[s]} arm ends at '{names[path[-1]]}' with no hand "
-                                        f"below it")
-        raise NotFound(f"arm.{s}", f"the bones from the chest to '{names[path[-1]]}' are not shaped like an arm")
-    first, elbow, wrist = best[1]
-    chain = ([path[0]] if first > 0 else []) + [path[first], path[elbow]]
-    return body_sides.Limb(tuple(chain), path[wrist])
-
-
-def _fans_out(sk, b):
-    """b is one of 3+ bones starting at the same point (fingers hanging straight from the forearm, as in
-    Quaternius' rigs): its head is then the wrist though it has one child."""
-    parent = sk.parent[b]
-    if parent < 0:
-        return False
-    near = [c for c in sk.children[parent]
-            if np.linalg.norm(sk.heads[c] - sk.heads[b]) <= MIDLINE * sk.height]
-    return len(near) >= 3
 
 
 def _find_head(sk, chest, arm_starts, shoulder_z, mid, lat):
