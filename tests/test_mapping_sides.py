@@ -246,3 +246,47 @@ def test_ik_style_feet_outside_the_legs_are_named():
     assert "\n" not in message and message.startswith("Cannot map rig 'Loose feet': no ")
     assert "leg ends at 'shin." in message
     assert "hangs from 'Root' instead: the body model needs the foot below the shin" in message
+
+
+def bent(desc, bone, axis, degrees):
+    """desc with ``bone`` and everything below it turned about ``axis`` (world) through the bone's head."""
+    sk = desc._skeleton
+    b = desc.index(bone)
+    a = math.radians(degrees)
+    k = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    cross = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    turn = np.eye(3) + math.sin(a) * cross + (1 - math.cos(a)) * cross @ cross
+    heads, tails = desc.heads.copy(), desc.tails.copy()
+    pivot = desc.heads[b]
+    for i in sk.subtree(b):
+        heads[i] = pivot + turn @ (heads[i] - pivot)
+        tails[i] = pivot + turn @ (tails[i] - pivot)
+    return RigDescription(desc.names, desc.parents, heads, tails, name=desc.name)
+
+
+def test_a_rest_taken_mid_stride_maps():
+    """As the rest of Kenney's run clip: one thigh swung 50 degrees forward, the other shin kicked back level."""
+    make_rig, make_groups, _ = NAMED_RIGS["motionbuilder_plain"]
+    desc = bent(make_rig(), "RightUpLeg", (1, 0, 0), -50.0)  # knee forward (-Y)
+    desc = bent(desc, "LeftLeg", (1, 0, 0), 90.0)  # foot up behind (+Y) ...
+    desc = bent(desc, "LeftFoot", (1, 0, 0), 40.0)  # ... its toes pointing back, as in that clip
+    assert desc.heads[desc.index("LeftFoot"), 2] > 0.45  # the left ankle is as high as the knees
+    plain, names = unnamed(desc)
+    assert detect_map(plain) == rename_map(make_groups(), desc.names, names)
+
+
+def test_a_clavicle_is_told_by_the_hips_width():
+    """A stylised arm (forearm longer than the upper arm, as on Kenney's characters): proportions alone would
+    take clavicle + upper arm as the upper arm; the clavicle starts inside the hips' width, the arm outside."""
+    make_rig, make_groups, _ = NAMED_RIGS["motionbuilder_plain"]
+    desc = make_rig()
+    heads, tails = desc.heads.copy(), desc.tails.copy()
+    sk = desc._skeleton
+    for side, sign in (("Left", 1.0), ("Right", -1.0)):
+        for i in sk.subtree(desc.index(f"{side}Hand")):
+            heads[i, 0] += sign * 0.2
+            tails[i, 0] += sign * 0.2
+        tails[desc.index(f"{side}ForeArm"), 0] += sign * 0.2
+    long_forearms = RigDescription(desc.names, desc.parents, heads, tails, name="Stylised")
+    plain, names = unnamed(long_forearms)
+    assert detect_map(plain) == rename_map(make_groups(), desc.names, names)

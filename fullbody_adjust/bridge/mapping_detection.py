@@ -143,7 +143,7 @@ def _detect_from_root(sk, root):
     # The legs say where the body faces: name the arms by the sides they are on.
     left = body_sides.left_pair(sk, legs, None).left
     said = ("L", "R") if left == 0 else ("R", "L")
-    arms = [split_arm(sk, arm_paths[k], said[k]) for k in (0, 1)]
+    arms = [split_arm(sk, arm_paths[k], said[k], _clavicle(sk, arm_paths[k], legs, lat)) for k in (0, 1)]
     knees = np.mean([sk.heads[leg.chain[-1], 2] for leg in legs])
     for k in (0, 1):
         if sk.heads[arms[k].end, 2] <= knees:
@@ -178,6 +178,17 @@ def _leg_ends(sk, root, lower):
     side = sk.name_sides[first] or "L"
     other = "R" if side == "L" else "L"
     raise NotFound(f"leg.{other}", f"one leg goes down from '{names[root]}' to '{names[first]}', no second one")
+
+
+def _clavicle(sk, path, legs, lat):
+    """Whether the arm path's first bone is a clavicle: it starts within the hips' width and the next bone
+    (the upper arm) outside it (True); it starts outside (False); else None (proportions decide)."""
+    hips = [sk.heads[leg.chain[0]] for leg in legs]
+    middle, half = 0.5 * (hips[0] + hips[1]), 0.5 * abs(float((hips[0] - hips[1]) @ lat))
+    out = [abs(float((sk.heads[b] - middle) @ lat)) for b in path[:2]]
+    if out[0] >= half:
+        return False
+    return True if len(out) > 1 and out[1] >= half else None
 
 
 def _said_sides(sk, path0, path1):

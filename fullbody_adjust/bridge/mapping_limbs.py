@@ -10,8 +10,10 @@ from .rig_description import DOWN, MIDLINE, angle_between
 
 SIDE_WORDS = {"L": "left", "R": "right"}
 # Thresholds (fractions of the rig's height unless said otherwise), chosen on the rigs in the tests.
-LEG_MIN_DROP = 0.2  # hip joint to ankle
-_DOWNWARD = math.radians(40.0)  # a thigh segment is within this of straight down (hip connectors are not)
+LEG_MIN_DROP = 0.2  # hip joint to ankle (thigh and shin; between the lowest joints of the two legs and the root)
+_DOWNWARD = math.radians(40.0)  # a thigh segment is within this of straight down (hip connectors are not) ...
+_SWUNG = math.radians(65.0)  # ... or within this when it is long:
+_LONG_SEGMENT = 0.25  # at least this fraction of the path from the hips down
 _ANKLE_HEIGHT = 0.25  # the ankle is below this fraction of the hip joint's height above the leg's lowest point
 _UPPER_TO_FOREARM = 1.15  # typical upper arm / forearm length ratio
 _HAND_TO_FOREARM = (0.25, 1.3)  # range of (wrist to fingertip) / forearm length
@@ -47,7 +49,9 @@ def split_leg(sk, path, s):
     total = float(length.sum())
     # Thigh: the first clearly downward segment (skips hip-joint connectors like CMU LHipJoint, Daz lButtock).
     i = 0
-    while i < len(seg) and (length[i] <= max(0.05 * total, sk.tiny) or angle_between(seg[i], DOWN) > _DOWNWARD):
+    # A long segment may lean further (a thigh swung forward in a rest taken mid-stride).
+    while i < len(seg) and (length[i] <= max(0.05 * total, sk.tiny) or angle_between(seg[i], DOWN) > (
+            _DOWNWARD if length[i] < _LONG_SEGMENT * total else _SWUNG)):
         i += 1
     if len(path) - i < 2:
         raise NotFound(group, f"no chain of 2+ bones goes down from '{names[path[0]]}'")
@@ -60,9 +64,9 @@ def split_leg(sk, path, s):
     if foot is None:
         raise NotFound(f"foot.{s}", f"the {SIDE_WORDS[s]} leg ends at '{names[path[-1]]}' with no foot "
                                     f"below it{_loose_foot(sk, path[i:])}")
-    drop = joints[i, 2] - joints[foot, 2]
-    if drop < LEG_MIN_DROP * sk.height:
-        raise NotFound(group, f"'{names[path[i]]}' reaches only {drop:.3g} down")
+    reach = float(length[i:foot].sum())
+    if reach < LEG_MIN_DROP * sk.height:
+        raise NotFound(group, f"from '{names[path[i]]}' to '{names[path[foot]]}' is only {reach:.3g} long")
     # Knee: the joint that halves the way from hip joint to ankle (thigh and shin are about equally long).
     before = np.concatenate([[0.0], np.cumsum(length[i:foot])])
     knees = [k for k in range(i + 1, foot) if length[k] > sk.tiny]
@@ -88,14 +92,15 @@ def _loose_foot(sk, leg):
             f"below the shin)" if parent >= 0 else f" ('{names[foot]}', at its end, has no parent)")
 
 
-def split_arm(sk, path, s):
+def split_arm(sk, path, s, clavicle=None):
     """Limb([clavicle?, upper arm, forearm], hand) on the longest path out from the chest.
 
     Every split of the path into clavicle (optional, one bone), upper arm and forearm (each possibly several
     bones, as with twist bones) and hand + fingers is scored by how far it is from a human arm: upper arm about
     1.15 forearms, hand + fingers 0.25..1.3 forearms (head to head; unknown for a hand bone that ends the path,
     which then must fit the arm closer); a hand bone that is neither a branch (fingers) nor where fingers
-    branch is a twist or wrist link, less likely, and so is a forearm with a branching bone inside. The best split wins (on a tie the earlier wrist); when
+    branch is a twist or wrist link, less likely, and so is a forearm with a branching bone inside. ``clavicle``
+    (True/False) says whether the path's first bone is a clavicle, when the caller knows. The best split wins (on a tie the earlier wrist); when
     nothing fits, the hand or the arm is reported missing.
     """
     names = sk.desc.names
@@ -119,6 +124,8 @@ def split_arm(sk, path, s):
         link = len(kids) == 1 and not _fans_out(sk, path[wrist])
         ends = after[wrist] <= sk.tiny  # the hand bone ends the path, its length unknown
         for first in range(min(2, wrist - 1)):
+            if clavicle is not None and first != int(clavicle):
+                continue
             for elbow in range(first + 1, wrist):
                 fit = arm_fit(first, elbow, wrist)
                 if first and length[0] > _CLAVICLE * (after[first] - after[wrist]):
