@@ -438,6 +438,7 @@ def test_a_tail_chain_cannot_be_mapped():
     message = str(caught.value)
     assert_one_line(message, "Tail")
     assert "no left leg found (looked for thigh.L/" in message
+    assert message.endswith("no bone branches into legs and a spine (from 'tail_0' the bones form one chain))")
 
 
 def test_a_four_legged_rig_cannot_be_mapped():

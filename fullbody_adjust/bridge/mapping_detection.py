@@ -31,7 +31,7 @@ STAGE = {"root": 0, "leg.L": 1, "leg.R": 1, "foot.L": 2, "foot.R": 2, "trunk": 3
 
 # Detection thresholds (fractions of the rig's height unless said otherwise), chosen on the rigs in the tests.
 _UP_BRANCH_RISE = 0.15  # the spine branch reaches at least this far above the root's head
-_TRUNK_MIN_RISE = 0.15  # root head to the arms' bases
+_TRUNK_MIN_RISE = 0.15  # hip joints to the arms' bases (which rise more than they lean away from the root)
 _BODY_TO_LEGS = 0.5  # what rises above the root (trunk, head) is at least this many leg lengths high
 _UPWARD = math.radians(45.0)  # neck/head segments are within this of straight up
 _HEAD_END_STEP = 0.08  # a neck step is shorter; a leaf this far above its parent's head marks the skull top
@@ -87,7 +87,12 @@ def detect(desc):
         # Every group found, but they do not fit (e.g. a zero-length segment): report it with its group.
         group = problems[0].split(":")[0]
         best = NotFound(group if group in STAGE else "trunk", problems[0])
-    raise best or NotFound("leg.L", "no bone branches into legs and a spine")
+    if best is None:
+        first = int(sk.order[0])
+        raise NotFound("leg.L", f"no bone branches into legs and a spine (from '{desc.names[first]}' the bones "
+                                f"form one chain)" if len(sk.subtree(first)) == len(desc) else
+                                "no bone branches into legs and a spine")
+    raise best
 
 
 def _detect_from_root(sk, root):
@@ -137,7 +142,7 @@ def _detect_from_root(sk, root):
     hips = np.mean([sk.heads[leg.chain[0]] for leg in legs], axis=0)
     rise = bases[2] - hips[2]
     lean = float(np.linalg.norm(bases[:2] - mid[:2]))
-    if rise < _TRUNK_MIN_RISE * sk.height or bases[2] - mid[2] < -lean:
+    if rise < _TRUNK_MIN_RISE * sk.height or rise < lean:
         raise NotFound("trunk", f"from '{names[root]}' to '{names[chest]}' the spine does not rise "
                                  f"({rise:.3g} up from the hip joints, {lean:.3g} across)")
     # The legs say where the body faces: name the arms by the sides they are on.
