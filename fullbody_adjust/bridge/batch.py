@@ -116,13 +116,10 @@ def default_armature(context):
 
 def check_mappable(obj, option):
     """AdjustError (one line, naming ``option``) unless ``obj``'s stored bone map fits it or its bones can be
-    mapped onto the body model. Changes nothing."""
-    desc = mapping.describe_armature(obj)
-    stored = mapping.load_map(obj)
-    if stored is not None and not stored.problems(desc):
-        return
+    mapped onto the body model (a map the user typed is checked, never replaced: mapping.read_map). Changes
+    nothing."""
     try:
-        mapping.map_rig(desc)
+        mapping.read_map(obj)
     except mapping.MappingError as ex:
         raise AdjustError(f"{option} '{obj.name}' cannot be mapped: {ex}") from None
 
