@@ -26,197 +26,172 @@ REQUIRED = ("root", "trunk", "arm.L", "arm.R", "hand.L", "hand.R", "leg.L", "leg
 
 # (test, rig) -> the figure measured on the code this file was written against (bpy 5.0.1).
 KNOWN = {
-    ("mapping", "quaternius_matt"): "Cannot map rig 'CharacterArmature': no left foot found",
-    ("mapping", "kaykit_manny"):
-        "hand.L -> ['hand.l'], hand.R -> ['hand.r']: the wrist joint is the head of wrist.l / wrist.r",
-    ("mapping", "godot_plush"): "Cannot map rig 'Rig': no hips (root) bone found",
-    ("mapping", "godot_robot"): "Cannot map rig 'Skeleton': no left leg found",
-    ("mapping", "metarig_gltf_unnamed_face_px"): "Cannot map rig 'metarig': no right leg found",
-    ("near", "quaternius_matt"): "Cannot map rig 'CharacterArmature': no left foot found",
-    ("near", "kaykit_manny"):
+    ('mapping', 'quaternius_matt'): "Cannot map rig 'CharacterArmature': no left foot found",
+    ('mapping', 'godot_robot'): "Cannot map rig 'Skeleton': no left leg found",
+    ('near', 'quaternius_matt'): "Cannot map rig 'CharacterArmature': no left foot found",
+    ('near', 'kaykit_manny'):
         "Cannot adjust 'Rig_Medium': effector 'head' needs a head group with neck bones and a head bone",
-    ("near", "godot_plush"): "Cannot map rig 'Rig': no hips (root) bone found",
-    ("near", "godot_robot"): "Cannot map rig 'Skeleton': no left leg found",
-    ("near", "gdquest_mannequiny"):
+    ('near', 'godot_robot'): "Cannot map rig 'Skeleton': no left leg found",
+    ('near', 'gdquest_mannequiny'):
         "Cannot adjust 'root': effector 'head' needs a head group with neck bones and a head bone",
-    ("near", "metarig_gltf_unnamed_face_px"): "Cannot map rig 'metarig': no right leg found",
-    ("far", "quaternius_matt"): "Cannot map rig 'CharacterArmature': no left foot found",
-    ("far", "godot_plush"): "Cannot map rig 'Rig': no hips (root) bone found",
-    ("far", "godot_robot"): "Cannot map rig 'Skeleton': no left leg found",
-    ("far", "gdquest_mannequiny"):
+    ('far', 'quaternius_matt'): "Cannot map rig 'CharacterArmature': no left foot found",
+    ('far', 'godot_plush'): "Cannot map rig 'Rig': no hips (root) bone found",
+    ('far', 'godot_robot'): "Cannot map rig 'Skeleton': no left leg found",
+    ('far', 'gdquest_mannequiny'):
         "Cannot adjust 'root': effector 'head' needs a head group with neck bones and a head bone",
-    ("far", "metarig_gltf_unnamed_face_px"): "Cannot map rig 'metarig': no right leg found",
-    ("obstacle", "kenney"): '0 joints and 1 mesh vertices inside the box',
-    ("obstacle", "quaternius_matt"): "Cannot map rig 'CharacterArmature': no left foot found",
-    ("obstacle", "quaternius_mannequin_f"): '0 joints and 9 mesh vertices inside the box',
-    ("obstacle", "kaykit_manny"):
+    ('obstacle', 'quaternius_matt'): "Cannot map rig 'CharacterArmature': no left foot found",
+    ('obstacle', 'quaternius_mannequin_f'): '0 joints and 9 mesh vertices inside the box',
+    ('obstacle', 'kaykit_manny'):
         "Cannot adjust 'Rig_Medium': effector 'head' needs a head group with neck bones and a head bone",
-    ("obstacle", "godot_plush"): "Cannot map rig 'Rig': no hips (root) bone found",
-    ("obstacle", "godot_robot"): "Cannot map rig 'Skeleton': no left leg found",
-    ("obstacle", "gdquest_mannequiny"):
+    ('obstacle', 'godot_plush'): "Cannot map rig 'Rig': no hips (root) bone found",
+    ('obstacle', 'godot_robot'): "Cannot map rig 'Skeleton': no left leg found",
+    ('obstacle', 'gdquest_mannequiny'):
         "Cannot adjust 'root': effector 'head' needs a head group with neck bones and a head bone",
-    ("obstacle", "metarig"): '0 joints and 5 mesh vertices inside the box',
-    ("obstacle", "metarig_tpose"): '0 joints and 4 mesh vertices inside the box',
-    ("obstacle", "metarig_apose"): '0 joints and 3 mesh vertices inside the box',
-    ("obstacle", "metarig_face_px"): '0 joints and 5 mesh vertices inside the box',
-    ("obstacle", "metarig_face_nx"): '0 joints and 3 mesh vertices inside the box',
-    ("obstacle", "metarig_face_py"): '0 joints and 2 mesh vertices inside the box',
-    ("obstacle", "metarig_low_soles"): '0 joints and 5 mesh vertices inside the box',
-    ("obstacle", "metarig_cm_units"): '0 joints and 3 mesh vertices inside the box',
-    ("obstacle", "metarig_object_scale_0.01"): '0 joints and 3 mesh vertices inside the box',
-    ("obstacle", "metarig_object_scale_100"): '0 joints and 2 mesh vertices inside the box',
-    ("obstacle", "metarig_unnamed"): '0 joints and 5 mesh vertices inside the box',
-    ("obstacle", "metarig_gltf_blender"): '0 joints and 4 mesh vertices inside the box',
-    ("obstacle", "metarig_gltf_temperance"): '0 joints and 4 mesh vertices inside the box',
-    ("obstacle", "metarig_gltf_fortune"): '0 joints and 10 mesh vertices inside the box',
-    ("obstacle", "metarig_fbx"): '0 joints and 3 mesh vertices inside the box',
-    ("obstacle", "metarig_fbx_auto_orient"): '0 joints and 3 mesh vertices inside the box',
-    ("obstacle", "metarig_fbx_no_leaf"): '0 joints and 3 mesh vertices inside the box',
-    ("obstacle", "metarig_fbx_auto_orient_no_leaf"): '0 joints and 3 mesh vertices inside the box',
-    ("obstacle", "metarig_gltf_unnamed_face_px"): "Cannot map rig 'metarig': no right leg found",
-    ("obstacle", "mannequin_f_face_px"): '0 joints and 9 mesh vertices inside the box',
-    ("obstacle", "mannequin_f_face_py"): '0 joints and 9 mesh vertices inside the box',
-    ("walk_exit", "quaternius_matt"):
-        "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left "
-        'foot found',
-    ("walk_exit", "godot_plush"):
+    ('obstacle', 'metarig'): '0 joints and 5 mesh vertices inside the box',
+    ('obstacle', 'metarig_tpose'): '0 joints and 4 mesh vertices inside the box',
+    ('obstacle', 'metarig_apose'): '0 joints and 3 mesh vertices inside the box',
+    ('obstacle', 'metarig_face_px'): '0 joints and 5 mesh vertices inside the box',
+    ('obstacle', 'metarig_face_nx'): '0 joints and 3 mesh vertices inside the box',
+    ('obstacle', 'metarig_face_py'): '0 joints and 2 mesh vertices inside the box',
+    ('obstacle', 'metarig_low_soles'): '0 joints and 5 mesh vertices inside the box',
+    ('obstacle', 'metarig_cm_units'): '0 joints and 3 mesh vertices inside the box',
+    ('obstacle', 'metarig_object_scale_0.01'): '0 joints and 3 mesh vertices inside the box',
+    ('obstacle', 'metarig_object_scale_100'): '0 joints and 2 mesh vertices inside the box',
+    ('obstacle', 'metarig_unnamed'): '0 joints and 5 mesh vertices inside the box',
+    ('obstacle', 'metarig_gltf_blender'): '0 joints and 4 mesh vertices inside the box',
+    ('obstacle', 'metarig_gltf_temperance'): '0 joints and 4 mesh vertices inside the box',
+    ('obstacle', 'metarig_gltf_fortune'): '0 joints and 10 mesh vertices inside the box',
+    ('obstacle', 'metarig_fbx'): '0 joints and 3 mesh vertices inside the box',
+    ('obstacle', 'metarig_fbx_auto_orient'): '0 joints and 3 mesh vertices inside the box',
+    ('obstacle', 'metarig_fbx_no_leaf'): '0 joints and 3 mesh vertices inside the box',
+    ('obstacle', 'metarig_fbx_auto_orient_no_leaf'): '0 joints and 3 mesh vertices inside the box',
+    ('obstacle', 'metarig_gltf_unnamed_face_px'): "Cannot map rig 'metarig': no right leg found",
+    ('obstacle', 'mannequin_f_face_px'): '0 joints and 9 mesh vertices inside the box',
+    ('obstacle', 'mannequin_f_face_py'): '0 joints and 9 mesh vertices inside the box',
+    ('walk_exit', 'quaternius_matt'):
+        "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left foot found",
+    ('walk_exit', 'godot_plush'):
         "exit 2: --target 'Rig' cannot be mapped: Cannot map rig 'Rig': no hips (root) bone found",
-    ("walk_exit", "godot_robot"):
+    ('walk_exit', 'godot_robot'):
         "exit 2: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left leg found",
-    ("walk_exit", "metarig_gltf_unnamed_face_px"):
-        "exit 2: --target 'metarig' cannot be mapped: Cannot map rig 'metarig': no right leg found",
-    ("walk_soles", "kenney"): 'planted soles p95 106.2 mm, lowest -155.6 mm',
-    ("walk_soles", "quaternius_matt"):
-        "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left "
-        'foot found',
-    ("walk_soles", "quaternius_mannequin_f"): 'planted soles p95 30.2 mm, lowest -54.0 mm',
-    ("walk_soles", "kaykit_manny"): 'planted soles p95 57.2 mm, lowest -113.5 mm',
-    ("walk_soles", "godot_plush"):
+    ('walk_soles', 'kenney'): 'planted soles p95 106.2 mm, lowest -155.6 mm',
+    ('walk_soles', 'quaternius_matt'):
+        "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left foot found",
+    ('walk_soles', 'quaternius_mannequin_f'): 'planted soles p95 30.2 mm, lowest -54.0 mm',
+    ('walk_soles', 'kaykit_manny'): 'planted soles p95 57.2 mm, lowest -113.5 mm',
+    ('walk_soles', 'godot_plush'):
         "exit 2: --target 'Rig' cannot be mapped: Cannot map rig 'Rig': no hips (root) bone found",
-    ("walk_soles", "godot_robot"):
+    ('walk_soles', 'godot_robot'):
         "exit 2: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left leg found",
-    ("walk_soles", "gdquest_mannequiny"): 'planted soles p95 32.5 mm, lowest -64.2 mm',
-    ("walk_soles", "metarig"): 'planted soles p95 24.4 mm, lowest -25.7 mm',
-    ("walk_soles", "metarig_tpose"): 'planted soles p95 24.4 mm, lowest -25.7 mm',
-    ("walk_soles", "metarig_apose"): 'planted soles p95 24.4 mm, lowest -25.7 mm',
-    ("walk_soles", "metarig_face_px"): 'planted soles p95 24.4 mm, lowest -25.7 mm',
-    ("walk_soles", "metarig_face_nx"): 'planted soles p95 24.4 mm, lowest -25.7 mm',
-    ("walk_soles", "metarig_face_py"): 'planted soles p95 24.4 mm, lowest -25.7 mm',
-    ("walk_soles", "metarig_low_soles"): 'planted soles p95 82.0 mm, lowest -84.0 mm',
-    ("walk_soles", "metarig_cm_units"): 'planted soles p95 24.4 mm, lowest -25.7 mm',
-    ("walk_soles", "metarig_object_scale_0.01"): 'planted soles p95 24.4 mm, lowest -25.7 mm',
-    ("walk_soles", "metarig_object_scale_100"): 'planted soles p95 24.4 mm, lowest -25.7 mm',
-    ("walk_soles", "metarig_unnamed"): 'planted soles p95 24.4 mm, lowest -25.7 mm',
-    ("walk_soles", "metarig_gltf_blender"): 'planted soles p95 16.9 mm, lowest -20.7 mm',
-    ("walk_soles", "metarig_gltf_temperance"): 'planted soles p95 16.9 mm, lowest -20.7 mm',
-    ("walk_soles", "metarig_gltf_fortune"): 'planted soles p95 44.6 mm, lowest -54.1 mm',
-    ("walk_soles", "metarig_fbx"): 'planted soles p95 12.6 mm, lowest -15.4 mm',
-    ("walk_soles", "metarig_fbx_auto_orient"): 'planted soles p95 12.6 mm, lowest -15.4 mm',
-    ("walk_soles", "metarig_fbx_no_leaf"): 'planted soles p95 13.7 mm, lowest -18.2 mm',
-    ("walk_soles", "metarig_fbx_auto_orient_no_leaf"): 'planted soles p95 13.7 mm, lowest -18.2 mm',
-    ("walk_soles", "metarig_gltf_unnamed_face_px"):
+    ('walk_soles', 'gdquest_mannequiny'): 'planted soles p95 32.5 mm, lowest -64.2 mm',
+    ('walk_soles', 'metarig'): 'planted soles p95 24.4 mm, lowest -25.7 mm',
+    ('walk_soles', 'metarig_tpose'): 'planted soles p95 24.4 mm, lowest -25.7 mm',
+    ('walk_soles', 'metarig_apose'): 'planted soles p95 24.4 mm, lowest -25.7 mm',
+    ('walk_soles', 'metarig_face_px'): 'planted soles p95 24.4 mm, lowest -25.7 mm',
+    ('walk_soles', 'metarig_face_nx'): 'planted soles p95 24.4 mm, lowest -25.7 mm',
+    ('walk_soles', 'metarig_face_py'): 'planted soles p95 24.4 mm, lowest -25.7 mm',
+    ('walk_soles', 'metarig_low_soles'): 'planted soles p95 82.0 mm, lowest -84.0 mm',
+    ('walk_soles', 'metarig_cm_units'): 'planted soles p95 24.4 mm, lowest -25.7 mm',
+    ('walk_soles', 'metarig_object_scale_0.01'): 'planted soles p95 24.4 mm, lowest -25.7 mm',
+    ('walk_soles', 'metarig_object_scale_100'): 'planted soles p95 24.4 mm, lowest -25.7 mm',
+    ('walk_soles', 'metarig_unnamed'): 'planted soles p95 24.4 mm, lowest -25.7 mm',
+    ('walk_soles', 'metarig_gltf_blender'): 'planted soles p95 16.9 mm, lowest -20.7 mm',
+    ('walk_soles', 'metarig_gltf_temperance'): 'planted soles p95 16.9 mm, lowest -20.7 mm',
+    ('walk_soles', 'metarig_gltf_fortune'): 'planted soles p95 44.6 mm, lowest -54.1 mm',
+    ('walk_soles', 'metarig_fbx'): 'planted soles p95 12.6 mm, lowest -15.4 mm',
+    ('walk_soles', 'metarig_fbx_auto_orient'): 'planted soles p95 12.6 mm, lowest -15.4 mm',
+    ('walk_soles', 'metarig_fbx_no_leaf'): 'planted soles p95 13.7 mm, lowest -18.2 mm',
+    ('walk_soles', 'metarig_fbx_auto_orient_no_leaf'): 'planted soles p95 13.7 mm, lowest -18.2 mm',
+    ('walk_soles', 'metarig_gltf_unnamed_face_px'):
         "exit 2: --target 'metarig' cannot be mapped: Cannot map rig 'metarig': no right leg found",
-    ("walk_soles", "mannequin_f_face_px"): 'planted soles p95 30.2 mm, lowest -54.0 mm',
-    ("walk_soles", "mannequin_f_face_py"): 'planted soles p95 30.2 mm, lowest -54.0 mm',
-    ("walk_slide", "kenney"): "slide p95 14.8 mm (the source's own 21.0 mm)",
-    ("walk_slide", "quaternius_matt"):
-        "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left "
-        'foot found',
-    ("walk_slide", "quaternius_mannequin_f"): "slide p95 9.2 mm (the source's own 21.0 mm)",
-    ("walk_slide", "kaykit_manny"): "slide p95 9.8 mm (the source's own 21.0 mm)",
-    ("walk_slide", "godot_plush"):
+    ('walk_soles', 'mannequin_f_face_px'): 'planted soles p95 30.2 mm, lowest -54.0 mm',
+    ('walk_soles', 'mannequin_f_face_py'): 'planted soles p95 30.2 mm, lowest -54.0 mm',
+    ('walk_slide', 'kenney'): "slide p95 14.8 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'quaternius_matt'):
+        "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left foot found",
+    ('walk_slide', 'quaternius_mannequin_f'): "slide p95 9.2 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'kaykit_manny'): "slide p95 9.8 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'godot_plush'):
         "exit 2: --target 'Rig' cannot be mapped: Cannot map rig 'Rig': no hips (root) bone found",
-    ("walk_slide", "godot_robot"):
+    ('walk_slide', 'godot_robot'):
         "exit 2: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left leg found",
-    ("walk_slide", "gdquest_mannequiny"): "slide p95 13.3 mm (the source's own 21.0 mm)",
-    ("walk_slide", "metarig"): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ("walk_slide", "metarig_tpose"): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ("walk_slide", "metarig_apose"): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ("walk_slide", "metarig_face_px"): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ("walk_slide", "metarig_face_nx"): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ("walk_slide", "metarig_face_py"): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ("walk_slide", "metarig_low_soles"): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ("walk_slide", "metarig_cm_units"): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ("walk_slide", "metarig_object_scale_0.01"): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ("walk_slide", "metarig_object_scale_100"): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ("walk_slide", "metarig_unnamed"): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ("walk_slide", "metarig_gltf_blender"): "slide p95 8.7 mm (the source's own 21.0 mm)",
-    ("walk_slide", "metarig_gltf_temperance"): "slide p95 8.7 mm (the source's own 21.0 mm)",
-    ("walk_slide", "metarig_gltf_fortune"): "slide p95 5.9 mm (the source's own 21.0 mm)",
-    ("walk_slide", "metarig_fbx"): "slide p95 13.4 mm (the source's own 21.0 mm)",
-    ("walk_slide", "metarig_fbx_auto_orient"): "slide p95 13.4 mm (the source's own 21.0 mm)",
-    ("walk_slide", "metarig_fbx_no_leaf"): "slide p95 9.9 mm (the source's own 21.0 mm)",
-    ("walk_slide", "metarig_fbx_auto_orient_no_leaf"): "slide p95 9.9 mm (the source's own 21.0 mm)",
-    ("walk_slide", "metarig_gltf_unnamed_face_px"):
+    ('walk_slide', 'gdquest_mannequiny'): "slide p95 13.3 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig'): "slide p95 7.5 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_tpose'): "slide p95 7.5 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_apose'): "slide p95 7.5 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_face_px'): "slide p95 7.5 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_face_nx'): "slide p95 7.5 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_face_py'): "slide p95 7.5 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_low_soles'): "slide p95 7.5 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_cm_units'): "slide p95 7.5 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_object_scale_0.01'): "slide p95 7.5 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_object_scale_100'): "slide p95 7.5 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_unnamed'): "slide p95 7.5 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_gltf_blender'): "slide p95 8.7 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_gltf_temperance'): "slide p95 8.7 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_gltf_fortune'): "slide p95 5.9 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_fbx'): "slide p95 13.4 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_fbx_auto_orient'): "slide p95 13.4 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_fbx_no_leaf'): "slide p95 9.9 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_fbx_auto_orient_no_leaf'): "slide p95 9.9 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_gltf_unnamed_face_px'):
         "exit 2: --target 'metarig' cannot be mapped: Cannot map rig 'metarig': no right leg found",
-    ("walk_slide", "mannequin_f_face_px"): "slide p95 9.2 mm (the source's own 21.0 mm)",
-    ("walk_slide", "mannequin_f_face_py"): "slide p95 9.2 mm (the source's own 21.0 mm)",
-    ("walk_limbs", "quaternius_matt"):
-        "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left "
-        'foot found',
-    ("walk_limbs", "godot_plush"):
+    ('walk_slide', 'mannequin_f_face_px'): "slide p95 9.2 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'mannequin_f_face_py'): "slide p95 9.2 mm (the source's own 21.0 mm)",
+    ('walk_limbs', 'quaternius_matt'):
+        "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left foot found",
+    ('walk_limbs', 'godot_robot'):
+        "exit 2: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left leg found",
+    ('walk_heading', 'quaternius_matt'):
+        "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left foot found",
+    ('walk_heading', 'godot_robot'):
+        "exit 2: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left leg found",
+    ('walk_heading', 'metarig_face_px'): "heading -89.3 deg off the source's travel",
+    ('walk_heading', 'metarig_face_nx'): "heading 90.7 deg off the source's travel",
+    ('walk_heading', 'metarig_face_py'): "heading -179.3 deg off the source's travel",
+    ('walk_heading', 'metarig_gltf_unnamed_face_px'):
+        "exit 2: --target 'metarig' cannot be mapped: Cannot map rig 'metarig': no right leg found",
+    ('walk_heading', 'mannequin_f_face_px'): "heading -89.1 deg off the source's travel",
+    ('walk_heading', 'mannequin_f_face_py'): "heading -179.1 deg off the source's travel",
+    ('walk_pops', 'quaternius_matt'):
+        "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left foot found",
+    ('walk_pops', 'kaykit_manny'): '11 pop frames (source 0), largest step 43.6 deg',
+    ('walk_pops', 'godot_plush'):
         "exit 2: --target 'Rig' cannot be mapped: Cannot map rig 'Rig': no hips (root) bone found",
-    ("walk_limbs", "godot_robot"):
+    ('walk_pops', 'godot_robot'):
         "exit 2: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left leg found",
-    ("walk_limbs", "metarig_gltf_unnamed_face_px"):
-        "exit 2: --target 'metarig' cannot be mapped: Cannot map rig 'metarig': no right leg found",
-    ("walk_heading", "quaternius_matt"):
-        "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left "
-        'foot found',
-    ("walk_heading", "godot_plush"):
+    ('walk_report', 'kenney'): 'report and written file differ by 155.6 mm',
+    ('walk_report', 'quaternius_matt'):
+        "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left foot found",
+    ('walk_report', 'quaternius_mannequin_f'): 'report and written file differ by 54.0 mm',
+    ('walk_report', 'kaykit_manny'): 'report and written file differ by 113.5 mm',
+    ('walk_report', 'godot_plush'):
         "exit 2: --target 'Rig' cannot be mapped: Cannot map rig 'Rig': no hips (root) bone found",
-    ("walk_heading", "godot_robot"):
+    ('walk_report', 'godot_robot'):
         "exit 2: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left leg found",
-    ("walk_heading", "metarig_face_px"): "heading -89.3 deg off the source's travel",
-    ("walk_heading", "metarig_face_nx"): "heading 90.7 deg off the source's travel",
-    ("walk_heading", "metarig_face_py"): "heading -179.3 deg off the source's travel",
-    ("walk_heading", "metarig_gltf_unnamed_face_px"):
+    ('walk_report', 'gdquest_mannequiny'): 'report and written file differ by 64.2 mm',
+    ('walk_report', 'metarig'): 'report and written file differ by 25.7 mm',
+    ('walk_report', 'metarig_tpose'): 'report and written file differ by 25.7 mm',
+    ('walk_report', 'metarig_apose'): 'report and written file differ by 25.7 mm',
+    ('walk_report', 'metarig_face_px'): 'report and written file differ by 25.7 mm',
+    ('walk_report', 'metarig_face_nx'): 'report and written file differ by 25.7 mm',
+    ('walk_report', 'metarig_face_py'): 'report and written file differ by 25.7 mm',
+    ('walk_report', 'metarig_low_soles'): 'report and written file differ by 84.0 mm',
+    ('walk_report', 'metarig_cm_units'): 'report and written file differ by 25.7 mm',
+    ('walk_report', 'metarig_object_scale_0.01'): 'report and written file differ by 25.7 mm',
+    ('walk_report', 'metarig_object_scale_100'): 'report and written file differ by 25.7 mm',
+    ('walk_report', 'metarig_unnamed'): 'report and written file differ by 25.7 mm',
+    ('walk_report', 'metarig_gltf_blender'): 'report and written file differ by 20.7 mm',
+    ('walk_report', 'metarig_gltf_temperance'): 'report and written file differ by 20.7 mm',
+    ('walk_report', 'metarig_gltf_fortune'): 'report and written file differ by 54.1 mm',
+    ('walk_report', 'metarig_fbx'): 'report and written file differ by 15.4 mm',
+    ('walk_report', 'metarig_fbx_auto_orient'): 'report and written file differ by 15.4 mm',
+    ('walk_report', 'metarig_fbx_no_leaf'): 'report and written file differ by 18.2 mm',
+    ('walk_report', 'metarig_fbx_auto_orient_no_leaf'): 'report and written file differ by 18.2 mm',
+    ('walk_report', 'metarig_gltf_unnamed_face_px'):
         "exit 2: --target 'metarig' cannot be mapped: Cannot map rig 'metarig': no right leg found",
-    ("walk_heading", "mannequin_f_face_px"): "heading -89.1 deg off the source's travel",
-    ("walk_heading", "mannequin_f_face_py"): "heading -179.1 deg off the source's travel",
-    ("walk_pops", "quaternius_matt"):
-        "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left "
-        'foot found',
-    ("walk_pops", "kaykit_manny"): '11 pop frames (source 0), largest step 43.6 deg',
-    ("walk_pops", "godot_plush"):
-        "exit 2: --target 'Rig' cannot be mapped: Cannot map rig 'Rig': no hips (root) bone found",
-    ("walk_pops", "godot_robot"):
-        "exit 2: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left leg found",
-    ("walk_pops", "metarig_gltf_unnamed_face_px"):
-        "exit 2: --target 'metarig' cannot be mapped: Cannot map rig 'metarig': no right leg found",
-    ("walk_report", "kenney"): 'report and written file differ by 155.6 mm',
-    ("walk_report", "quaternius_matt"):
-        "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left "
-        'foot found',
-    ("walk_report", "quaternius_mannequin_f"): 'report and written file differ by 54.0 mm',
-    ("walk_report", "kaykit_manny"): 'report and written file differ by 113.5 mm',
-    ("walk_report", "godot_plush"):
-        "exit 2: --target 'Rig' cannot be mapped: Cannot map rig 'Rig': no hips (root) bone found",
-    ("walk_report", "godot_robot"):
-        "exit 2: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left leg found",
-    ("walk_report", "gdquest_mannequiny"): 'report and written file differ by 64.2 mm',
-    ("walk_report", "metarig"): 'report and written file differ by 25.7 mm',
-    ("walk_report", "metarig_tpose"): 'report and written file differ by 25.7 mm',
-    ("walk_report", "metarig_apose"): 'report and written file differ by 25.7 mm',
-    ("walk_report", "metarig_face_px"): 'report and written file differ by 25.7 mm',
-    ("walk_report", "metarig_face_nx"): 'report and written file differ by 25.7 mm',
-    ("walk_report", "metarig_face_py"): 'report and written file differ by 25.7 mm',
-    ("walk_report", "metarig_low_soles"): 'report and written file differ by 84.0 mm',
-    ("walk_report", "metarig_cm_units"): 'report and written file differ by 25.7 mm',
-    ("walk_report", "metarig_object_scale_0.01"): 'report and written file differ by 25.7 mm',
-    ("walk_report", "metarig_object_scale_100"): 'report and written file differ by 25.7 mm',
-    ("walk_report", "metarig_unnamed"): 'report and written file differ by 25.7 mm',
-    ("walk_report", "metarig_gltf_blender"): 'report and written file differ by 20.7 mm',
-    ("walk_report", "metarig_gltf_temperance"): 'report and written file differ by 20.7 mm',
-    ("walk_report", "metarig_gltf_fortune"): 'report and written file differ by 54.1 mm',
-    ("walk_report", "metarig_fbx"): 'report and written file differ by 15.4 mm',
-    ("walk_report", "metarig_fbx_auto_orient"): 'report and written file differ by 15.4 mm',
-    ("walk_report", "metarig_fbx_no_leaf"): 'report and written file differ by 18.2 mm',
-    ("walk_report", "metarig_fbx_auto_orient_no_leaf"): 'report and written file differ by 18.2 mm',
-    ("walk_report", "metarig_gltf_unnamed_face_px"):
-        "exit 2: --target 'metarig' cannot be mapped: Cannot map rig 'metarig': no right leg found",
-    ("walk_report", "mannequin_f_face_px"): 'report and written file differ by 54.0 mm',
-    ("walk_report", "mannequin_f_face_py"): 'report and written file differ by 54.0 mm',
+    ('walk_report', 'mannequin_f_face_px'): 'report and written file differ by 54.0 mm',
+    ('walk_report', 'mannequin_f_face_py'): 'report and written file differ by 54.0 mm',
 }
 
 
