@@ -1,4 +1,4 @@
-"""Real characters and the rigs users bring (issue 27): per rig, mapping, Adjust Pose near/far/obstacle and a
+"""Real characters and the rigs users bring: per rig, mapping, Adjust Pose near/far/obstacle and a
 retargeted CMU walk, measured from Blender's evaluation of what the product wrote (tests/helpers/rig_measures.py),
 never from the solver's own numbers.
 

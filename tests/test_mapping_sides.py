@@ -5,7 +5,7 @@ a rig that cannot be mapped gets.
 The rigs are the synthetic Mixamo, Unreal and CMU skeletons of test_mapping_rules (metres, z up, facing -Y,
 their left at +X), turned about z with the turn in the bone data (as `Apply Rotation` leaves a rig), renamed
 "Bone", "Bone.001", ... (no side marker), their tails moved as importers move them, or their side labels
-mirrored; and small rigs built here shaped like the real characters of issue 27 (a plush toy without spine, a
+mirrored; and small rigs built here shaped like the real characters users bring (a plush toy without spine, a
 chibi rig with wrist + hand + prop bones, a robot without hands, a character with IK-style feet).
 """
 
@@ -173,7 +173,7 @@ def test_tails_from_importers_change_nothing(kind, tails):
     assert detect_map(plain) == rename_map(make_groups(), desc.names, names)
 
 
-# --- rigs shaped like the real characters of issue 27 ----------------------------------------------------------
+# --- rigs shaped like the real characters users bring -------------------------------------------------------
 
 def plush():
     """Godot plush-like: no spine; a big head bone at the hips carries the arms; stubby legs with tall feet."""

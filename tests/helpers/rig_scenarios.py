@@ -1,6 +1,6 @@
-"""The scenarios of issue 27 on a real rig, run through the product's public entry points only (its operators
-and its command-line function) and measured with rig_measures from Blender's evaluation of what it wrote; shared
-by tests/blender/test_real_rigs.py and bench/real_rigs.py (whose docstring describes each scenario).
+"""The scenarios of the characters users bring, on a real rig, run through the product's public entry points only
+(its operators and its command-line function) and measured with rig_measures from Blender's evaluation of what it
+wrote; shared by tests/blender/test_real_rigs.py and bench/real_rigs.py (whose docstring describes each scenario).
 
   map_case, near_case, far_case, obstacle_case (Saved) -> dict of figures
   retarget_case(Saved, folder, cli) -> dict of figures (cli: the product's cli module, whose main(argv) is the
