@@ -16,6 +16,7 @@ import numpy as np
 
 from ..solver import Boxes, ChainSettings, SolverInputError
 from ..solver.adjust import AdjustSettings, adjust_frames as solve_frames
+from ..solver.adjust_types import UNCONSTRAINED
 from ..solver.body import CHAIN, END, ROOT
 from ..solver.geometry import norm
 from ..solver.joint_ends import end_points
@@ -241,12 +242,16 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
     try:
         limits = ik_limits.joint_limits(obj, model, heads, tails, snapshot.pose_matrices, settings,
                                         controls=rig.fk_controls)
-        result = solve_frames(model, heads, tails, arm_targets, targets.EFFECTORS, priorities, obstacles=boxes,
-                              settings=solve_settings,
+        served = _served(obj, model, world_targets)
+        result = solve_frames(model, heads, tails, arm_targets[:, served], _columns(targets.EFFECTORS, served),
+                              priorities[served], obstacles=boxes, settings=solve_settings,
                               bone_x_axes=snapshot.pose_matrices[..., :3, 0], limits=limits,
-                              end_turns=end_turns, poles=poles)
+                              end_turns=None if end_turns is None else end_turns[:, served],
+                              poles=None if poles is None else poles[:, served])
     except SolverInputError as ex:
         raise AdjustError(f"Cannot adjust '{obj.name}': {ex}") from None
+    status, reasons = (_widened(values, served, fill) for values, fill in
+                       ((result.status, UNCONSTRAINED), (result.reasons, "no target on this frame")))
     progress("writing", 0.8)
 
     oriented = goals.oriented.any(axis=0)  # (E,) effectors that take their target's orientation
@@ -282,7 +287,7 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
         world_effectors = _effector_positions(model, _armature_units(result.heads, unit), snapshot.matrix_world)
     residuals = norm(world_effectors - world_targets)
     return Outcome(frames=np.asarray(frames, dtype=np.float64), effectors=tuple(targets.EFFECTORS),
-                   residuals=residuals, status=result.status, reasons=result.reasons, moved_bones=names,
+                   residuals=residuals, status=status, reasons=reasons, moved_bones=names,
                    count_penetrations=lambda: _penetrations(model, result.heads, result.tails, boxes), action=action)
 
 
@@ -457,6 +462,28 @@ def _orthonormal(matrices):
     armature transform, or a bone's pose matrix without its scale."""
     u, _s, vt = np.linalg.svd(matrices)
     return u @ vt
+
+
+def _served(obj, model, world_targets):
+    """Columns of the EFFECTORS the model can serve (the head only with neck bones mapped); AdjustError naming the
+    slot when an enabled target asks for one it cannot."""
+    served = [k for k, effector in enumerate(targets.EFFECTORS) if effector in model.effectors]
+    for k, effector in enumerate(targets.EFFECTORS):
+        if k not in served and np.isfinite(world_targets[:, k]).any():
+            raise AdjustError(f"The {effector} target of '{obj.name}' needs neck bones mapped below the head: "
+                              f"map them in Bone Mapping, or switch the {effector} slot off")
+    return served
+
+
+def _columns(values, served):
+    return tuple(values[k] for k in served)
+
+
+def _widened(values, served, fill):
+    """(F,k) values of the served effectors as (F,E), ``fill`` for the others."""
+    out = np.full(values.shape[:1] + (len(targets.EFFECTORS),), fill, dtype=object)
+    out[:, served] = values
+    return out.astype(str)
 
 
 def _priorities(obj):

@@ -464,3 +464,22 @@ def test_a_target_missed_within_reach_is_a_warning(capfd):
     assert "Warning: hand.L missed its target within reach by" in out, out
     reported = float(out.split("within reach by ")[1].split()[0])
     assert reported == pytest.approx(missed, rel=1e-2)
+
+
+def test_rig_without_neck_bones(capfd):
+    """A head mapped without neck bones (many game characters) serves no head target, yet the rig adjusts; a
+    head target switched on anyway gets one line naming the slot."""
+    obj = rig_with_targets("basic")
+    items = obj.fullbody_adjust.bone_map
+    for index in reversed(range(len(items))):  # the head group without its neck bones, as a user may map it
+        if items[index].group == "head" and items[index].bone != bone_map(obj)["head"][-1]:
+            items.remove(index)
+    assert len(bone_map(obj)["head"]) == 1
+    before = Pose(obj)
+    enabled = reach_left_hand(obj, before, "arm")
+    assert_met(obj, adjust(capfd), enabled, before.height())
+    head_slot = slot(obj, "head")
+    head_slot.target = slot(obj, "hand.L").target
+    head_slot.enabled = True
+    with pytest.raises(RuntimeError, match="head target of 'metarig' needs neck bones"):
+        bpy.ops.fullbody_adjust.adjust_pose()

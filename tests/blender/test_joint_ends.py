@@ -1,6 +1,7 @@
 """Joints, not tails: a rig whose tails an importer left far past the next joint (as Blender's glTF importer
 does) is solved exactly as the same rig with its tails on the joints."""
 
+import importlib
 import re
 
 import bpy
@@ -92,3 +93,23 @@ def test_units_and_object_scale_give_world_figures(capfd):
     plain, scaled = _numbers(reports[0]), _numbers(reports[1])
     assert len(plain) == len(scaled) >= 2, reports
     np.testing.assert_allclose(scaled, plain, rtol=1e-3)
+
+
+def test_preview_draws_bones_to_their_joints(extension_module_name):
+    """The command line's preview draws each bone from its head to where it ends as a joint: on a rig whose tails
+    lie 100 times past the next joint, to its child's head (a leaf no longer than its parent)."""
+    batch = importlib.import_module(f"{extension_module_name}.bridge.batch")
+    obj = add_rig("basic")
+    _far_tails(obj, 100.0)
+    segments = batch.skeleton_segments(obj, [1])[0]  # every bone deforms
+    pose = Pose(obj)
+    index = {name: k for k, name in enumerate(pose.names)}
+    for bone in obj.data.bones:
+        start, end = segments[index[bone.name]]
+        np.testing.assert_allclose(start, pose.world_heads[index[bone.name]], atol=1e-6)
+        kids = [c for c in bone.children if (c.head_local - bone.head_local).length > 1e-4]
+        if len(kids) == 1:
+            np.testing.assert_allclose(end, pose.world_heads[index[kids[0].name]], atol=1e-5)
+        elif not kids and bone.parent is not None:
+            assert np.linalg.norm(end - start) <= 1.0001 * np.linalg.norm(
+                segments[index[bone.parent.name]][1] - segments[index[bone.parent.name]][0])
