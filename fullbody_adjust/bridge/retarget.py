@@ -147,8 +147,7 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
 
 def _effector_points(rig, pose):
     """{effector: its points (F,P,3)} of a rig's pose (F,J,4,4), world space."""
-    heads, tails = rig.world_points(pose)
-    return {e: rt.effector_points(rig, heads, tails, e) for e in rt.EFFECTORS}
+    return {e: rt.effector_points(rig, pose, e) for e in rt.EFFECTORS}
 
 
 def _contact_figures(prepared, target_points, source_points, reachable, fps):
@@ -243,7 +242,7 @@ def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *
         if len(target.names) != len(target_basis):  # a control rig's skeleton: its bones' own bases
             target_basis = target_basis[[target_obj.pose.bones.find(name) for name in target.names]]
         if floor is not None and ground:  # the source raised so its floor is the one given
-            below = rt.source_floor(source, *source.world_points(source_pose))
+            below = rt.source_floor(source, source_pose)
             if below != float(floor):
                 raised = source.matrix_world.copy()
                 raised[2, 3] += float(floor) - below

@@ -70,10 +70,10 @@ from .contacts import (GROUND, OBJECT, RAISED, Contact, ContactDetection, Retarg
                        box_distance, detect_contacts, hold, intervals)
 from .retarget_metrics import angular_roughness, contact_figures, roughness  # noqa: F401
 from .retarget_plan import RetargetPlan, body_shift, moving_average, plan_retarget, source_floor  # noqa: F401
-from .retarget_rig import (EFFECTORS, Rig, ankle_above_sole, basis_from_pose,  # noqa: F401
-                           body_frame, chain_joints, effector_points, forward_kinematics, heading_rotation,
-                           hip_centres, leg_length, leg_lengths,
-                           rest_points, sole_heights, unit_columns)
+from .retarget_rig import (EFFECTORS, FEET, Rig, ankle_above_sole, basis_from_pose,  # noqa: F401
+                           body_frame, chain_joints, effector_points, facing_turn, forward_kinematics,
+                           hip_centres, leg_length, leg_lengths, rest_forward,
+                           rest_points, sole_heights, soles_of, unit_columns)
 from .retarget_transfer import BonePair, pair_bones, transfer_pose, translate_body  # noqa: F401
 from .rotation_channels import (EULER_ORDERS, ROTATION_PROPERTY, axis_angle_to_matrices,  # noqa: F401
                                 basis_matrices, euler_to_matrices, matrices_to_axis_angle, matrices_to_euler,

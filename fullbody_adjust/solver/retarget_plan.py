@@ -11,8 +11,9 @@ from .adjust import sub_base_point
 from .contacts import GROUND, RetargetSettings, detect_contacts, hold
 from .errors import SolverInputError
 from .geometry import all_set, norm
+from .joint_ends import end_points
 from .retarget_rig import (EFFECTOR_CHAIN, EFFECTORS, FEET, Rig, ankle_above_sole, chain_joints, effector_points,
-                           heading_rotation, hip_centres, leg_length, rest_points, sole_heights)
+                           facing_turn, hip_centres, leg_length, rest_points, sole_heights)
 from .retarget_transfer import transfer_pose, translate_body
 
 
@@ -67,10 +68,10 @@ class RetargetPlan:
     """What the solve needs and what the caller reports, for F frames.
 
     start_pose (F,Jt,4,4): the transferred pose (target armature space); heads/tails (F,Jt,3) of it in
-    armature space; targets (F,4,3) for EFFECTORS in armature space, world_targets the same in world space;
+    armature space (tails: the joint ends, joint_ends.end_points, never the importer's tails); targets (F,4,3) for EFFECTORS in armature space, world_targets the same in world space;
     contacts (F,4) bool: frames held at a contact; contact_list {effector: [Contact]} the source's contacts
     (contact_intervals the same as (start, stop) pairs); leg_ratio target/source; ground: world z of the floor
-    (the source's lowest foot points), None when the floor is not a contact; boxes: the contact objects'
+    (the source's soles, Rig.soles), None when the floor is not a contact; boxes: the contact objects'
     world boxes (mins, maxs) or None."""
 
     start_pose: np.ndarray
@@ -109,13 +110,15 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
         raise SolverInputError("a rig's legs have zero length")
     ratio = leg_t / leg_s
 
-    # The motion turned to the target's heading (about the world origin; Z, so heights, unchanged).
-    heading = heading_rotation(target.rotation @ source.rotation.T)
+    # The motion turned to the target's heading (about the world origin; Z, so heights, unchanged): by the
+    # angle between the skeletons' rest facings (from hips and feet, whatever the objects' axes), so the
+    # target faces its travel as the source faces its own.
+    heading = facing_turn(source, target)
     turn = np.eye(4)
     turn[:3, :3] = heading
     turned = replace(source, matrix_world=turn @ source.matrix_world)
-    s_heads, s_tails = source.world_points(source_pose)  # where the source touches things
-    floor = source_floor(source, s_heads, s_tails)
+    s_heads = source.world_points(source_pose)[0]
+    floor = source_floor(source, source_pose)
     # Scale about the floor below each rig's rest hips: the source's motion, re-anchored on the target.
     anchor_s = hip_centres(turned, rest_points(turned)[0])
     anchor_t = hip_centres(target, rest_points(target)[0])
@@ -125,14 +128,14 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
         return anchor_t + ratio * (points @ heading.T - anchor_s)
 
     start = transfer_pose(turned, source_pose, target, target_basis, scaled(hip_centres(source, s_heads)))
-    t_heads, t_tails = target.world_points(start)
-    soles = ankle_above_sole(target, t_heads, t_tails)  # the transferred feet's own ankle heights
+    t_heads = target.world_points(start)[0]
+    soles = ankle_above_sole(target, start)  # the transferred feet's own ankle heights above their soles
     frames = len(source_pose)
     blend = settings.frames(settings.blend_duration) if settings.blend_duration else 0
     contacts = np.zeros((frames, len(EFFECTORS)), dtype=bool)
     found, s_points = {}, {}
     for k, e in enumerate(EFFECTORS):
-        s_points[e] = effector_points(source, s_heads, s_tails, e)
+        s_points[e] = effector_points(source, source_pose, e)  # where the source touches things
         found[e] = detect_contacts(e, s_points[e], floor if ground else None, boxes, leg_s, settings)
         for c in found[e]:
             contacts[c.start:c.stop, k] = True
@@ -147,7 +150,7 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
             for c in found[e]:
                 a, b = c.start, c.stop
                 if e in FEET:
-                    foot = effector_points(target, t_heads[a:b], t_tails[a:b], e)
+                    foot = effector_points(target, start[a:b], e)
                     path = _foot_path(c, paths[a:b, k], s_points[e][a:b], foot, soles[a:b, FEET.index(e)],
                                       settings.exact or c.kind == GROUND, anchor_t[2], ratio)
                 else:  # a hand on an object: still, where the source's is (or its scaled place)
@@ -181,17 +184,17 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     world_targets = held(free + shift[:, None])
     translate_body(target, start, shift)
     heads = start[..., :3, 3]
-    tails = heads + start[..., :3, 1] * target.lengths[:, None]
+    tails = end_points(start, target.ends)
     return RetargetPlan(start_pose=start, heads=heads, tails=tails, targets=target.to_armature(world_targets),
                         world_targets=world_targets, contacts=contacts,
                         contact_intervals={e: [(c.start, c.stop) for c in found[e]] for e in EFFECTORS},
                         leg_ratio=ratio, ground=floor if ground else None, contact_list=found, boxes=boxes)
 
 
-def source_floor(source, heads, tails):
-    """World z of the floor under the source's motion (world heads, tails (F,J,3)): its feet's lowest points,
-    the 2nd percentile over frames (a stumble below the floor is not the floor)."""
-    return float(np.percentile(sole_heights(source, heads, tails), 2))
+def source_floor(source, pose):
+    """World z of the floor under the source's motion (armature-space pose matrices (F,J,4,4)): its soles'
+    lowest points, the 2nd percentile over frames (a stumble below the floor is not the floor)."""
+    return float(np.percentile(sole_heights(source, pose), 2))
 
 
 def _foot_path(contact, free, source_points, target_points, soles, on_surface, floor, ratio):
@@ -202,10 +205,18 @@ def _foot_path(contact, free, source_points, target_points, soles, on_surface, f
     ``free`` (n,3), the ankle's free trajectory. The lowest point of the foot on the surface (its world height with
     ``on_surface``, else its height scaled about the floor)."""
     rel = target_points[:, :1, :2] - target_points[..., :2]  # (n,P,2) ankle less each point
-    on_ankle = norm(np.diff(source_points, axis=0)).argmin(axis=1) == 0
-    pivot = np.where(on_ankle, 0, target_points[:-1, :, 2].argmin(axis=1))
-    f = np.arange(len(pivot))
-    travel = np.concatenate([np.zeros((1, 2)), np.cumsum(rel[f + 1, pivot] - rel[f, pivot], axis=0)])
+    # Ties (a foot sliding rigidly, a flat heel's two ends) within rounding of the least: the ankle first, else
+    # the mean of the points equally low (a tie broken by rounding would turn the foot about one or another).
+    size = float(np.ptp(target_points[0], axis=0).max()) if len(target_points) else 0.0
+    steps = norm(np.diff(source_points, axis=0))
+    on_ankle = steps[:, 0] <= steps.min(axis=1) + 1e-9 * max(size, 1e-300)
+    z = target_points[:-1, :, 2]
+    weight = (z <= z.min(axis=1, keepdims=True) + 1e-9 * max(size, 1e-300)).astype(np.float64)
+    weight[on_ankle] = 0.0
+    weight[on_ankle, 0] = 1.0
+    weight /= weight.sum(axis=1, keepdims=True)
+    travel = np.concatenate([np.zeros((1, 2)), np.cumsum(np.einsum("fp,fpi->fi", weight, rel[1:] - rel[:-1]),
+                                                         axis=0)])
     path = np.empty_like(free)
     path[:, :2] = travel + (free[:, :2] - travel).mean(axis=0)
     surface = contact.surface if on_surface else floor + ratio * (contact.surface - floor)

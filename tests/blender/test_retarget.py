@@ -151,9 +151,10 @@ def slides(points, runs):
 
 
 def source_floor(source, frames):
-    """The floor under the source: the 2nd percentile of its lowest foot points, evaluated by Blender."""
-    rig = rig_of(source, source_map(source))
-    return np.percentile(rt.sole_heights(rig, evaluated_heads(source, frames), evaluated_tails(source, frames)), 2)
+    """The floor under the source: the 2nd percentile of its lowest foot points (heads and tails of the feet's
+    bones: the BVH's end sites are real), evaluated by Blender."""
+    lowest = np.minimum(*(source_foot_points(source, frames, e)[..., 2].min(axis=1) for e in ("foot.L", "foot.R")))
+    return np.percentile(lowest, 2)
 
 
 # ---------------------------------------------------------------------------------------------------------
