@@ -3,7 +3,9 @@ proportions, as a start pose and effector targets for adjust.adjust_frames, and 
 bone channels. No bpy: the bridge (bridge/retarget.py) reads the rigs and actions and writes the keys.
 
 Conventions. A ``Rig`` holds a skeleton's rest (``Bone.matrix_local``, armature space), its body-model groups
-(bone indices) and its object's world matrix. Poses are armature-space pose matrices (F,J,4,4), composed as
+(bone indices), its object's world matrix, each bone's joint end (solver/joint_ends.py: positions, lengths,
+reaches and segment directions are joints, never the tails an importer left) and each foot's sole (the lowest
+skinned vertices of the character's mesh, or the foot's joints without one: retarget_soles). Poses are armature-space pose matrices (F,J,4,4), composed as
 Blender does (``pose = parent pose @ parent_rest^-1 @ rest @ basis``; a connected bone ignores its location).
 Rotation channels follow Blender: Euler angles stored per axis, composed in the mode's order ('XYZ' is
 Rz @ Ry @ Rx), quaternions (w, x, y, z), axis-angle (angle, x, y, z).
@@ -34,14 +36,18 @@ Rz @ Ry @ Rx), quaternions (w, x, y, z), axis-angle (angle, x, y, z).
    of step 1 puts them, so the solve leaves the limbs at the source's angles. Each effector's contacts come
    from what it touches in the source (contacts.detect_contacts: its slowest point still, speeds per second
    and distances in leg lengths, so any frame rate and size): a contact object's box (hands and feet), the
-   floor (feet; the source's lowest foot points, 2nd percentile), or something raised (a foot still off
+   floor (feet; the source's soles' lowest points, 2nd percentile), or something raised (a foot still off
    both). Over a contact the target is held, its offset from the free trajectory blended in and out over
    frames enough to move there without a jump:
-     - a foot: it rolls about whichever of its points is on the ground on each frame (no sliding), centred
-       on its free trajectory, its lowest point exactly on the floor, or on the raised support at its world
-       height;
+     - a foot: it rolls about whichever point of its sole is on the ground on each frame (no sliding),
+       centred on its free trajectory, its sole's lowest point exactly on the floor, or on the raised support
+       at its world height;
      - a hand on an object: still at the mean of the source's own world positions (exact) or its scaled
        ones (exact=False; scaled about the ground below the hips, by the leg ratio, turned by the heading).
+   The heading: the source's motion is turned about world Z by the angle from the source skeleton's rest
+   forward to the target's (retarget_rig.rest_forward: from the hips and the SC, else the feet; never the
+   objects' axes), so the target faces its travel as the source faces its own: a source walking forward
+   makes the target walk forward, whichever way either character faces in its file.
    No foot goes below the floor. The whole body then shifts, smoothly, as its held hands and feet moved (on
    average), and as far again as needed to bring every target within its limb's reach less a margin (see
    ``RetargetSettings.reach_margin``); the free trajectories move with it, so only the held limbs are

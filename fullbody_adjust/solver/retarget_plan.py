@@ -151,7 +151,7 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
                 a, b = c.start, c.stop
                 if e in FEET:
                     foot = effector_points(target, start[a:b], e)
-                    path = _foot_path(c, paths[a:b, k], s_points[e][a:b], foot, soles[a:b, FEET.index(e)],
+                    path = _foot_path(c, paths[a:b, k], foot, soles[a:b, FEET.index(e)],
                                       settings.exact or c.kind == GROUND, anchor_t[2], ratio)
                 else:  # a hand on an object: still, where the source's is (or its scaled place)
                     path = (s_points[e][a:b, 0] if settings.exact else scaled(s_points[e][a:b, 0])).mean(axis=0)
@@ -197,23 +197,18 @@ def source_floor(source, pose):
     return float(np.percentile(sole_heights(source, pose), 2))
 
 
-def _foot_path(contact, free, source_points, target_points, soles, on_surface, floor, ratio):
-    """The ankle's path (n,3) over a foot contact: the target's own foot (points (n,P,3), ankle first, as
-    transferred) rolls and turns as the source's (points (n,Q,3), ankle first) does, from each frame to the
-    next about the ankle where the source's ankle is its stillest point (a foot turning on its heel), else
-    about whichever of its points is lowest (heel, ball, toes: the one on the ground); the path is centred on
-    ``free`` (n,3), the ankle's free trajectory. The lowest point of the foot on the surface (its world height with
-    ``on_surface``, else its height scaled about the floor)."""
-    rel = target_points[:, :1, :2] - target_points[..., :2]  # (n,P,2) ankle less each point
-    # Ties (a foot sliding rigidly, a flat heel's two ends) within rounding of the least: the ankle first, else
-    # the mean of the points equally low (a tie broken by rounding would turn the foot about one or another).
+def _foot_path(contact, free, target_points, soles, on_surface, floor, ratio):
+    """The ankle's path (n,3) over a foot contact: the target's own foot (points (n,P,3), ankle first, then its
+    sole, as transferred) rolls and turns as transferred, from each frame to the next about whichever point
+    of its sole is lowest (heel, ball, toes: the one on the ground; points equally low, as a flat heel's two
+    ends, by their mean: a tie broken by rounding would turn the foot about one or the other). The sole
+    point it turns about does not slide; the path is centred on ``free`` (n,3), the ankle's free trajectory.
+    The lowest point of the sole on the surface (its world height with ``on_surface``, else its height
+    scaled about the floor)."""
+    rel = target_points[:, :1, :2] - target_points[:, 1:, :2]  # (n,P,2) ankle less each sole point
     size = float(np.ptp(target_points[0], axis=0).max()) if len(target_points) else 0.0
-    steps = norm(np.diff(source_points, axis=0))
-    on_ankle = steps[:, 0] <= steps.min(axis=1) + 1e-9 * max(size, 1e-300)
-    z = target_points[:-1, :, 2]
+    z = target_points[:-1, 1:, 2]
     weight = (z <= z.min(axis=1, keepdims=True) + 1e-9 * max(size, 1e-300)).astype(np.float64)
-    weight[on_ankle] = 0.0
-    weight[on_ankle, 0] = 1.0
     weight /= weight.sum(axis=1, keepdims=True)
     travel = np.concatenate([np.zeros((1, 2)), np.cumsum(np.einsum("fp,fpi->fi", weight, rel[1:] - rel[:-1]),
                                                          axis=0)])
