@@ -7,6 +7,10 @@ import numpy as np
 from ..solver.retarget_soles import FEET
 
 # A vertex belongs to a foot when at least this share of its weight is on the foot bone and the bones below it.
+# (The rest of its weight, often on the shin near the heel, moves it with the knee as skinning does: the plan
+# sees the transferred knee, the solve may bend it a little more or less, so such a point may slide a few mm,
+# which the report measures. Only the wholly foot-weighted vertices are not enough: on real meshes the
+# lowest vertices are often shared with the shin.)
 _FOOT_SHARE = 0.5
 # The sole: the foot's vertices no higher above its lowest one than this fraction of the ankle's height above it.
 _SOLE_BAND = 0.35

@@ -1,0 +1,73 @@
+"""Armature units and object scale are handled once, at the bridge (bridge/retarget_read.rig_of: the Rig's
+world matrix): a source whose armature is a hundredth of the size, scaled up 100 times by its object, or a
+target in centimetres scaled by 0.01, retargets exactly as the plain ones, and the figures reported are
+world units (metres here)."""
+
+import bpy
+import numpy as np
+import pytest
+
+from fullbody_adjust.bridge import keyframes, retarget
+from fullbody_adjust.bridge.pose import read_pose_frames
+from tests.helpers.bvh import CMU_SCALE, MOCAP_DIR
+
+from .test_retarget import FRAMES, WALK, add_metarig, enable_addon, select_only
+
+
+def import_walk(units=1.0):
+    """The CMU walk with its armature ``units`` times the size (its rest scaled in the data, its location keys
+    with it), its object scaled by 1/units: the same size in the world, as a glTF character 0.115 units tall
+    scaled up by its node is. (The BVH importer's own scale would also change the tails it makes up.)"""
+    enable_addon("io_anim_bvh")
+    bpy.ops.import_anim.bvh(filepath=str(MOCAP_DIR / WALK), global_scale=CMU_SCALE, update_scene_fps=True,
+                            update_scene_duration=True)
+    obj = bpy.context.active_object
+    if units != 1.0:
+        select_only(obj)
+        obj.scale = (units,) * 3
+        bpy.ops.object.transform_apply(location=False, rotation=False, scale=True)
+        for fc in keyframes.animating_fcurves(obj):
+            if fc.data_path.endswith(".location"):
+                for key in fc.keyframe_points:
+                    key.co[1] *= units
+                    key.handle_left[1] *= units
+                    key.handle_right[1] *= units
+        obj.scale = (1.0 / units,) * 3
+    bpy.context.view_layer.update()
+    return obj
+
+
+def world_heads(obj, frames):
+    return read_pose_frames(obj, np.asarray(frames, dtype=float)).heads
+
+
+def _retarget(source_units, target_units):
+    bpy.ops.wm.read_homefile(use_empty=True)
+    source = import_walk(source_units)
+    target = add_metarig(1.0, location=(1.5, 0.0, 0.0))
+    if target_units != 1.0:  # the metarig in other units: its data scaled, its object scaled back
+        select_only(target)
+        target.scale = (target_units,) * 3
+        bpy.ops.object.transform_apply(location=False, rotation=False, scale=True)
+        target.scale = (1.0 / target_units,) * 3
+        bpy.context.view_layer.update()
+    outcome = retarget.retarget(bpy.context, source, target, *FRAMES)
+    return outcome, world_heads(target, outcome.frames)
+
+
+@pytest.mark.parametrize("source_units, target_units", [(0.01, 1.0), (1.0, 100.0), (0.01, 100.0)])
+def test_units_and_object_scale_change_nothing_in_the_world(source_units, target_units):
+    plain, heads = _retarget(1.0, 1.0)
+    other, other_heads = _retarget(source_units, target_units)
+    np.testing.assert_allclose(other_heads, heads, atol=1e-4)  # metres (float32 data at other scales)
+    assert other.leg_ratio == pytest.approx(plain.leg_ratio, rel=1e-5)
+    a, b = plain.contact_report, other.contact_report
+    assert b["floor"] == pytest.approx(a["floor"], abs=1e-4)
+    for effector, figures in a["effectors"].items():
+        got = b["effectors"][effector]
+        assert got["frames_below_floor"] == figures["frames_below_floor"]
+        assert got["contacts"] == figures["contacts"]
+        for key in ("contact_error", "sliding"):
+            if figures[key]["max"] is not None:
+                assert got[key]["max"] == pytest.approx(figures[key]["max"], abs=1e-4)
+    assert float(np.max(other.residuals)) == pytest.approx(float(np.max(plain.residuals)), abs=1e-4)
