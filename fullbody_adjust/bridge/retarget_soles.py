@@ -14,7 +14,8 @@ from ..solver.retarget_soles import FEET
 _FOOT_SHARE = 0.5
 # The sole: the foot's vertices no higher above its lowest one than this fraction of the ankle's height above it.
 _SOLE_BAND = 0.35
-# At most this many points per sole (spread over the sole: the lowest first, then the farthest from those kept).
+# At most this many points per sole besides those lowest for some tilt (spread over the sole: the lowest first,
+# then each time the farthest from those kept).
 _MAX_POINTS = 128
 
 
@@ -49,6 +50,17 @@ def _vertex_weights(mesh_obj, bone_index):
         bones[r, :len(pairs)] = [b for b, _ in pairs]
         weights[r, :len(pairs)] = [w for _, w in pairs]
     return np.array([i for i, _ in rows], dtype=np.int64), bones, weights
+
+
+def _extremes(points):
+    """Indices of the points (N,3) that are lowest for some tilt of the foot: the lowest along each of a fan
+    of directions within 75 degrees of straight down (the convex hull's underside, where a foot turned any
+    way a foot turns touches the floor first)."""
+    tilt = np.radians(np.arange(0.0, 76.0, 7.5))[:, None]
+    turn = np.radians(np.arange(0.0, 360.0, 15.0))[None, :]
+    down = np.stack([np.sin(tilt) * np.cos(turn), np.sin(tilt) * np.sin(turn),
+                     -np.cos(tilt) * np.ones_like(turn)], axis=-1).reshape(-1, 3)
+    return np.unique((points @ down.T).argmax(axis=0))
 
 
 def _spread(points, count):
@@ -106,6 +118,10 @@ def mesh_soles(obj, names, parents, groups, rest):
         ankle_z = float((world @ rest[ankle][:, 3])[2])
         band = lowest + _SOLE_BAND * max(ankle_z - lowest, 0.0)
         chosen = np.nonzero(on_foot & (heights <= band))[0]
-        chosen = chosen[_spread(points[chosen] @ world[:3, :3].T, _MAX_POINTS)]
+        in_world = points[chosen] @ world[:3, :3].T
+        hull = _extremes(in_world)  # the points a tilted foot stands on, then others spread over the sole
+        rest_of = np.setdiff1d(np.arange(len(chosen)), hull)
+        extra = rest_of[_spread(in_world[rest_of], max(_MAX_POINTS - len(hull), 0))] if len(rest_of) else rest_of
+        chosen = chosen[np.concatenate([hull, extra]).astype(np.int64)]
         out[foot] = (points[chosen], bones[chosen], weights[chosen])
     return out
