@@ -36,6 +36,8 @@ from .retarget_read import (check_source, contact_boxes, frame_range, pose_prope
                             source_map, with_world)
 from .retarget_write import write_pose
 
+_REFITS = 2  # solves after the first, at most, with the feet held as the solve shaped them
+
 
 @dataclass
 class RetargetOutcome:
@@ -118,8 +120,24 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
         settings = adjustment.settings_of(target_obj)
         limits = rt.motion_limits(model, start, heads, tails, settings.human_limits) if settings.use_limits else None
         limits = ik_limits.joint_limits(target_obj, model, heads, tails, start, settings, defaults=limits)
-        result = solve_frames(model, heads, tails, plan.targets, rt.EFFECTORS,
-                              [targets.DEFAULT_PRIORITY[e] for e in rt.EFFECTORS], settings=settings, limits=limits)
+
+        def solve():
+            return solve_frames(model, heads, tails, plan.targets, rt.EFFECTORS,
+                                [targets.DEFAULT_PRIORITY[e] for e in rt.EFFECTORS], settings=settings,
+                                limits=limits)
+
+        result = solve()
+        # Soles skinned partly to the shins move with the knees as the solve bent them: the feet held again,
+        # shaped as solved, and solved again while that moves an ankle target by over 0.1 mm (twice at most).
+        for _ in range(_REFITS):
+            posed = rt.carry_unsolved(target, rt.solved_pose(plan, result.rotations, result.heads, bones), bones,
+                                      prepared.target_basis)
+            refitted = plan.refit_feet(posed)
+            if np.abs(refitted - plan.world_targets).max() <= 1e-4 * rt.leg_length(target):
+                break
+            plan.world_targets = refitted
+            plan.targets = target.to_armature(refitted)
+            result = solve()
     except SolverInputError as ex:
         raise AdjustError(f"Cannot retarget '{source_obj.name}' onto '{target_obj.name}': {ex}") from None
 

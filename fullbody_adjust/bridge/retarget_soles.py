@@ -16,7 +16,7 @@ _FOOT_SHARE = 0.5
 _SOLE_BAND = 0.35
 # At most this many points per sole besides those lowest for some tilt (spread over the sole: the lowest first,
 # then each time the farthest from those kept).
-_MAX_POINTS = 128
+_MAX_POINTS = 512
 
 
 def deformed_meshes(obj):

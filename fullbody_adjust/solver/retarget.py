@@ -166,3 +166,4 @@ def carry_unsolved(rig, pose, bones, basis):
         if j not in solved and p >= 0:
             out[:, j] = out[:, p] @ local[j]
     return out
+

@@ -68,11 +68,13 @@ class RetargetPlan:
     """What the solve needs and what the caller reports, for F frames.
 
     start_pose (F,Jt,4,4): the transferred pose (target armature space); heads/tails (F,Jt,3) of it in
-    armature space (tails: the joint ends, joint_ends.end_points, never the importer's tails); targets (F,4,3) for EFFECTORS in armature space, world_targets the same in world space;
+    armature space (tails: the joint ends, joint_ends.end_points, never the importer's tails); targets (F,4,3) for
+    EFFECTORS in armature space, world_targets the same in world space;
     contacts (F,4) bool: frames held at a contact; contact_list {effector: [Contact]} the source's contacts
     (contact_intervals the same as (start, stop) pairs); leg_ratio target/source; ground: world z of the floor
     (the source's soles, Rig.soles), None when the floor is not a contact; boxes: the contact objects'
-    world boxes (mins, maxs) or None."""
+    world boxes (mins, maxs) or None; refit_feet(pose) the world targets with the feet held as shaped in
+    another pose (the solved one)."""
 
     start_pose: np.ndarray
     heads: np.ndarray
@@ -86,6 +88,7 @@ class RetargetPlan:
     contact_list: dict = None
     boxes: tuple = None
     effectors: tuple = EFFECTORS
+    refit_feet: object = None
 
 
 def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSettings(), boxes=None, ground=True):
@@ -141,16 +144,17 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
             contacts[c.start:c.stop, k] = True
     step = settings.blend_speed * leg_t / settings.fps
 
-    def held(paths):
+    def held(paths, feet=start, soles=soles):
         """Targets (F,E,3): free trajectories ``paths`` (F,E,3) with the holds blended in; feet never below
-        the floor. A foot's hold is centred on its free trajectory; a hand's is where the source's is."""
+        the floor. A foot's hold is centred on its free trajectory, the foot shaped as in ``feet`` (F,J,4,4),
+        its ankle ``soles`` (F,2) above its sole; a hand's is where the source's is."""
         out = np.empty_like(paths)
         for k, e in enumerate(EFFECTORS):
             holds = []
             for c in found[e]:
                 a, b = c.start, c.stop
                 if e in FEET:
-                    foot = effector_points(target, start[a:b], e)
+                    foot = effector_points(target, feet[a:b], e)
                     path = _foot_path(c, paths[a:b, k], foot, soles[a:b, FEET.index(e)],
                                       settings.exact or c.kind == GROUND, anchor_t[2], ratio)
                 else:  # a hand on an object: still, where the source's is (or its scaled place)
@@ -185,10 +189,18 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     translate_body(target, start, shift)
     heads = start[..., :3, 3]
     tails = end_points(start, target.ends)
+
+    def refit_feet(pose):
+        """World targets (F,E,3) again, each held foot shaped as in ``pose`` (F,Jt,4,4: the solved pose, every
+        bone as Blender poses it), so that its sole, skinned partly to the shin as a mesh's heel often is,
+        rests and rolls on the floor as the knee is finally bent."""
+        return held(free + shift[:, None], pose, ankle_above_sole(target, pose))
+
     return RetargetPlan(start_pose=start, heads=heads, tails=tails, targets=target.to_armature(world_targets),
                         world_targets=world_targets, contacts=contacts,
                         contact_intervals={e: [(c.start, c.stop) for c in found[e]] for e in EFFECTORS},
-                        leg_ratio=ratio, ground=floor if ground else None, contact_list=found, boxes=boxes)
+                        leg_ratio=ratio, ground=floor if ground else None, contact_list=found, boxes=boxes,
+                        refit_feet=refit_feet)
 
 
 def source_floor(source, pose):
