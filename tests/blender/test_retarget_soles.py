@@ -19,8 +19,8 @@ from .test_retarget import FRAMES, add_metarig, import_clip, select_only
 SOLE = 0.03  # the shoe's sole below the floor the metarig's foot joints stand on
 
 
-def add_shoes(rig, shin_share=0.0):
-    """A box per foot, from the heel to past the toes and ``SOLE`` below the lowest foot joint, its heel
+def add_shoes(rig, shin_share=0.0, sole=SOLE):
+    """A box per foot, from the heel to past the toes and ``sole`` below the lowest foot joint, its heel
     half weighted to the foot bone (and ``shin_share`` of its heel end to the shin, as skinning often shares
     a heel with the shin) and its toe half to the toe bone, deformed by an Armature modifier."""
     world = np.array(rig.matrix_world)
@@ -30,7 +30,7 @@ def add_shoes(rig, shin_share=0.0):
         ankle = world @ np.r_[np.array(foot.head_local), 1.0]
         ball = world @ np.r_[np.array(toe.head_local), 1.0]
         tip = world @ np.r_[np.array(toe.tail_local), 1.0]
-        low = min(ankle[2], ball[2], tip[2]) - SOLE
+        low = min(ankle[2], ball[2], tip[2]) - sole
         x0, x1 = ankle[0] - 0.05, ankle[0] + 0.05
         y_heel, y_ball, y_tip = ankle[1] + 0.06, ball[1], tip[1] - 0.02
         verts, weights = [], []
@@ -155,3 +155,4 @@ def test_mesh_soles_stand_on_the_floor_and_the_report_says_so(tmp_path, fmt, shi
             bpy.context.scene.frame_set(int(f))
             ankle.append((rig.matrix_world @ foot.head)[2] - floor)
     assert np.median(ankle) > np.median(soles["foot.L"][0, :, 2].max() - soles["foot.L"][0, :, 2].min()) * 0.5
+
