@@ -1,7 +1,9 @@
-"""Armature units and object scale are handled once, at the bridge (bridge/retarget_read.rig_of: the Rig's
-world matrix): a source whose armature is a hundredth of the size, scaled up 100 times by its object, or a
-target in centimetres scaled by 0.01, retargets exactly as the plain ones, and the figures reported are
-world units (metres here)."""
+"""The character in the world: armature units and object scale are handled once, at the bridge
+(bridge/retarget_read.rig_of: the Rig's world matrix), and the facing comes from the skeleton
+(solver/retarget_rig.rest_forward). A source whose armature is a hundredth of the size, scaled up 100 times by
+its object, or a target in centimetres scaled by 0.01, retargets exactly as the plain ones, with the figures
+reported in world units (metres here); a target turned in its data keeps facing where it faces and walks that
+way as the source walks its own way."""
 
 import bpy
 import numpy as np
@@ -71,3 +73,49 @@ def test_units_and_object_scale_change_nothing_in_the_world(source_units, target
             if figures[key]["max"] is not None:
                 assert got[key]["max"] == pytest.approx(figures[key]["max"], abs=1e-4)
     assert float(np.max(other.residuals)) == pytest.approx(float(np.max(plain.residuals)), abs=1e-4)
+
+
+def _yaw(v):
+    return np.degrees(np.arctan2(v[..., 1], v[..., 0]))
+
+
+def _facing(heads, hips_l, hips_r, root, neck):
+    """The body's forward (…,3) of world heads (…,J,3): left (right hip -> left hip) x up (root -> neck)."""
+    left = heads[..., hips_l, :] - heads[..., hips_r, :]
+    up = heads[..., neck, :] - heads[..., root, :]
+    return np.cross(left, up)
+
+
+def _angle(a, b):
+    return np.abs((a - b + 180.0) % 360.0 - 180.0)
+
+
+@pytest.mark.parametrize("turn", [90.0, 180.0, -90.0])
+def test_a_character_facing_another_way_keeps_its_facing_and_walks_forward(turn):
+    """The metarig turned in its data (object axes untouched) to face +X, +Y or -X: retargeting the walk
+    (its source faces -Y) leaves it facing where it faces at rest (within 10 degrees on every frame), and it
+    walks the way it faces as the source walks the way the source faces (within 10 degrees). Before, it was
+    turned to face the source's world direction."""
+    source = import_walk()
+    target = add_metarig(1.0, location=(0.0, 0.0, 0.0))
+    select_only(target)
+    target.rotation_euler[2] = np.radians(turn)
+    bpy.ops.object.transform_apply(location=False, rotation=True, scale=False)
+    bpy.context.view_layer.update()
+    outcome = retarget.retarget(bpy.context, source, target, *FRAMES)
+    frames = outcome.frames
+    names = [b.name for b in target.data.bones]
+    t_bones = [names.index(n) for n in ("thigh.L", "thigh.R", "spine", "spine.004")]
+    s_names = [b.name for b in source.data.bones]
+    s_bones = [s_names.index(n) for n in ("LeftUpLeg", "RightUpLeg", "Hips", "Neck")]
+    rest = np.array([np.array(target.matrix_world @ target.data.bones[n].head_local) for n in names])
+    rest_yaw = _yaw(_facing(rest, *t_bones))
+    t_heads, s_heads = world_heads(target, frames), world_heads(source, frames)
+    t_yaw, s_yaw = _yaw(_facing(t_heads, *t_bones)), _yaw(_facing(s_heads, *s_bones))
+    assert _angle(t_yaw, rest_yaw).max() < 10.0
+    t_travel = t_heads[-1, t_bones[2]] - t_heads[0, t_bones[2]]
+    s_travel = s_heads[-1, s_bones[2]] - s_heads[0, s_bones[2]]
+    assert np.linalg.norm(t_travel[:2]) > 0.5
+    relative_t = _yaw(t_travel) - np.median(t_yaw)
+    relative_s = _yaw(s_travel) - np.median(s_yaw)
+    assert _angle(relative_t, relative_s) < 10.0
