@@ -61,6 +61,7 @@ class RetargetOutcome:
     contact_report: dict = None
     contact_error: np.ndarray = None
     contact_error_before: np.ndarray = None
+    units: str = "scene units"  # of every distance here: "m" where the scene's unit system is metres
 
     def contacts_not_held(self):
         """Frames (summed over effectors) where a contact within reach is not held on the result."""
@@ -87,7 +88,7 @@ class RetargetOutcome:
                          if self.contacts[:, k].any())
         line = (f"Retargeted {len(self.frames)} frames into '{self.action.name}' (leg ratio "
                 f"{self.leg_ratio:.3g}): {met} of {total} effector targets met, largest residual "
-                f"{float(np.max(self.residuals)):.3g}; contact frames held: {held or 'none'}")
+                f"{float(np.max(self.residuals)):.3g} {self.units}; contact frames held: {held or 'none'}")
         if found:
             line += (f"; below the floor on {sum(f['frames_below_floor'] for f in found.values())} frames, "
                      f"{sum(f['pops'] for f in found.values())} pops, "
@@ -159,8 +160,14 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
     return RetargetOutcome(action=action, frames=prepared.frames, effectors=rt.EFFECTORS,
                            targets=plan.world_targets, residuals=residuals, status=result.status,
                            contacts=plan.contacts, leg_ratio=plan.leg_ratio, read_from=prepared.read_from,
-                           keyed_bones=keyed, contact_report=_contact_report(prepared, figures),
-                           contact_error=after, contact_error_before=before)
+                           keyed_bones=keyed, contact_report=_contact_report(prepared, figures, units_of(context)),
+                           contact_error=after, contact_error_before=before, units=units_of(context))
+
+
+def units_of(context):
+    """What a world distance is in: "m" in a metric scene of unit scale 1, else "scene units"."""
+    settings = context.scene.unit_settings
+    return "m" if settings.system == 'METRIC' and abs(settings.scale_length - 1.0) < 1e-9 else "scene units"
 
 
 def _effector_points(rig, pose):
@@ -177,7 +184,7 @@ def _contact_figures(prepared, target_points, source_points, reachable, fps):
     return figures, np.stack([curves[e] for e in rt.EFFECTORS], axis=1)
 
 
-def _contact_report(prepared, figures):
+def _contact_report(prepared, figures, units="scene units"):
     """The report's contact section: what was asked for, the floor, and per effector its figures with each
     contact by frame number and what it touches."""
     plan = prepared.plan
@@ -187,7 +194,7 @@ def _contact_report(prepared, figures):
             listed.update(frame_start=_frame_number(prepared.frames[contact.start]),
                           frame_end=_frame_number(prepared.frames[contact.stop - 1]),
                           touches=objects[contact.box] if contact.box >= 0 else contact.kind)
-    return {"contacts": list(prepared.contact_names), "floor": plan.ground, "effectors": figures}
+    return {"contacts": list(prepared.contact_names), "floor": plan.ground, "units": units, "effectors": figures}
 
 
 @dataclass

@@ -119,3 +119,15 @@ def test_a_character_facing_another_way_keeps_its_facing_and_walks_forward(turn)
     relative_t = _yaw(t_travel) - np.median(t_yaw)
     relative_s = _yaw(s_travel) - np.median(s_yaw)
     assert _angle(relative_t, relative_s) < 10.0
+
+
+@pytest.mark.parametrize("system, scale, units", [('METRIC', 1.0, "m"), ('METRIC', 0.01, "scene units"),
+                                                 ('NONE', 1.0, "scene units")])
+def test_the_report_says_what_its_distances_are_in(system, scale, units):
+    source = import_walk()
+    target = add_metarig(1.0)
+    bpy.context.scene.unit_settings.system = system
+    bpy.context.scene.unit_settings.scale_length = scale
+    outcome = retarget.retarget(bpy.context, source, target, *FRAMES)
+    assert outcome.units == outcome.contact_report["units"] == units
+    assert f"largest residual {float(np.max(outcome.residuals)):.3g} {units};" in outcome.summary()
