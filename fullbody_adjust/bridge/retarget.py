@@ -272,7 +272,8 @@ def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *
                 raised = source.matrix_world.copy()
                 raised[2, 3] += float(floor) - below
                 source = with_world(source, raised)
-        plan = rt.plan_retarget(source, source_pose, target, target_basis, settings, boxes, ground=ground)
+        plan = rt.plan_retarget(source, source_pose, target, target_basis, settings, boxes, ground=ground,
+                                floor=float(floor) if floor is not None and ground else None)
     except SolverInputError as ex:
         raise AdjustError(f"Cannot retarget '{source_obj.name}' onto '{target_obj.name}': {ex}") from None
     names = (("ground",) if ground else ()) + tuple(f"object {obj.name}" for obj in objects)

@@ -17,6 +17,13 @@ from .retarget_rig import (EFFECTOR_CHAIN, EFFECTORS, FEET, Rig, ankle_above_sol
 from .retarget_transfer import transfer_pose, translate_body
 
 
+# How far above the world's ground plane (in leg lengths) a source's lowest joints may rest for that plane to be
+# its floor: a foot's height at the ankle is about a seventh of a leg.
+_UNSEEN_FOOT = 0.15
+# A foot planted on more than this fraction of the frames stands on the floor by its holds.
+_HELD_STANCE = 0.1
+
+
 def moving_average(values, half_width):
     """Mean over ±half_width frames (the ends repeated) of values (F,…)."""
     values = np.asarray(values, dtype=np.float64)
@@ -91,11 +98,12 @@ class RetargetPlan:
     refit_feet: object = None
 
 
-def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSettings(), boxes=None, ground=True):
+def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSettings(), boxes=None, ground=True,
+                  floor=None):
     """The start pose and effector targets that carry ``source_pose`` (F,Js,4,4, source armature space)
     over to ``target`` (its unmapped bones at ``target_basis`` (Jt,4,4)). ``boxes``: (mins, maxs) (K,3)
-    each, world boxes of contact objects (None: none); ``ground``: the floor is a contact. See the module
-    docstring of solver/retarget.py."""
+    each, world boxes of contact objects (None: none); ``ground``: the floor is a contact; ``floor``: its
+    world height (None: ``source_floor``). See the module docstring of solver/retarget.py."""
     if not isinstance(source, Rig) or not isinstance(target, Rig):
         raise SolverInputError("source and target must be Rigs")
     source_pose = np.asarray(source_pose, dtype=np.float64)
@@ -121,7 +129,7 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     turn[:3, :3] = heading
     turned = replace(source, matrix_world=turn @ source.matrix_world)
     s_heads = source.world_points(source_pose)[0]
-    floor = source_floor(source, source_pose)
+    floor = source_floor(source, source_pose) if floor is None else float(floor)
     # Scale about the floor below each rig's rest hips: the source's motion, re-anchored on the target.
     anchor_s = hip_centres(turned, rest_points(turned)[0])
     anchor_t = hip_centres(target, rest_points(target)[0])
@@ -168,6 +176,8 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     # Free of contacts, each wrist and ankle goes where the transferred pose puts it (its limb keeps the
     # source's angles); the holds are blended into that.
     free = np.stack([t_heads[:, target.groups[e][0]] for e in EFFECTORS], axis=1)
+    if ground:
+        _stand_in_place(free, found, s_points, soles, floor, leg_s, settings)
     # Every target within its limb's reach (see reach_margin): shift the whole body, smoothly, where needed;
     # the free trajectories move with it, and the feet's holds (centred on them); hands stay on their objects.
     bases, reach = [], []
@@ -205,8 +215,14 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
 
 def source_floor(source, pose):
     """World z of the floor under the source's motion (armature-space pose matrices (F,J,4,4)): its soles'
-    lowest points, the 2nd percentile over frames (a stumble below the floor is not the floor)."""
-    return float(np.percentile(sole_heights(source, pose), 2))
+    lowest points, the 2nd percentile over frames (a stumble below the floor is not the floor). A source
+    without a mesh has only its joints for soles, and a game character's toe and ankle joints lie inside a
+    foot we do not see: where they rest a little above the world's ground plane (above z = 0 by less than
+    ``_UNSEEN_FOOT`` of a leg) the character was made standing on it, and that plane is the floor."""
+    lowest = float(np.percentile(sole_heights(source, pose), 2))
+    if not source.skinned_soles and 0.0 < lowest <= _UNSEEN_FOOT * leg_length(source):
+        return 0.0
+    return lowest
 
 
 def _foot_path(contact, free, target_points, soles, on_surface, floor, ratio):
@@ -229,6 +245,24 @@ def _foot_path(contact, free, target_points, soles, on_surface, floor, ratio):
     surface = contact.surface if on_surface else floor + ratio * (contact.surface - floor)
     path[:, 2] = surface + soles
     return path
+
+
+def _stand_in_place(free, found, s_points, soles, floor, leg, settings):
+    """A foot the source hardly ever holds still on the floor (planted on at most _HELD_STANCE of the frames:
+    an in-place clip, whose stance slides under the body) but that comes down to it: its free trajectory in
+    ``free`` (F,E,3, changed in place) raised or lowered as a whole, so that its sole is on the floor on the
+    frames the source's is lowest (its lower half, the median there). Whatever each rig's ankle height and
+    sole, the stance stands on the floor, and one height per foot adds no jerk. ``soles`` (F,2): the
+    target's ankles above their soles."""
+    near = floor + (settings.detection.plant_height + _UNSEEN_FOOT) * leg
+    for i, e in enumerate(FEET):
+        if sum(c.stop - c.start for c in found[e] if c.kind == GROUND) > _HELD_STANCE * len(free):
+            continue  # its stances are held on the floor
+        low = s_points[e][:, 1:, 2].min(axis=1)
+        resting = low <= np.percentile(low, 50)
+        if np.median(low[resting]) <= near:
+            k = EFFECTORS.index(e)
+            free[:, k, 2] += float(np.median((floor + soles[:, i] - free[:, k, 2])[resting]))
 
 
 def _held_offset(targets, free, contacts, half_width):

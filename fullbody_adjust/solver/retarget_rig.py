@@ -37,7 +37,9 @@ class Rig:
     int, weights (P,K))} or None: the points of each foot's sole, skinned to the bones as a mesh vertex is
     (bridge/retarget_soles reads the lowest vertices of the feet of the character's mesh); None or a foot
     left out: its joints (retarget_soles.default_soles: ankle, toes, heel, no tail an importer made up).
-    After construction: ``lengths_joint`` (J,) the joint-to-joint rest lengths, ``sole_skin`` {foot: (bones,
+    skinned_soles: the feet whose soles are a mesh's (None: those given in ``soles``; a Rig copied with
+    dataclasses.replace keeps them). After construction: ``lengths_joint`` (J,) the joint-to-joint rest
+    lengths, ``sole_skin`` {foot: (bones,
     local points (P,K,3) in those bones' rest frames, weights)}."""
 
     names: tuple
@@ -49,6 +51,7 @@ class Rig:
     matrix_world: np.ndarray = field(default_factory=lambda: np.eye(4))
     ends: np.ndarray = None
     soles: dict = None
+    skinned_soles: tuple = None
 
     def __post_init__(self):
         names = tuple(self.names)
@@ -81,6 +84,9 @@ class Rig:
         else:
             ends = np.asarray(self.ends, dtype=np.float64).reshape(j, 3)
         soles = default_soles(rest, parents, groups, ends, lengths)
+        skinned = tuple(f for f in FEET if f in dict(self.soles or {})) if self.skinned_soles is None \
+            else tuple(self.skinned_soles)
+        object.__setattr__(self, "skinned_soles", skinned)
         soles.update(dict(self.soles or {}))
         for attr, value in (("names", names), ("parents", parents), ("rest", rest), ("lengths", lengths),
                             ("connected", connected), ("groups", groups), ("matrix_world", world),

@@ -64,7 +64,9 @@ def test_far_leaf_tails_are_not_soles():
     """The toes' leaf tails 100 times as long (pointing through the floor as the importer may leave them):
     they are no part of the sole (its heads only), the floor is where the source's soles are, and the
     planted soles of the target rest on it, never below."""
-    source = far_tails(cmu_rig(WALK), leaves=True)
+    raised = np.eye(4)
+    raised[2, 3] = 1.0  # a metre up: its lowest joints are the floor (not the ground plane under unseen feet)
+    source = far_tails(cmu_rig(WALK, world=raised), leaves=True)
     pose = source_pose(WALK, source, FRAMES)
     target = far_tails(cmu_rig(WALK, scale=1.1), leaves=True)
     for rig in (source, target):
@@ -72,7 +74,7 @@ def test_far_leaf_tails_are_not_soles():
             bones = rig.descendants(rig.groups[foot][0])
             np.testing.assert_allclose(rig.soles[foot][0], rig.rest[bones, :3, 3], atol=1e-12)
     p = plan(source, pose, target)
-    s_lowest = np.minimum(*(pose[:, source.descendants(source.groups[f][0]), 2, 3].min(axis=1) for f in rt.FEET))
+    s_lowest = np.minimum(*(pose[:, source.descendants(source.groups[f][0]), 2, 3].min(axis=1) for f in rt.FEET)) + 1.0
     assert p.ground == pytest.approx(np.percentile(s_lowest, 2), abs=1e-12)
     for k, foot in enumerate(rt.FEET):
         sole = rt.effector_points(target, p.start_pose, foot)
@@ -195,3 +197,22 @@ def test_a_skinned_sole_below_the_joints_stands_on_the_floor():
         lift = b.world_targets[held, 2 + k, 2] - a.world_targets[held, 2 + k, 2]
         thicker = bare.soles[foot][0][:, 2].min() - points[:, 2].min()  # at rest: 4 cm below the joints
         assert thicker > 0.03 and np.median(lift) > 0.75 * thicker
+
+
+def test_joints_a_little_above_the_ground_plane_stand_on_it():
+    """A source without a mesh whose lowest joints rest 5 cm above z = 0 (a game character's toes inside a
+    foot we do not see) stands on z = 0; raised a metre, or with a skinned sole, its own lowest points are the
+    floor."""
+    plain = cmu_rig(WALK)
+    pose = source_pose(WALK, plain, FRAMES)
+    lowest = np.percentile(np.minimum(*(plain.sole_points(pose, f)[..., 2].min(axis=1) for f in rt.FEET)), 2)
+
+    def lifted(height):
+        world = np.eye(4)
+        world[2, 3] = height - lowest  # its lowest joints (2nd percentile) at ``height``
+        return cmu_rig(WALK, world=world)
+
+    assert rt.source_floor(lifted(0.05), pose) == 0.0
+    assert rt.source_floor(lifted(1.0), pose) == pytest.approx(1.0, abs=1e-9)
+    shod = _with_box_soles(lifted(0.05), 0.0, 0.1, 0.04)  # a mesh sole as low as the lowest joint at rest
+    assert rt.source_floor(shod, pose) > 0.03
