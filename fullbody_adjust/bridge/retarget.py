@@ -128,11 +128,19 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
                                 limits=limits)
 
         result = solve()
+        # Every bone not solved follows its parent: by its own basis, or (fingers carried over from the
+        # source) as in the start pose.
+        basis = np.broadcast_to(prepared.target_basis, plan.start_pose.shape).copy()
+        basis[:, list(plan.carried)] = rt.basis_from_pose(target, plan.start_pose, list(plan.carried))
+
+        def posed_of(result):
+            return rt.carry_unsolved(target, rt.solved_pose(plan, result.rotations, result.heads, bones), bones,
+                                     basis)
+
         # Soles skinned partly to the shins move with the knees as the solve bent them: the feet held again,
         # shaped as solved, and solved again while that moves an ankle target by over 0.1 mm (twice at most).
         for _ in range(_REFITS):
-            posed = rt.carry_unsolved(target, rt.solved_pose(plan, result.rotations, result.heads, bones), bones,
-                                      prepared.target_basis)
+            posed = posed_of(result)
             refitted = plan.refit_feet(posed)
             if np.abs(refitted - plan.world_targets).max() <= 1e-4 * rt.leg_length(target):
                 break
@@ -144,8 +152,8 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
 
     progress("writing", 0.8)
     name = new_action or f"{_action_name(source_obj)}_{target_obj.name}"
-    solved = rt.solved_pose(plan, result.rotations, result.heads, bones)
-    action, keyed = write_pose(context, target_obj, target, solved, prepared.frames, name)
+    posed = posed_of(result)
+    action, keyed = write_pose(context, target_obj, target, posed, prepared.frames, name, plan.carried)
     progress("done", 1.0)
 
     ends = [model.groups[e][0] for e in rt.EFFECTORS]
@@ -154,7 +162,6 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
     # How the result keeps the source's contacts, and how the transferred motion did before the solve.
     fps = context.scene.render.fps / context.scene.render.fps_base
     source_points = _effector_points(prepared.source, prepared.source_pose)
-    posed = rt.carry_unsolved(target, solved, bones, prepared.target_basis)  # the unsolved bones follow
     figures, after = _contact_figures(prepared, _effector_points(target, posed), source_points, reachable, fps)
     _, before = _contact_figures(prepared, _effector_points(target, plan.start_pose), source_points, None, fps)
     return RetargetOutcome(action=action, frames=prepared.frames, effectors=rt.EFFECTORS,

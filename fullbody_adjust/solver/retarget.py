@@ -80,7 +80,7 @@ from .retarget_rig import (EFFECTORS, FEET, Rig, ankle_above_sole, basis_from_po
                            body_frame, chain_joints, effector_points, facing_turn, forward_kinematics,
                            hip_centres, leg_length, leg_lengths, rest_forward,
                            rest_points, sole_heights, soles_of, unit_columns)
-from .retarget_transfer import BonePair, pair_bones, transfer_pose, translate_body  # noqa: F401
+from .retarget_transfer import BonePair, carried_bones, pair_bones, transfer_pose, translate_body  # noqa: F401
 from .rotation_channels import (EULER_ORDERS, ROTATION_PROPERTY, axis_angle_to_matrices,  # noqa: F401
                                 basis_matrices, euler_to_matrices, matrices_to_axis_angle, matrices_to_euler,
                                 matrices_to_quaternions, quaternions_of, quaternions_to_matrices,
@@ -156,14 +156,15 @@ def motion_limits(model, start_pose, heads, tails, human=HumanLimits()):
 
 def carry_unsolved(rig, pose, bones, basis):
     """Pose matrices (F,J,4,4) where every bone outside ``bones`` (the solved ones) follows its parent as its
-    own ``basis`` (J,4,4) says (fingers, toes, heels: as Blender will pose them once the solved bones are
-    keyed). ``pose``: as solved_pose gives it; a copy is returned."""
+    own ``basis`` (J,4,4, or (F,J,4,4) one per frame) says (fingers, toes, heels: as Blender will pose them
+    once the solved bones are keyed). ``pose``: as solved_pose gives it; a copy is returned."""
     out = np.array(pose, dtype=np.float64)
     local = rig.relative @ np.asarray(basis, dtype=np.float64)
-    local[rig.connected, :3, 3] = rig.relative[rig.connected, :3, 3]
+    locations = local[..., :3, 3]  # a view: (…,J,3)
+    locations[..., rig.connected, :] = rig.relative[rig.connected, :3, 3]
     solved = set(int(b) for b in bones)
     for j, p in enumerate(rig.parents):
         if j not in solved and p >= 0:
-            out[:, j] = out[:, p] @ local[j]
+            out[:, j] = out[:, p] @ local[..., j, :, :]
     return out
 

@@ -14,7 +14,7 @@ from .geometry import all_set, norm
 from .joint_ends import end_points
 from .retarget_rig import (EFFECTOR_CHAIN, EFFECTORS, FEET, Rig, ankle_above_sole, chain_joints, effector_points,
                            facing_turn, hip_centres, leg_length, rest_points, sole_heights)
-from .retarget_transfer import transfer_pose, translate_body
+from .retarget_transfer import carried_bones, transfer_pose, translate_body
 
 
 # How far above the world's ground plane (in leg lengths) a source's lowest joints may rest for that plane to be
@@ -81,7 +81,8 @@ class RetargetPlan:
     (contact_intervals the same as (start, stop) pairs); leg_ratio target/source; ground: world z of the floor
     (the source's soles, Rig.soles), None when the floor is not a contact; boxes: the contact objects'
     world boxes (mins, maxs) or None; refit_feet(pose) the world targets with the feet held as shaped in
-    another pose (the solved one)."""
+    another pose (the solved one); carried: target bones outside the bone map that take the source's motion
+    (fingers both rigs have: retarget_fingers), their start pose to be kept relative to their parents."""
 
     start_pose: np.ndarray
     heads: np.ndarray
@@ -96,6 +97,7 @@ class RetargetPlan:
     boxes: tuple = None
     effectors: tuple = EFFECTORS
     refit_feet: object = None
+    carried: tuple = ()
 
 
 def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSettings(), boxes=None, ground=True,
@@ -210,7 +212,7 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
                         world_targets=world_targets, contacts=contacts,
                         contact_intervals={e: [(c.start, c.stop) for c in found[e]] for e in EFFECTORS},
                         leg_ratio=ratio, ground=floor if ground else None, contact_list=found, boxes=boxes,
-                        refit_feet=refit_feet)
+                        refit_feet=refit_feet, carried=carried_bones(turned, target))
 
 
 def source_floor(source, pose):

@@ -354,10 +354,11 @@ def test_a_two_bone_trunk_follows_a_three_bone_one():
 
 
 def test_unmapped_target_bones_keep_their_own_local_pose():
+    """A bone outside the bone map that is no finger both rigs name (the CMU finger base, the hip joint)."""
     source = cmu_rig(WALK)
     target = cmu_rig(WALK, scale=1.1)
     basis = np.tile(np.eye(4), (len(target), 1, 1))
-    finger = target.names.index("LeftHandIndex1")
+    finger = target.names.index("LeftFingerBase")
     hip_joint = target.names.index("LHipJoint")
     for j, angle in ((finger, 0.4), (hip_joint, -0.3)):
         basis[j, :3, :3] = _rotation_about(np.array([1.0, 0.2, 0.0]), angle)
@@ -365,6 +366,23 @@ def test_unmapped_target_bones_keep_their_own_local_pose():
     moved = rt.transfer_pose(source, pose, target, basis, np.zeros((20, 3)))
     local = rt.basis_from_pose(target, moved, [finger, hip_joint])
     np.testing.assert_allclose(local, np.broadcast_to(basis[[finger, hip_joint]], local.shape), atol=1e-9)
+
+
+def test_fingers_both_rigs_have_turn_as_the_source_fingers_do():
+    """The index fingers and thumbs (named so in both rigs) take the source's world rotation change: on a
+    scaled copy with other rolls they turn exactly as the source's do, and they are the bones carried."""
+    source = cmu_rig(WALK)
+    target = cmu_rig(WALK, scale=1.1, rolls=0.2)
+    pose = source_pose(WALK, source, FRAMES[:20])
+    moved = rt.transfer_pose(source, pose, target, np.tile(np.eye(4), (len(target), 1, 1)), np.zeros((20, 3)))
+    fingers = [target.names.index(n) for n in ("LeftHandIndex1", "LThumb", "RightHandIndex1", "RThumb")]
+    assert rt.carried_bones(source, target) == tuple(sorted(fingers))
+    s_change = world_rotations(source, pose)[:, fingers] @ np.swapaxes(world_rotations(source, source.rest[None]),
+                                                                       -1, -2)[:, fingers]
+    t_change = world_rotations(target, moved)[:, fingers] @ np.swapaxes(world_rotations(target, target.rest[None]),
+                                                                        -1, -2)[:, fingers]
+    np.testing.assert_allclose(t_change, s_change, atol=1e-9)
+    assert np.abs(s_change - np.eye(3)).max() > 0.1  # they do turn
 
 
 def test_a_clavicle_the_source_lacks_rides_on_the_chest():
