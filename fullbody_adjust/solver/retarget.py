@@ -5,8 +5,9 @@ bone channels. No bpy: the bridge (bridge/retarget.py) reads the rigs and action
 Conventions. A ``Rig`` holds a skeleton's rest (``Bone.matrix_local``, armature space), its body-model groups
 (bone indices), its object's world matrix, each bone's joint end (solver/joint_ends.py: positions, lengths,
 reaches and segment directions are joints, never the tails an importer left) and each foot's sole (the lowest
-skinned vertices of the character's mesh, or the foot's joints without one: retarget_soles). Poses are armature-space pose matrices (F,J,4,4), composed as
-Blender does (``pose = parent pose @ parent_rest^-1 @ rest @ basis``; a connected bone ignores its location).
+skinned vertices of the character's mesh, or the foot's joints without one: retarget_soles). Poses are
+armature-space pose matrices (F,J,4,4), composed as Blender does (``pose = parent pose @ parent_rest^-1 @
+rest @ basis``; a connected bone ignores its location).
 Rotation channels follow Blender: Euler angles stored per axis, composed in the mode's order ('XYZ' is
 Rz @ Ry @ Rx), quaternions (w, x, y, z), axis-angle (angle, x, y, z).
 
@@ -27,6 +28,8 @@ Rz @ Ry @ Rx), quaternions (w, x, y, z), axis-angle (angle, x, y, z).
      - trunk and neck: bone k of n pairs with bone k of the source when the counts are equal; otherwise by
        proportional position (target bone centre k+½ of n ↔ source position (k+½)·m/n - ½, the rotation
        changes of the two nearest source bones blended);
+     - fingers both rigs name (thumb, index, middle, ring, pinky), bone k from the base ↔ bone k, aligned as
+       their hand (retarget_fingers);
      - hand ↔ hand, foot ↔ foot, head ↔ head (a tiny helper bone pointing anywhere, as the CMU hands, does
        not matter: hands and feet are aligned like their chain's last segment);
    unmapped target bones keep their local transform. The root translates so that the hip centre (midpoint
@@ -36,8 +39,10 @@ Rz @ Ry @ Rx), quaternions (w, x, y, z), axis-angle (angle, x, y, z).
    of step 1 puts them, so the solve leaves the limbs at the source's angles. Each effector's contacts come
    from what it touches in the source (contacts.detect_contacts: its slowest point still, speeds per second
    and distances in leg lengths, so any frame rate and size): a contact object's box (hands and feet), the
-   floor (feet; the source's soles' lowest points, 2nd percentile), or something raised (a foot still off
-   both). Over a contact the target is held, its offset from the free trajectory blended in and out over
+   floor (feet; the source's soles' lowest points, 2nd percentile; z = 0 where a source without a mesh has
+   its lowest joints a little above it), or something raised (a foot still off both). A foot the source
+   hardly ever holds still on the floor (an in-place clip) is moved up or down as a whole so its sole is on
+   the floor where the source's is lowest. Over a contact the target is held, its offset from the free trajectory blended in and out over
    frames enough to move there without a jump:
      - a foot: it rolls about whichever point of its sole is on the ground on each frame (no sliding),
        centred on its free trajectory, its sole's lowest point exactly on the floor, or on the raised support
