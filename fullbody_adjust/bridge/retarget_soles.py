@@ -13,7 +13,7 @@ from ..solver.retarget_soles import FEET
 # lowest vertices are often shared with the shin.)
 _FOOT_SHARE = 0.5
 # The sole: the foot's vertices no higher above its lowest one than this fraction of the ankle's height above it.
-_SOLE_BAND = 0.35
+_SOLE_BAND = 0.6
 # At most this many points per sole besides those lowest for some tilt (spread over the sole: the lowest first,
 # then each time the farthest from those kept).
 _MAX_POINTS = 512
@@ -54,9 +54,9 @@ def _vertex_weights(mesh_obj, bone_index):
 
 def _extremes(points):
     """Indices of the points (N,3) that are lowest for some tilt of the foot: the lowest along each of a fan
-    of directions within 75 degrees of straight down (the convex hull's underside, where a foot turned any
+    of directions within 90 degrees of straight down (the convex hull's underside, where a foot turned any
     way a foot turns touches the floor first)."""
-    tilt = np.radians(np.arange(0.0, 76.0, 7.5))[:, None]
+    tilt = np.radians(np.arange(0.0, 91.0, 7.5))[:, None]
     turn = np.radians(np.arange(0.0, 360.0, 15.0))[None, :]
     down = np.stack([np.sin(tilt) * np.cos(turn), np.sin(tilt) * np.sin(turn),
                      -np.cos(tilt) * np.ones_like(turn)], axis=-1).reshape(-1, 3)
