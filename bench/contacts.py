@@ -122,6 +122,13 @@ def run(out):
             print(f"ran {clip} x{scale}", file=sys.stderr)
 
 
+def _saved_points(rig, heads, tails, effector):
+    """A hand's or foot's points (F,P,3) of saved world heads and tails: its joint, then the heads and tails of
+    its bone and every bone below it (as Blender evaluated them)."""
+    below = rig.descendants(rig.groups[effector][0])
+    return np.concatenate([heads[:, below[:1]], heads[:, below], tails[:, below]], axis=1)
+
+
 def angles_of(rig, heads, tails):
     """(F,A) joint angles of bench/fullbody.py's Table 1 of a rig's world heads and tails (F,J,3)."""
     from fullbody import body_chains, joint_angles
@@ -155,7 +162,7 @@ def measure(dirs):
             names = [b.name for b in target.data.bones]
             order = [names.index(n) for n in rig.names]
             s_heads, s_tails = prepared.source.world_points(prepared.source_pose)
-            s_points = {e: rt.effector_points(prepared.source, s_heads, s_tails, e) for e in rt.EFFECTORS}
+            s_points = {e: rt.effector_points(prepared.source, prepared.source_pose, e) for e in rt.EFFECTORS}
             listed = {e: [f"{c.kind} {c.start}-{c.stop}" for c in plan.contact_list[e]] for e in rt.EFFECTORS}
             case = {"frames": len(frames), "contacts": listed}
             source_angles = angles_of(prepared.source, s_heads, s_tails)
@@ -168,7 +175,7 @@ def measure(dirs):
                 heads, tails = saved["heads"][:, order], saved["tails"][:, order]
                 case["naturalness"][d.name] = angle_errors(angles_of(rig, heads, tails), source_angles, hang)
                 figures, _ = rt.contact_figures(
-                    plan.contact_list, {e: rt.effector_points(rig, heads, tails, e) for e in rt.EFFECTORS}, s_points,
+                    plan.contact_list, {e: _saved_points(rig, heads, tails, e) for e in rt.EFFECTORS}, s_points,
                     plan.boxes, plan.ground, rt.leg_length(rig), plan.leg_ratio, FPS)
                 case[d.name] = {e: {"contact_error_max": f["contact_error"]["max"],
                                     "contact_error_p95": f["contact_error"]["p95"],

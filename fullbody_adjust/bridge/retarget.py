@@ -36,6 +36,8 @@ from .retarget_read import (check_source, contact_boxes, frame_range, pose_prope
                             source_map, with_world)
 from .retarget_write import write_pose
 
+_REFITS = 2  # solves after the first, at most, with the feet held as the solve shaped them
+
 
 @dataclass
 class RetargetOutcome:
@@ -59,6 +61,7 @@ class RetargetOutcome:
     contact_report: dict = None
     contact_error: np.ndarray = None
     contact_error_before: np.ndarray = None
+    units: str = "scene units"  # of every distance here: "m" where the scene's unit system is metres
 
     def contacts_not_held(self):
         """Frames (summed over effectors) where a contact within reach is not held on the result."""
@@ -85,7 +88,7 @@ class RetargetOutcome:
                          if self.contacts[:, k].any())
         line = (f"Retargeted {len(self.frames)} frames into '{self.action.name}' (leg ratio "
                 f"{self.leg_ratio:.3g}): {met} of {total} effector targets met, largest residual "
-                f"{float(np.max(self.residuals)):.3g}; contact frames held: {held or 'none'}")
+                f"{float(np.max(self.residuals)):.3g} {self.units}; contact frames held: {held or 'none'}")
         if found:
             line += (f"; below the floor on {sum(f['frames_below_floor'] for f in found.values())} frames, "
                      f"{sum(f['pops'] for f in found.values())} pops, "
@@ -118,15 +121,39 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
         settings = adjustment.settings_of(target_obj)
         limits = rt.motion_limits(model, start, heads, tails, settings.human_limits) if settings.use_limits else None
         limits = ik_limits.joint_limits(target_obj, model, heads, tails, start, settings, defaults=limits)
-        result = solve_frames(model, heads, tails, plan.targets, rt.EFFECTORS,
-                              [targets.DEFAULT_PRIORITY[e] for e in rt.EFFECTORS], settings=settings, limits=limits)
+
+        def solve():
+            return solve_frames(model, heads, tails, plan.targets, rt.EFFECTORS,
+                                [targets.DEFAULT_PRIORITY[e] for e in rt.EFFECTORS], settings=settings,
+                                limits=limits)
+
+        result = solve()
+        # Every bone not solved follows its parent: by its own basis, or (fingers carried over from the
+        # source) as in the start pose.
+        basis = np.broadcast_to(prepared.target_basis, plan.start_pose.shape).copy()
+        basis[:, list(plan.carried)] = rt.basis_from_pose(target, plan.start_pose, list(plan.carried))
+
+        def posed_of(result):
+            return rt.carry_unsolved(target, rt.solved_pose(plan, result.rotations, result.heads, bones), bones,
+                                     basis)
+
+        # Soles skinned partly to the shins move with the knees as the solve bent them: the feet held again,
+        # shaped as solved, and solved again while that moves an ankle target by over 0.1 mm (twice at most).
+        for _ in range(_REFITS):
+            posed = posed_of(result)
+            refitted = plan.refit_feet(posed)
+            if np.abs(refitted - plan.world_targets).max() <= 1e-4 * rt.leg_length(target):
+                break
+            plan.world_targets = refitted
+            plan.targets = target.to_armature(refitted)
+            result = solve()
     except SolverInputError as ex:
         raise AdjustError(f"Cannot retarget '{source_obj.name}' onto '{target_obj.name}': {ex}") from None
 
     progress("writing", 0.8)
     name = new_action or f"{_action_name(source_obj)}_{target_obj.name}"
-    solved = rt.solved_pose(plan, result.rotations, result.heads, bones)
-    action, keyed = write_pose(context, target_obj, target, solved, prepared.frames, name)
+    posed = posed_of(result)
+    action, keyed = write_pose(context, target_obj, target, posed, prepared.frames, name, plan.carried)
     progress("done", 1.0)
 
     ends = [model.groups[e][0] for e in rt.EFFECTORS]
@@ -135,20 +162,24 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
     # How the result keeps the source's contacts, and how the transferred motion did before the solve.
     fps = context.scene.render.fps / context.scene.render.fps_base
     source_points = _effector_points(prepared.source, prepared.source_pose)
-    posed = rt.carry_unsolved(target, solved, bones, prepared.target_basis)  # the unsolved bones follow
     figures, after = _contact_figures(prepared, _effector_points(target, posed), source_points, reachable, fps)
     _, before = _contact_figures(prepared, _effector_points(target, plan.start_pose), source_points, None, fps)
     return RetargetOutcome(action=action, frames=prepared.frames, effectors=rt.EFFECTORS,
                            targets=plan.world_targets, residuals=residuals, status=result.status,
                            contacts=plan.contacts, leg_ratio=plan.leg_ratio, read_from=prepared.read_from,
-                           keyed_bones=keyed, contact_report=_contact_report(prepared, figures),
-                           contact_error=after, contact_error_before=before)
+                           keyed_bones=keyed, contact_report=_contact_report(prepared, figures, units_of(context)),
+                           contact_error=after, contact_error_before=before, units=units_of(context))
+
+
+def units_of(context):
+    """What a world distance is in: "m" in a metric scene of unit scale 1, else "scene units"."""
+    settings = context.scene.unit_settings
+    return "m" if settings.system == 'METRIC' and abs(settings.scale_length - 1.0) < 1e-9 else "scene units"
 
 
 def _effector_points(rig, pose):
     """{effector: its points (F,P,3)} of a rig's pose (F,J,4,4), world space."""
-    heads, tails = rig.world_points(pose)
-    return {e: rt.effector_points(rig, heads, tails, e) for e in rt.EFFECTORS}
+    return {e: rt.effector_points(rig, pose, e) for e in rt.EFFECTORS}
 
 
 def _contact_figures(prepared, target_points, source_points, reachable, fps):
@@ -160,7 +191,7 @@ def _contact_figures(prepared, target_points, source_points, reachable, fps):
     return figures, np.stack([curves[e] for e in rt.EFFECTORS], axis=1)
 
 
-def _contact_report(prepared, figures):
+def _contact_report(prepared, figures, units="scene units"):
     """The report's contact section: what was asked for, the floor, and per effector its figures with each
     contact by frame number and what it touches."""
     plan = prepared.plan
@@ -170,7 +201,7 @@ def _contact_report(prepared, figures):
             listed.update(frame_start=_frame_number(prepared.frames[contact.start]),
                           frame_end=_frame_number(prepared.frames[contact.stop - 1]),
                           touches=objects[contact.box] if contact.box >= 0 else contact.kind)
-    return {"contacts": list(prepared.contact_names), "floor": plan.ground, "effectors": figures}
+    return {"contacts": list(prepared.contact_names), "floor": plan.ground, "units": units, "effectors": figures}
 
 
 @dataclass
@@ -243,12 +274,13 @@ def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *
         if len(target.names) != len(target_basis):  # a control rig's skeleton: its bones' own bases
             target_basis = target_basis[[target_obj.pose.bones.find(name) for name in target.names]]
         if floor is not None and ground:  # the source raised so its floor is the one given
-            below = rt.source_floor(source, *source.world_points(source_pose))
+            below = rt.source_floor(source, source_pose)
             if below != float(floor):
                 raised = source.matrix_world.copy()
                 raised[2, 3] += float(floor) - below
                 source = with_world(source, raised)
-        plan = rt.plan_retarget(source, source_pose, target, target_basis, settings, boxes, ground=ground)
+        plan = rt.plan_retarget(source, source_pose, target, target_basis, settings, boxes, ground=ground,
+                                floor=float(floor) if floor is not None and ground else None)
     except SolverInputError as ex:
         raise AdjustError(f"Cannot retarget '{source_obj.name}' onto '{target_obj.name}': {ex}") from None
     names = (("ground",) if ground else ()) + tuple(f"object {obj.name}" for obj in objects)

@@ -3,12 +3,15 @@ the source's motion (from its action's F-Curves when they alone move the bones, 
 map, frame range and the contact objects' boxes. Nothing here changes Blender data."""
 
 import re
+from dataclasses import replace
 
 import numpy as np
 
 from ..solver import retarget as rt
+from ..solver.joint_ends import joint_ends
 from . import control_rig, keyframes, mapping, pose
 from .errors import AdjustError
+from .retarget_soles import mesh_soles
 
 _BONE_PATH = re.compile(r'^pose\.bones\["((?:[^"\\]|\\.)*)"\]\.(\w+)$')
 _SAME_FRAME = 1e-4  # a key this close to a frame is at it (keys are float32)
@@ -131,8 +134,10 @@ def pose_property(collection, prop, shape):
 
 
 def rig_of(obj, bone_map):
-    """solver.retarget.Rig of an armature object, its groups from ``bone_map``. A control rig's Rig is its
-    mapped skeleton alone (control_rig), in the metarig's hierarchy: the controls are posed from it."""
+    """solver.retarget.Rig of an armature object, its groups from ``bone_map``: each bone's joint end
+    (solver.joint_ends, from the rest matrices and rest tails) and each foot's sole from the meshes the
+    armature deforms (bridge/retarget_soles; the foot's joints where there is none). A control rig's Rig is
+    its mapped skeleton alone (control_rig), in the metarig's hierarchy: the controls are posed from it."""
     if control_rig.is_generated_rigify(obj):
         return _skeleton_rig(obj, bone_map)
     bones = obj.data.bones
@@ -143,10 +148,11 @@ def rig_of(obj, bone_map):
         raise AdjustError(f"Armature '{obj.name}': a bone is listed before its parent")
     connected = np.array([b.use_connect for b in bones], dtype=bool)
     groups = {g: tuple(index[b] for b in members) for g, members in bone_map.groups.items()}
-    return rt.Rig(names=names, parents=parents,
-                  rest=pose_property(bones, "matrix_local", (4, 4)).transpose(0, 2, 1),
-                  lengths=pose_property(bones, "length", ()), connected=connected, groups=groups,
-                  matrix_world=np.array(obj.matrix_world, dtype=np.float64))
+    rest = pose_property(bones, "matrix_local", (4, 4)).transpose(0, 2, 1)
+    return rt.Rig(names=names, parents=parents, rest=rest, lengths=pose_property(bones, "length", ()),
+                  connected=connected, groups=groups, matrix_world=np.array(obj.matrix_world, dtype=np.float64),
+                  ends=joint_ends(parents, rest, pose_property(bones, "tail_local", (3,)), groups),
+                  soles=mesh_soles(obj, names, parents, groups, rest))
 
 
 def _skeleton_rig(obj, bone_map):
@@ -173,15 +179,18 @@ def _skeleton_rig(obj, bone_map):
     bones = [obj.data.bones[all_names[i]] for i in order]
     names = tuple(b.name for b in bones)
     groups = {g: tuple(names.index(b) for b in members) for g, members in bone_map.groups.items()}
-    return rt.Rig(names=names, parents=[mapped_parent(i) for i in order],
-                  rest=np.array([np.array(b.matrix_local) for b in bones], dtype=np.float64),
+    parents = np.array([mapped_parent(i) for i in order], dtype=np.int64)
+    rest = np.array([np.array(b.matrix_local) for b in bones], dtype=np.float64)
+    return rt.Rig(names=names, parents=parents, rest=rest,
                   lengths=np.array([b.length for b in bones], dtype=np.float64),
                   connected=np.array([b.use_connect for b in bones], dtype=bool), groups=groups,
-                  matrix_world=np.array(obj.matrix_world, dtype=np.float64))
+                  matrix_world=np.array(obj.matrix_world, dtype=np.float64),
+                  ends=joint_ends(parents, rest, np.array([tuple(b.tail_local) for b in bones]), groups),
+                  soles=mesh_soles(obj, names, parents, groups, rest))
 
 
 def with_world(rig, world):
-    return rt.Rig(rig.names, rig.parents, rig.rest, rig.lengths, rig.connected, rig.groups, world)
+    return replace(rig, matrix_world=world)
 
 
 def source_map(obj):

@@ -10,12 +10,13 @@ from .control_match import control_channels
 from .retarget_read import pose_property
 
 
-def write_pose(context, target_obj, target, pose_matrices, frames, action_name):
+def write_pose(context, target_obj, target, pose_matrices, frames, action_name, carried=()):
     """Key every mapped bone of ``target_obj`` (``target`` its Rig) at ``pose_matrices`` (F,J,4,4, armature
     space) over ``frames`` into a new action named ``action_name``, assigned to it: each bone's rotation in
     its rotation mode, and the root's location; on a control rig, the controls that pose the mapped bones.
-    Returns (action, keyed bone names)."""
-    written = sorted({b for bones in target.groups.values() for b in bones})
+    ``carried``: bones outside the map keyed as well (fingers carried over). Returns (action, keyed bone
+    names)."""
+    written = sorted({b for bones in target.groups.values() for b in bones} | {int(b) for b in carried})
     if control_rig.is_generated_rigify(target_obj):
         action = _new_action(target_obj, action_name)  # before posing: the old action no longer drives the controls
         bone_map = mapping.BoneMap({g: [target.names[b] for b in bones] for g, bones in target.groups.items()})

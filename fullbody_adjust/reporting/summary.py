@@ -168,8 +168,10 @@ def contacts_line(report):
     found = figures["effectors"].values()
     sliding = [f["sliding"]["p95"] for f in found if f["sliding"]["p95"] is not None]
     errors = [f["contact_error"]["max"] for f in found if f["contact_error"]["max"] is not None]
+    units = f" {figures['units']}" if figures.get("units") else ""
     return (f"contacts: {sum(f['contact_frames'] for f in found)} frames, largest contact error "
-            f"{max(errors) if errors else 0.0:.3g}, sliding p95 {max(sliding) if sliding else 0.0:.3g}, "
+            f"{max(errors) if errors else 0.0:.3g}{units}, sliding p95 {max(sliding) if sliding else 0.0:.3g}"
+            f"{units}, "
             f"{sum(f['frames_below_floor'] for f in found)} frames below the floor, "
             f"{sum(f['pops'] for f in found)} pops, "
             f"{sum(f['not_held_frames'] for f in found)} frames not held")

@@ -3,8 +3,11 @@ proportions, as a start pose and effector targets for adjust.adjust_frames, and 
 bone channels. No bpy: the bridge (bridge/retarget.py) reads the rigs and actions and writes the keys.
 
 Conventions. A ``Rig`` holds a skeleton's rest (``Bone.matrix_local``, armature space), its body-model groups
-(bone indices) and its object's world matrix. Poses are armature-space pose matrices (F,J,4,4), composed as
-Blender does (``pose = parent pose @ parent_rest^-1 @ rest @ basis``; a connected bone ignores its location).
+(bone indices), its object's world matrix, each bone's joint end (solver/joint_ends.py: positions, lengths,
+reaches and segment directions are joints, never the tails an importer left) and each foot's sole (the lowest
+skinned vertices of the character's mesh, or the foot's joints without one: retarget_soles). Poses are
+armature-space pose matrices (F,J,4,4), composed as Blender does (``pose = parent pose @ parent_rest^-1 @
+rest @ basis``; a connected bone ignores its location).
 Rotation channels follow Blender: Euler angles stored per axis, composed in the mode's order ('XYZ' is
 Rz @ Ry @ Rx), quaternions (w, x, y, z), axis-angle (angle, x, y, z).
 
@@ -25,6 +28,8 @@ Rz @ Ry @ Rx), quaternions (w, x, y, z), axis-angle (angle, x, y, z).
      - trunk and neck: bone k of n pairs with bone k of the source when the counts are equal; otherwise by
        proportional position (target bone centre k+½ of n ↔ source position (k+½)·m/n - ½, the rotation
        changes of the two nearest source bones blended);
+     - fingers both rigs name (thumb, index, middle, ring, pinky), bone k from the base ↔ bone k, aligned as
+       their hand (retarget_fingers);
      - hand ↔ hand, foot ↔ foot, head ↔ head (a tiny helper bone pointing anywhere, as the CMU hands, does
        not matter: hands and feet are aligned like their chain's last segment);
    unmapped target bones keep their local transform. The root translates so that the hip centre (midpoint
@@ -34,14 +39,20 @@ Rz @ Ry @ Rx), quaternions (w, x, y, z), axis-angle (angle, x, y, z).
    of step 1 puts them, so the solve leaves the limbs at the source's angles. Each effector's contacts come
    from what it touches in the source (contacts.detect_contacts: its slowest point still, speeds per second
    and distances in leg lengths, so any frame rate and size): a contact object's box (hands and feet), the
-   floor (feet; the source's lowest foot points, 2nd percentile), or something raised (a foot still off
-   both). Over a contact the target is held, its offset from the free trajectory blended in and out over
+   floor (feet; the source's soles' lowest points, 2nd percentile; z = 0 where a source without a mesh has
+   its lowest joints a little above it), or something raised (a foot still off both). A foot the source
+   hardly ever holds still on the floor (an in-place clip) is moved up or down as a whole so its sole is on
+   the floor where the source's is lowest. Over a contact the target is held, its offset from the free trajectory blended in and out over
    frames enough to move there without a jump:
-     - a foot: it rolls about whichever of its points is on the ground on each frame (no sliding), centred
-       on its free trajectory, its lowest point exactly on the floor, or on the raised support at its world
-       height;
+     - a foot: it rolls about whichever point of its sole is on the ground on each frame (no sliding),
+       centred on its free trajectory, its sole's lowest point exactly on the floor, or on the raised support
+       at its world height;
      - a hand on an object: still at the mean of the source's own world positions (exact) or its scaled
        ones (exact=False; scaled about the ground below the hips, by the leg ratio, turned by the heading).
+   The heading: the source's motion is turned about world Z by the angle from the source skeleton's rest
+   forward to the target's (retarget_rig.rest_forward: from the hips and the SC, else the feet; never the
+   objects' axes), so the target faces its travel as the source faces its own: a source walking forward
+   makes the target walk forward, whichever way either character faces in its file.
    No foot goes below the floor. The whole body then shifts, smoothly, as its held hands and feet moved (on
    average), and as far again as needed to bring every target within its limb's reach less a margin (see
    ``RetargetSettings.reach_margin``); the free trajectories move with it, so only the held limbs are
@@ -70,11 +81,11 @@ from .contacts import (GROUND, OBJECT, RAISED, Contact, ContactDetection, Retarg
                        box_distance, detect_contacts, hold, intervals)
 from .retarget_metrics import angular_roughness, contact_figures, roughness  # noqa: F401
 from .retarget_plan import RetargetPlan, body_shift, moving_average, plan_retarget, source_floor  # noqa: F401
-from .retarget_rig import (EFFECTORS, Rig, ankle_above_sole, basis_from_pose,  # noqa: F401
-                           body_frame, chain_joints, effector_points, forward_kinematics, heading_rotation,
-                           hip_centres, leg_length, leg_lengths,
-                           rest_points, sole_heights, unit_columns)
-from .retarget_transfer import BonePair, pair_bones, transfer_pose, translate_body  # noqa: F401
+from .retarget_rig import (EFFECTORS, FEET, Rig, ankle_above_sole, basis_from_pose,  # noqa: F401
+                           body_frame, chain_joints, effector_points, facing_turn, forward_kinematics,
+                           hip_centres, leg_length, leg_lengths, rest_forward,
+                           rest_points, sole_heights, soles_of, unit_columns)
+from .retarget_transfer import BonePair, carried_bones, pair_bones, transfer_pose, translate_body  # noqa: F401
 from .rotation_channels import (EULER_ORDERS, ROTATION_PROPERTY, axis_angle_to_matrices,  # noqa: F401
                                 basis_matrices, euler_to_matrices, matrices_to_axis_angle, matrices_to_euler,
                                 matrices_to_quaternions, quaternions_of, quaternions_to_matrices,
@@ -150,13 +161,15 @@ def motion_limits(model, start_pose, heads, tails, human=HumanLimits()):
 
 def carry_unsolved(rig, pose, bones, basis):
     """Pose matrices (F,J,4,4) where every bone outside ``bones`` (the solved ones) follows its parent as its
-    own ``basis`` (J,4,4) says (fingers, toes, heels: as Blender will pose them once the solved bones are
-    keyed). ``pose``: as solved_pose gives it; a copy is returned."""
+    own ``basis`` (J,4,4, or (F,J,4,4) one per frame) says (fingers, toes, heels: as Blender will pose them
+    once the solved bones are keyed). ``pose``: as solved_pose gives it; a copy is returned."""
     out = np.array(pose, dtype=np.float64)
     local = rig.relative @ np.asarray(basis, dtype=np.float64)
-    local[rig.connected, :3, 3] = rig.relative[rig.connected, :3, 3]
+    locations = local[..., :3, 3]  # a view: (…,J,3)
+    locations[..., rig.connected, :] = rig.relative[rig.connected, :3, 3]
     solved = set(int(b) for b in bones)
     for j, p in enumerate(rig.parents):
         if j not in solved and p >= 0:
-            out[:, j] = out[:, p] @ local[j]
+            out[:, j] = out[:, p] @ local[..., j, :, :]
     return out
+

@@ -74,7 +74,8 @@ def step_lengths(points):
 def contact_figures(contacts, points, source_points, boxes, ground, leg, ratio, fps, reachable=None):
     """Per effector, how the result keeps the source's contacts. ``contacts`` {effector: [Contact]} (the
     source's); ``points`` and ``source_points`` {effector: (F,P,3)} world points of the result's and the
-    source's hand or foot (solver.retarget_rig.effector_points); ``boxes`` the contact objects' (mins,
+    source's hand or foot (solver.retarget_rig.effector_points: the wrist or ankle, then the hand's joints or
+    the foot's sole, which sliding is measured on); ``boxes`` the contact objects' (mins,
     maxs) or None; ``ground`` the floor's height or None; ``leg`` the result's leg length, ``ratio`` its
     ratio to the source's; ``reachable`` {effector: (F,) bool} frames whose target was within reach (None:
     all). Returns {effector: {...}} (see ``summary_of``) and per effector (F,) contact error (NaN outside
@@ -92,7 +93,7 @@ def contact_figures(contacts, points, source_points, boxes, ground, leg, ratio, 
             allowed = HOLD_TOLERANCE * leg + (source_error[a:b] if _hand_on_object(c) else 0.0)
             not_held[a:b] = error[a:b] > allowed
             if e.startswith("foot"):
-                slides.append(sliding(pts[a:b]))
+                slides.append(sliding(pts[a:b, 1:]))  # the sole's points (the ankle turns about them)
         if reachable is not None:
             not_held &= reachable[e]
         steps = step_lengths(pts[:, 0])

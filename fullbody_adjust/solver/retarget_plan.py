@@ -11,9 +11,17 @@ from .adjust import sub_base_point
 from .contacts import GROUND, RetargetSettings, detect_contacts, hold
 from .errors import SolverInputError
 from .geometry import all_set, norm
+from .joint_ends import end_points
 from .retarget_rig import (EFFECTOR_CHAIN, EFFECTORS, FEET, Rig, ankle_above_sole, chain_joints, effector_points,
-                           heading_rotation, hip_centres, leg_length, rest_points, sole_heights)
-from .retarget_transfer import transfer_pose, translate_body
+                           facing_turn, hip_centres, leg_length, rest_points, sole_heights)
+from .retarget_transfer import carried_bones, transfer_pose, translate_body
+
+
+# How far above the world's ground plane (in leg lengths) a source's lowest joints may rest for that plane to be
+# its floor: a foot's height at the ankle is about a seventh of a leg.
+_UNSEEN_FOOT = 0.15
+# A foot planted on more than this fraction of the frames stands on the floor by its holds.
+_HELD_STANCE = 0.1
 
 
 def moving_average(values, half_width):
@@ -67,11 +75,14 @@ class RetargetPlan:
     """What the solve needs and what the caller reports, for F frames.
 
     start_pose (F,Jt,4,4): the transferred pose (target armature space); heads/tails (F,Jt,3) of it in
-    armature space; targets (F,4,3) for EFFECTORS in armature space, world_targets the same in world space;
+    armature space (tails: the joint ends, joint_ends.end_points, never the importer's tails); targets (F,4,3) for
+    EFFECTORS in armature space, world_targets the same in world space;
     contacts (F,4) bool: frames held at a contact; contact_list {effector: [Contact]} the source's contacts
     (contact_intervals the same as (start, stop) pairs); leg_ratio target/source; ground: world z of the floor
-    (the source's lowest foot points), None when the floor is not a contact; boxes: the contact objects'
-    world boxes (mins, maxs) or None."""
+    (the source's soles, Rig.soles), None when the floor is not a contact; boxes: the contact objects'
+    world boxes (mins, maxs) or None; refit_feet(pose) the world targets with the feet held as shaped in
+    another pose (the solved one); carried: target bones outside the bone map that take the source's motion
+    (fingers both rigs have: retarget_fingers), their start pose to be kept relative to their parents."""
 
     start_pose: np.ndarray
     heads: np.ndarray
@@ -85,13 +96,16 @@ class RetargetPlan:
     contact_list: dict = None
     boxes: tuple = None
     effectors: tuple = EFFECTORS
+    refit_feet: object = None
+    carried: tuple = ()
 
 
-def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSettings(), boxes=None, ground=True):
+def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSettings(), boxes=None, ground=True,
+                  floor=None):
     """The start pose and effector targets that carry ``source_pose`` (F,Js,4,4, source armature space)
     over to ``target`` (its unmapped bones at ``target_basis`` (Jt,4,4)). ``boxes``: (mins, maxs) (K,3)
-    each, world boxes of contact objects (None: none); ``ground``: the floor is a contact. See the module
-    docstring of solver/retarget.py."""
+    each, world boxes of contact objects (None: none); ``ground``: the floor is a contact; ``floor``: its
+    world height (None: ``source_floor``). See the module docstring of solver/retarget.py."""
     if not isinstance(source, Rig) or not isinstance(target, Rig):
         raise SolverInputError("source and target must be Rigs")
     source_pose = np.asarray(source_pose, dtype=np.float64)
@@ -109,13 +123,15 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
         raise SolverInputError("a rig's legs have zero length")
     ratio = leg_t / leg_s
 
-    # The motion turned to the target's heading (about the world origin; Z, so heights, unchanged).
-    heading = heading_rotation(target.rotation @ source.rotation.T)
+    # The motion turned to the target's heading (about the world origin; Z, so heights, unchanged): by the
+    # angle between the skeletons' rest facings (from hips and feet, whatever the objects' axes), so the
+    # target faces its travel as the source faces its own.
+    heading = facing_turn(source, target)
     turn = np.eye(4)
     turn[:3, :3] = heading
     turned = replace(source, matrix_world=turn @ source.matrix_world)
-    s_heads, s_tails = source.world_points(source_pose)  # where the source touches things
-    floor = source_floor(source, s_heads, s_tails)
+    s_heads = source.world_points(source_pose)[0]
+    floor = source_floor(source, source_pose) if floor is None else float(floor)
     # Scale about the floor below each rig's rest hips: the source's motion, re-anchored on the target.
     anchor_s = hip_centres(turned, rest_points(turned)[0])
     anchor_t = hip_centres(target, rest_points(target)[0])
@@ -125,30 +141,31 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
         return anchor_t + ratio * (points @ heading.T - anchor_s)
 
     start = transfer_pose(turned, source_pose, target, target_basis, scaled(hip_centres(source, s_heads)))
-    t_heads, t_tails = target.world_points(start)
-    soles = ankle_above_sole(target, t_heads, t_tails)  # the transferred feet's own ankle heights
+    t_heads = target.world_points(start)[0]
+    soles = ankle_above_sole(target, start)  # the transferred feet's own ankle heights above their soles
     frames = len(source_pose)
     blend = settings.frames(settings.blend_duration) if settings.blend_duration else 0
     contacts = np.zeros((frames, len(EFFECTORS)), dtype=bool)
     found, s_points = {}, {}
     for k, e in enumerate(EFFECTORS):
-        s_points[e] = effector_points(source, s_heads, s_tails, e)
+        s_points[e] = effector_points(source, source_pose, e)  # where the source touches things
         found[e] = detect_contacts(e, s_points[e], floor if ground else None, boxes, leg_s, settings)
         for c in found[e]:
             contacts[c.start:c.stop, k] = True
     step = settings.blend_speed * leg_t / settings.fps
 
-    def held(paths):
+    def held(paths, feet=start, soles=soles):
         """Targets (F,E,3): free trajectories ``paths`` (F,E,3) with the holds blended in; feet never below
-        the floor. A foot's hold is centred on its free trajectory; a hand's is where the source's is."""
+        the floor. A foot's hold is centred on its free trajectory, the foot shaped as in ``feet`` (F,J,4,4),
+        its ankle ``soles`` (F,2) above its sole; a hand's is where the source's is."""
         out = np.empty_like(paths)
         for k, e in enumerate(EFFECTORS):
             holds = []
             for c in found[e]:
                 a, b = c.start, c.stop
                 if e in FEET:
-                    foot = effector_points(target, t_heads[a:b], t_tails[a:b], e)
-                    path = _foot_path(c, paths[a:b, k], s_points[e][a:b], foot, soles[a:b, FEET.index(e)],
+                    foot = effector_points(target, feet[a:b], e)
+                    path = _foot_path(c, paths[a:b, k], foot, soles[a:b, FEET.index(e)],
                                       settings.exact or c.kind == GROUND, anchor_t[2], ratio)
                 else:  # a hand on an object: still, where the source's is (or its scaled place)
                     path = (s_points[e][a:b, 0] if settings.exact else scaled(s_points[e][a:b, 0])).mean(axis=0)
@@ -161,6 +178,8 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     # Free of contacts, each wrist and ankle goes where the transferred pose puts it (its limb keeps the
     # source's angles); the holds are blended into that.
     free = np.stack([t_heads[:, target.groups[e][0]] for e in EFFECTORS], axis=1)
+    if ground:
+        _stand_in_place(free, found, s_points, soles, floor, leg_s, settings)
     # Every target within its limb's reach (see reach_margin): shift the whole body, smoothly, where needed;
     # the free trajectories move with it, and the feet's holds (centred on them); hands stay on their objects.
     bases, reach = [], []
@@ -181,36 +200,71 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     world_targets = held(free + shift[:, None])
     translate_body(target, start, shift)
     heads = start[..., :3, 3]
-    tails = heads + start[..., :3, 1] * target.lengths[:, None]
+    tails = end_points(start, target.ends)
+
+    def refit_feet(pose):
+        """World targets (F,E,3) again, each held foot shaped as in ``pose`` (F,Jt,4,4: the solved pose, every
+        bone as Blender poses it), so that its sole, skinned partly to the shin as a mesh's heel often is,
+        rests and rolls on the floor as the knee is finally bent."""
+        return held(free + shift[:, None], pose, ankle_above_sole(target, pose))
+
     return RetargetPlan(start_pose=start, heads=heads, tails=tails, targets=target.to_armature(world_targets),
                         world_targets=world_targets, contacts=contacts,
                         contact_intervals={e: [(c.start, c.stop) for c in found[e]] for e in EFFECTORS},
-                        leg_ratio=ratio, ground=floor if ground else None, contact_list=found, boxes=boxes)
+                        leg_ratio=ratio, ground=floor if ground else None, contact_list=found, boxes=boxes,
+                        refit_feet=refit_feet, carried=carried_bones(turned, target))
 
 
-def source_floor(source, heads, tails):
-    """World z of the floor under the source's motion (world heads, tails (F,J,3)): its feet's lowest points,
-    the 2nd percentile over frames (a stumble below the floor is not the floor)."""
-    return float(np.percentile(sole_heights(source, heads, tails), 2))
+def source_floor(source, pose):
+    """World z of the floor under the source's motion (armature-space pose matrices (F,J,4,4)): its soles'
+    lowest points, the 2nd percentile over frames (a stumble below the floor is not the floor). A source
+    without a mesh has only its joints for soles, and a game character's toe and ankle joints lie inside a
+    foot we do not see: where they rest a little above the world's ground plane (above z = 0 by less than
+    ``_UNSEEN_FOOT`` of a leg) the character was made standing on it, and that plane is the floor."""
+    lowest = float(np.percentile(sole_heights(source, pose), 2))
+    if not source.skinned_soles and 0.0 < lowest <= _UNSEEN_FOOT * leg_length(source):
+        return 0.0
+    return lowest
 
 
-def _foot_path(contact, free, source_points, target_points, soles, on_surface, floor, ratio):
-    """The ankle's path (n,3) over a foot contact: the target's own foot (points (n,P,3), ankle first, as
-    transferred) rolls and turns as the source's (points (n,Q,3), ankle first) does, from each frame to the
-    next about the ankle where the source's ankle is its stillest point (a foot turning on its heel), else
-    about whichever of its points is lowest (heel, ball, toes: the one on the ground); the path is centred on
-    ``free`` (n,3), the ankle's free trajectory. The lowest point of the foot on the surface (its world height with
-    ``on_surface``, else its height scaled about the floor)."""
-    rel = target_points[:, :1, :2] - target_points[..., :2]  # (n,P,2) ankle less each point
-    on_ankle = norm(np.diff(source_points, axis=0)).argmin(axis=1) == 0
-    pivot = np.where(on_ankle, 0, target_points[:-1, :, 2].argmin(axis=1))
-    f = np.arange(len(pivot))
-    travel = np.concatenate([np.zeros((1, 2)), np.cumsum(rel[f + 1, pivot] - rel[f, pivot], axis=0)])
+def _foot_path(contact, free, target_points, soles, on_surface, floor, ratio):
+    """The ankle's path (n,3) over a foot contact: the target's own foot (points (n,P,3), ankle first, then its
+    sole, as transferred) rolls and turns as transferred, from each frame to the next about whichever point
+    of its sole is lowest (heel, ball, toes: the one on the ground; points equally low, as a flat heel's two
+    ends, by their mean: a tie broken by rounding would turn the foot about one or the other). The sole
+    point it turns about does not slide; the path is centred on ``free`` (n,3), the ankle's free trajectory.
+    The lowest point of the sole on the surface (its world height with ``on_surface``, else its height
+    scaled about the floor)."""
+    rel = target_points[:, :1, :2] - target_points[:, 1:, :2]  # (n,P,2) ankle less each sole point
+    size = float(np.ptp(target_points[0], axis=0).max()) if len(target_points) else 0.0
+    z = target_points[:-1, 1:, 2]
+    weight = (z <= z.min(axis=1, keepdims=True) + 1e-9 * max(size, 1e-300)).astype(np.float64)
+    weight /= weight.sum(axis=1, keepdims=True)
+    travel = np.concatenate([np.zeros((1, 2)), np.cumsum(np.einsum("fp,fpi->fi", weight, rel[1:] - rel[:-1]),
+                                                         axis=0)])
     path = np.empty_like(free)
     path[:, :2] = travel + (free[:, :2] - travel).mean(axis=0)
     surface = contact.surface if on_surface else floor + ratio * (contact.surface - floor)
     path[:, 2] = surface + soles
     return path
+
+
+def _stand_in_place(free, found, s_points, soles, floor, leg, settings):
+    """A foot the source hardly ever holds still on the floor (planted on at most _HELD_STANCE of the frames:
+    an in-place clip, whose stance slides under the body) but that comes down to it: its free trajectory in
+    ``free`` (F,E,3, changed in place) raised or lowered as a whole, so that its sole is on the floor on the
+    frames the source's is lowest (its lower half, the median there). Whatever each rig's ankle height and
+    sole, the stance stands on the floor, and one height per foot adds no jerk. ``soles`` (F,2): the
+    target's ankles above their soles."""
+    near = floor + (settings.detection.plant_height + _UNSEEN_FOOT) * leg
+    for i, e in enumerate(FEET):
+        if sum(c.stop - c.start for c in found[e] if c.kind == GROUND) > _HELD_STANCE * len(free):
+            continue  # its stances are held on the floor
+        low = s_points[e][:, 1:, 2].min(axis=1)
+        resting = low <= np.percentile(low, 50)
+        if np.median(low[resting]) <= near:
+            k = EFFECTORS.index(e)
+            free[:, k, 2] += float(np.median((floor + soles[:, i] - free[:, k, 2])[resting]))
 
 
 def _held_offset(targets, free, contacts, half_width):

@@ -1,5 +1,10 @@
-"""A skeleton for retargeting (``Rig``: rest matrices, groups, world matrix), its forward and inverse
-kinematics on pose matrices, and measures of it (chain joints, leg length, body frame, soles)."""
+"""A skeleton for retargeting (``Rig``: rest matrices, groups, world matrix, where each bone ends as a joint and
+where each foot's sole is), its forward and inverse kinematics on pose matrices, and measures of it (chain
+joints, leg length, body frame, soles).
+
+Joints, not tails: every position measured here is a joint (a bone's head, or its end as solver/joint_ends.py
+finds it: the head of its chain successor or only child), never the tail an importer left (Blender's glTF
+importer may leave one a hundred times past the next joint, its FBX importer points it along the bone's Y)."""
 
 from __future__ import annotations
 
@@ -8,6 +13,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import SolverInputError
+from .joint_ends import end_points, joint_ends
+from .retarget_soles import default_soles, posed_soles, skin_soles
 from .geometry import all_set, any_set, cross, cross_components, dot, norm, normalize
 from .vocabulary import LIMB_EFFECTORS
 
@@ -15,12 +22,25 @@ EFFECTORS = LIMB_EFFECTORS
 FEET = ("foot.L", "foot.R")
 EFFECTOR_CHAIN = {"hand.L": "arm.L", "hand.R": "arm.R", "foot.L": "leg.L", "foot.R": "leg.R"}
 _EYE4 = np.eye(4)
+# Rest facings closer than this (radians) are the same: a skeleton's float32 joints, not a turn.
+_SAME_FACING = 1e-5
 
 @dataclass(frozen=True, eq=False)
 class Rig:
-    """A skeleton: J bones (parents before children), rest matrices (J,4,4) in armature space, rest lengths,
-    connected flags, body-model groups (group name -> tuple of bone indices, parent first, as the bone
-    mapping gives them) and the armature object's world matrix (4,4), whose scale must be uniform."""
+    """A skeleton: J bones (parents before children), rest matrices (J,4,4) in armature space, rest lengths
+    (Bone.length: head to TAIL, as the importer left it; only used to find the rest tails), connected flags,
+    body-model groups (group name -> tuple of bone indices, parent first, as the bone mapping gives them) and
+    the armature object's world matrix (4,4), whose scale must be uniform.
+
+    ends (J,3) or None: each bone's joint end in its own rest frame (joint_ends.joint_ends; None: found here
+    from the rest tails and the groups). soles {foot group: (points (P,3) armature-space rest, bones (P,K)
+    int, weights (P,K))} or None: the points of each foot's sole, skinned to the bones as a mesh vertex is
+    (bridge/retarget_soles reads the lowest vertices of the feet of the character's mesh); None or a foot
+    left out: its joints (retarget_soles.default_soles: ankle, toes, heel, no tail an importer made up).
+    skinned_soles: the feet whose soles are a mesh's (None: those given in ``soles``; a Rig copied with
+    dataclasses.replace keeps them). After construction: ``lengths_joint`` (J,) the joint-to-joint rest
+    lengths, ``sole_skin`` {foot: (bones,
+    local points (P,K,3) in those bones' rest frames, weights)}."""
 
     names: tuple
     parents: np.ndarray
@@ -29,6 +49,9 @@ class Rig:
     connected: np.ndarray
     groups: dict
     matrix_world: np.ndarray = field(default_factory=lambda: np.eye(4))
+    ends: np.ndarray = None
+    soles: dict = None
+    skinned_soles: tuple = None
 
     def __post_init__(self):
         names = tuple(self.names)
@@ -55,9 +78,22 @@ class Rig:
         for g in ("root", "trunk", "arm.L", "arm.R", "hand.L", "hand.R", "leg.L", "leg.R", "foot.L", "foot.R"):
             if not groups.get(g):
                 raise SolverInputError(f"rig mapping has no {g!r} group")
+        if self.ends is None:
+            rest_tails = rest[:, :3, 3] + unit_columns(rest[:, :3, :3])[:, :, 1] * lengths[:, None]
+            ends = joint_ends(parents, rest, rest_tails, groups)
+        else:
+            ends = np.asarray(self.ends, dtype=np.float64).reshape(j, 3)
+        soles = default_soles(rest, parents, groups, ends, lengths)
+        skinned = tuple(f for f in FEET if f in dict(self.soles or {})) if self.skinned_soles is None \
+            else tuple(self.skinned_soles)
+        object.__setattr__(self, "skinned_soles", skinned)
+        soles.update(dict(self.soles or {}))
         for attr, value in (("names", names), ("parents", parents), ("rest", rest), ("lengths", lengths),
-                            ("connected", connected), ("groups", groups), ("matrix_world", world)):
+                            ("connected", connected), ("groups", groups), ("matrix_world", world),
+                            ("ends", ends), ("soles", soles)):
             object.__setattr__(self, attr, value)
+        object.__setattr__(self, "lengths_joint", np.linalg.norm(end_points(rest, ends) - rest[:, :3, 3], axis=1))
+        object.__setattr__(self, "sole_skin", {foot: skin_soles(rest, *spec) for foot, spec in soles.items()})
         relative = rest.copy()
         has_parent = parents >= 0
         relative[has_parent] = np.linalg.inv(rest[parents[has_parent]]) @ rest[has_parent]
@@ -77,10 +113,14 @@ class Rig:
         return out
 
     def world_points(self, pose):
-        """World heads and tails (F,J,3) of armature-space pose matrices (F,J,4,4)."""
-        heads = pose[..., :3, 3]
-        tails = heads + pose[..., :3, 1] * self.lengths[:, None]
-        return self.to_world(heads), self.to_world(tails)
+        """World heads and joint ends (…,J,3) of armature-space pose matrices (…,J,4,4): the ends where
+        each bone's joint segment ends (joint_ends), never the importer's tails."""
+        pose = np.asarray(pose, dtype=np.float64)
+        return self.to_world(pose[..., :3, 3]), self.to_world(end_points(pose, self.ends))
+
+    def sole_points(self, pose, foot):
+        """World points (…,P,3) of a foot's sole (``soles``) in armature-space pose matrices (…,J,4,4)."""
+        return self.to_world(posed_soles(np.asarray(pose, dtype=np.float64), *self.sole_skin[foot]))
 
     def to_world(self, points):
         # A contiguous transpose: numpy multiplies by a strided one about twice as slowly (same result).
@@ -150,31 +190,31 @@ def unit_columns(m):
 # Measures of a rig
 
 
-def chain_joints(rig, group, points_heads, points_tails):
-    """Joint positions (…,n,3) of a chain group from heads/tails (…,J,3): heads of the bones + the head of the
-    group's end bone (hand, foot, head) or, for the trunk, the tail of its last bone."""
+def chain_joints(rig, group, heads, ends):
+    """Joint positions (…,n,3) of a chain group from heads and joint ends (…,J,3): heads of the bones + the
+    head of the group's end bone (hand, foot, head) or, for the trunk, its last bone's joint end (the SC)."""
     bones = list(rig.groups[group])
     end = {"arm.L": "hand.L", "arm.R": "hand.R", "leg.L": "foot.L", "leg.R": "foot.R"}.get(group)
     if group == "head":
-        bones, last = bones[:-1], points_heads[..., rig.groups["head"][-1], :]
+        bones, last = bones[:-1], heads[..., rig.groups["head"][-1], :]
         if not bones:
-            return points_heads[..., rig.groups["head"], :]
+            return heads[..., rig.groups["head"], :]
     elif end is not None:
-        last = points_heads[..., rig.groups[end][0], :]
+        last = heads[..., rig.groups[end][0], :]
     else:
-        last = points_tails[..., bones[-1], :]
-    return np.concatenate([points_heads[..., bones, :], last[..., None, :]], axis=-2)
+        last = ends[..., bones[-1], :]
+    return np.concatenate([heads[..., bones, :], last[..., None, :]], axis=-2)
 
 
 def rest_points(rig):
-    """World rest heads and tails (J,3)."""
+    """World rest heads and joint ends (J,3)."""
     return rig.world_points(rig.rest)
 
 
 def leg_lengths(rig):
     """Rest lengths (2,) (world units) of the left and right legs, hip joint to ankle along the chain."""
-    heads, tails = rest_points(rig)
-    return np.array([float(norm(np.diff(chain_joints(rig, side, heads, tails), axis=0)).sum())
+    heads, ends = rest_points(rig)
+    return np.array([float(norm(np.diff(chain_joints(rig, side, heads, ends), axis=0)).sum())
                      for side in ("leg.L", "leg.R")])
 
 
@@ -183,33 +223,33 @@ def leg_length(rig):
     return float(leg_lengths(rig).mean())
 
 
-def body_frame(rig, heads, tails):
+def body_frame(rig, heads, ends):
     """(…,3,3) orthonormal body axes as columns (left, up x left, up): up = root head -> SC, left = right hip
-    -> left hip (its part perpendicular to up)."""
+    -> left hip (its part perpendicular to up). The body's forward is -(up x left) = left x up."""
     root = rig.groups["root"][0]
-    sc = tails[..., rig.groups["trunk"][-1], :]
+    sc = ends[..., rig.groups["trunk"][-1], :]
     up = normalize(sc - heads[..., root, :], fallback=np.array([0.0, 0.0, 1.0]))
     left = heads[..., rig.groups["leg.L"][0], :] - heads[..., rig.groups["leg.R"][0], :]
     left = normalize(left - dot(left, up)[..., None] * up, fallback=np.array([1.0, 0.0, 0.0]))
     return np.stack([left, cross(up, left), up], axis=-1)
 
 
-def ankle_above_sole(rig, heads, tails):
-    """Per frame, how far (world z) each ankle is above the lowest joint of its foot (toes, heel): (F,2)
-    for L, R, of world heads/tails (F,J,3)."""
-    out = []
-    for foot in FEET:
-        bone = rig.groups[foot][0]
-        below = rig.descendants(bone)
-        lowest = np.minimum(heads[:, below, 2].min(axis=1), tails[:, below, 2].min(axis=1))
-        out.append(heads[:, bone, 2] - lowest)
-    return np.stack(out, axis=1)
+def soles_of(rig, pose):
+    """{foot: world sole points (…,P,3)} of armature-space pose matrices (…,J,4,4)."""
+    return {foot: rig.sole_points(pose, foot) for foot in FEET}
 
 
-def sole_heights(rig, heads, tails):
-    """Per frame, the lowest world z of any joint of either foot (heads/tails (F,J,3)): (F,)."""
-    below = sorted(set(rig.descendants(rig.groups["foot.L"][0])) | set(rig.descendants(rig.groups["foot.R"][0])))
-    return np.minimum(heads[:, below, 2].min(axis=1), tails[:, below, 2].min(axis=1))
+def ankle_above_sole(rig, pose):
+    """Per frame, how far (world z) each ankle is above the lowest point of its sole: (F,2) for L, R, of
+    armature-space pose matrices (F,J,4,4)."""
+    heads = rig.to_world(pose[..., :3, 3])
+    return np.stack([heads[:, rig.groups[foot][0], 2] - rig.sole_points(pose, foot)[..., 2].min(axis=-1)
+                     for foot in FEET], axis=1)
+
+
+def sole_heights(rig, pose):
+    """Per frame, the lowest world z of either foot's sole, (F,) of pose matrices (F,J,4,4)."""
+    return np.minimum(*(rig.sole_points(pose, foot)[..., 2].min(axis=-1) for foot in FEET))
 
 
 def hip_centres(rig, heads):
@@ -217,21 +257,42 @@ def hip_centres(rig, heads):
     return 0.5 * (heads[..., rig.groups["leg.L"][0], :] + heads[..., rig.groups["leg.R"][0], :])
 
 
-def effector_points(rig, heads, tails, effector):
-    """World points (…,P,3) of a hand or foot from heads/tails (…,J,3): the effector joint (wrist, ankle)
-    first, then the bone's tail and the heads and tails of every bone below it (fingers, toes, heel)."""
+def effector_points(rig, pose, effector):
+    """World points (…,P,3) of a hand or foot of armature-space pose matrices (…,J,4,4): the effector joint
+    (wrist, ankle) first; then for a foot its sole's points (Rig.soles), for a hand the hand's joint end and
+    the heads and joint ends of every bone below it (fingers)."""
     bone = rig.groups[effector][0]
+    heads, ends = rig.world_points(pose)
+    if effector in FEET:
+        return np.concatenate([heads[..., [bone], :], rig.sole_points(pose, effector)], axis=-2)
     below = rig.descendants(bone)[1:]
-    return np.concatenate([heads[..., [bone], :], tails[..., [bone], :], heads[..., below, :], tails[..., below, :]],
+    return np.concatenate([heads[..., [bone], :], ends[..., [bone], :], heads[..., below, :], ends[..., below, :]],
                           axis=-2)
 
 
-def heading_rotation(matrix):
-    """(3,3) rotation about world Z by the heading (yaw) of a rotation (3,3): where it turns the X axis, seen
-    from above."""
-    if np.hypot(matrix[0, 0], matrix[1, 0]) > 1e-9:
-        angle = np.arctan2(matrix[1, 0], matrix[0, 0])
-    else:  # X turned upright: the heading of Y, less the quarter turn from X to Y
-        angle = np.arctan2(matrix[1, 1], matrix[0, 1]) - 0.5 * np.pi
+def rest_forward(rig):
+    """The skeleton's facing at rest: its forward (3,) in world space, horizontal and of unit length, from its
+    hips and feet whatever its object's axes: left x up of the rest body frame (left = right hip -> left hip,
+    up = root -> SC); where that is nearly vertical (a rig lying down), the horizontal direction from the
+    ankles to the toes (the mean of the feet's sole points ahead of the ankles)."""
+    heads, ends = rest_points(rig)
+    frame = body_frame(rig, heads, ends)
+    forward = np.cross(frame[:, 0], frame[:, 2])
+    flat = np.array([forward[0], forward[1], 0.0])
+    if np.hypot(flat[0], flat[1]) < 0.3:
+        toes = np.mean([rig.sole_points(rig.rest, foot).mean(axis=0) - heads[rig.groups[foot][0]]
+                        for foot in FEET], axis=0)
+        flat = np.array([toes[0], toes[1], 0.0])
+    size = np.hypot(flat[0], flat[1])
+    return flat / size if size > 1e-12 else np.array([0.0, -1.0, 0.0])
+
+
+def facing_turn(source, target):
+    """(3,3) rotation about world Z by the angle from the source's rest forward to the target's (rest_forward):
+    the source's motion turned by it makes the target face its travel as the source faces its own."""
+    a, b = rest_forward(source), rest_forward(target)
+    angle = np.arctan2(a[0] * b[1] - a[1] * b[0], a[0] * b[0] + a[1] * b[1])
+    if abs(angle) < _SAME_FACING:
+        return np.eye(3)
     c, s = np.cos(angle), np.sin(angle)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .geometry import norm, swing_rotation
+from .retarget_fingers import finger_pairs
 from .retarget_rig import body_frame, chain_joints, hip_centres, rest_points, unit_columns
 from .rotation_channels import quaternions_of, quaternions_to_matrices
 
@@ -26,7 +27,8 @@ class BonePair:
 
 
 def pair_bones(source, target):
-    """BonePairs for every mapped bone of ``target`` (parents first).
+    """BonePairs for every mapped bone of ``target`` and every finger bone both rigs have (retarget_fingers),
+    parents first.
 
     Alignment: limb segments (upper arm, forearm, thigh, shin, and the hand and foot like the segment they
     end) by the rest body frames (facing), then the minimal swing from the target's rest segment direction
@@ -70,6 +72,11 @@ def pair_bones(source, target):
         for end, chain in ((f"hand.{side}", f"arm.{side}"), (f"foot.{side}", f"leg.{side}")):
             last = pairs.get(target.groups[chain][-1])
             pair(target.groups[end][0], source.groups[end], alignment=last.alignment if last else body)
+    # Fingers both rigs have (retarget_fingers), aligned as their hand is.
+    hands = {side: pairs[target.groups[f"hand.{side}"][0]].alignment for side in ("L", "R")}
+    for t, s, alignment in finger_pairs(source, target, s_dirs, t_dirs, hands):
+        if t not in pairs:
+            pair(t, (s,), alignment=alignment)
 
     # Mapped bones left without a source ride on their nearest paired ancestor.
     for t in sorted({b for bones in target.groups.values() for b in bones}):
@@ -106,6 +113,12 @@ def _blend_rotations(rotations, weights):
     q = np.where((np.sum(q * q[:, :1], axis=-1) < 0.0)[..., None], -q, q)
     blended = np.einsum("fkq,k->fq", q, np.asarray(weights))
     return quaternions_to_matrices(blended)
+
+
+def carried_bones(source, target):
+    """Target bones outside the bone map that take the source's motion (fingers both rigs have), sorted."""
+    mapped = {b for bones in target.groups.values() for b in bones}
+    return tuple(sorted(p.target for p in pair_bones(source, target) if p.target not in mapped))
 
 
 def transfer_pose(source, source_pose, target, target_basis, hips):

@@ -151,9 +151,10 @@ def slides(points, runs):
 
 
 def source_floor(source, frames):
-    """The floor under the source: the 2nd percentile of its lowest foot points, evaluated by Blender."""
-    rig = rig_of(source, source_map(source))
-    return np.percentile(rt.sole_heights(rig, evaluated_heads(source, frames), evaluated_tails(source, frames)), 2)
+    """The floor under the source: the 2nd percentile of its lowest foot points (heads and tails of the feet's
+    bones: the BVH's end sites are real), evaluated by Blender."""
+    lowest = np.minimum(*(source_foot_points(source, frames, e)[..., 2].min(axis=1) for e in ("foot.L", "foot.R")))
+    return np.percentile(lowest, 2)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -480,3 +481,20 @@ def test_operator_reports_what_is_missing():
     select_only(source)
     bpy.context.view_layer.objects.active = None
     assert not bpy.ops.fullbody_adjust.retarget.poll()
+
+
+def test_fingers_both_rigs_name_are_carried_over_and_keyed():
+    """A scaled copy of the source: its index fingers and thumbs (named so in both) turn exactly as the
+    source's do, evaluated by Blender, and are keyed; a finger bone the names do not tell (the CMU finger
+    base) keeps its own pose and gets no key."""
+    source = import_clip()
+    target = scaled_copy(source, 0.85)
+    outcome = retarget.retarget(bpy.context, source, target, *FRAMES)
+    frames = frames_of(outcome)
+    fingers = ["LeftHandIndex1", "LThumb", "RightHandIndex1", "RThumb"]
+    assert set(fingers) <= set(outcome.keyed_bones) and "LeftFingerBase" not in outcome.keyed_bones
+    index = bone_indices(source, fingers)
+    s_rot = read_pose_frames(source, frames).matrices[:, index, :3, :3]
+    t_rot = read_pose_frames(target, frames).matrices[:, index, :3, :3]
+    np.testing.assert_allclose(t_rot, s_rot, atol=2e-5)
+    assert np.abs(np.diff(s_rot, axis=0)).max() > 1e-3  # the source's fingers do move

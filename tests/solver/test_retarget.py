@@ -354,10 +354,11 @@ def test_a_two_bone_trunk_follows_a_three_bone_one():
 
 
 def test_unmapped_target_bones_keep_their_own_local_pose():
+    """A bone outside the bone map that is no finger both rigs name (the CMU finger base, the hip joint)."""
     source = cmu_rig(WALK)
     target = cmu_rig(WALK, scale=1.1)
     basis = np.tile(np.eye(4), (len(target), 1, 1))
-    finger = target.names.index("LeftHandIndex1")
+    finger = target.names.index("LeftFingerBase")
     hip_joint = target.names.index("LHipJoint")
     for j, angle in ((finger, 0.4), (hip_joint, -0.3)):
         basis[j, :3, :3] = _rotation_about(np.array([1.0, 0.2, 0.0]), angle)
@@ -365,6 +366,23 @@ def test_unmapped_target_bones_keep_their_own_local_pose():
     moved = rt.transfer_pose(source, pose, target, basis, np.zeros((20, 3)))
     local = rt.basis_from_pose(target, moved, [finger, hip_joint])
     np.testing.assert_allclose(local, np.broadcast_to(basis[[finger, hip_joint]], local.shape), atol=1e-9)
+
+
+def test_fingers_both_rigs_have_turn_as_the_source_fingers_do():
+    """The index fingers and thumbs (named so in both rigs) take the source's world rotation change: on a
+    scaled copy with other rolls they turn exactly as the source's do, and they are the bones carried."""
+    source = cmu_rig(WALK)
+    target = cmu_rig(WALK, scale=1.1, rolls=0.2)
+    pose = source_pose(WALK, source, FRAMES[:20])
+    moved = rt.transfer_pose(source, pose, target, np.tile(np.eye(4), (len(target), 1, 1)), np.zeros((20, 3)))
+    fingers = [target.names.index(n) for n in ("LeftHandIndex1", "LThumb", "RightHandIndex1", "RThumb")]
+    assert rt.carried_bones(source, target) == tuple(sorted(fingers))
+    s_change = world_rotations(source, pose)[:, fingers] @ np.swapaxes(world_rotations(source, source.rest[None]),
+                                                                       -1, -2)[:, fingers]
+    t_change = world_rotations(target, moved)[:, fingers] @ np.swapaxes(world_rotations(target, target.rest[None]),
+                                                                        -1, -2)[:, fingers]
+    np.testing.assert_allclose(t_change, s_change, atol=1e-9)
+    assert np.abs(s_change - np.eye(3)).max() > 0.1  # they do turn
 
 
 def test_a_clavicle_the_source_lacks_rides_on_the_chest():
@@ -533,12 +551,10 @@ def pivot_steps(points):
 
 
 def planned_foot_points(target, plan, effector):
-    """The target's foot points (F,P,3) as planned: the transferred foot, moved so its ankle is on the target."""
-    heads, tails = target.world_points(plan.start_pose)
-    bone = target.groups[effector][0]
-    below = target.descendants(bone)
-    points = np.concatenate([heads[:, below], tails[:, below]], axis=1)
-    return points - heads[:, bone, None] + plan.world_targets[:, rt.EFFECTORS.index(effector), None]
+    """The target's foot points (F,P,3) as planned: the ankle and the sole (the heads of the foot's bones, no
+    leaf tail) of the transferred foot, moved so its ankle is on the target."""
+    points = rt.effector_points(target, plan.start_pose, effector)
+    return points - points[:, :1] + plan.world_targets[:, rt.EFFECTORS.index(effector), None]
 
 
 def test_planted_feet_are_held_still_and_free_effectors_follow_the_transferred_pose():
@@ -585,7 +601,7 @@ def test_a_foot_still_above_the_floor_stands_on_something_raised():
     source = cmu_rig(WALK)
     frames = np.arange(1, 317)
     pose = source_pose(WALK, source, frames)
-    lowest = np.min([rt.effector_points(source, *source.world_points(pose), e)[..., 2].min(axis=1)
+    lowest = np.min([rt.effector_points(source, pose, e)[..., 2].min(axis=1)
                      for e in ("foot.L", "foot.R")], axis=0)
     pose[len(frames) // 2:, :, 2, 3] += 0.3 / np.linalg.norm(source.matrix_world[:3, 0])
     target = cmu_rig(WALK, scale=1.2)
@@ -594,7 +610,7 @@ def test_a_foot_still_above_the_floor_stands_on_something_raised():
     assert len(raised) >= 2
     for c in raised:
         assert c.start >= len(frames) // 2 - 1
-        own = rt.effector_points(source, *source.world_points(pose), c.effector)[c.start:c.stop, :, 2].min(axis=1)
+        own = rt.effector_points(source, pose, c.effector)[c.start:c.stop, :, 2].min(axis=1)
         assert c.surface == pytest.approx(own.mean(), abs=1e-12)
         assert c.surface == pytest.approx(lowest.min() + 0.3, abs=0.1)
         points = planned_foot_points(target, plan, c.effector)[c.start:c.stop]
@@ -740,10 +756,9 @@ def test_retargeted_motion_reaches_keeps_plants_and_adds_no_pops(clip_name):
     np.testing.assert_allclose(rt.forward_kinematics(target, basis)[:, t_body], solved[:, t_body], atol=1e-9)
 
     # Planted feet do not slide in the result either (toes and heels where the written channels put them).
-    heads, tails = target.world_points(rt.forward_kinematics(target, basis))
+    written = rt.forward_kinematics(target, basis)
     for effector in ("foot.L", "foot.R"):
-        bone = target.groups[effector][0]
-        points = np.concatenate([heads[:, target.descendants(bone)], tails[:, target.descendants(bone)]], axis=1)
+        points = rt.effector_points(target, written, effector)  # ankle and sole
         for a, b in plan.contact_intervals[effector]:
             assert pivot_steps(points[a:b]).sum() <= 2 * tolerance
 
