@@ -194,12 +194,9 @@ def with_world(rig, world):
 
 
 def source_map(obj):
-    """The source's bone map, without storing anything on it (the source is never changed)."""
-    stored = mapping.load_map(obj)
-    desc = mapping.describe_armature(obj)
-    if stored is not None and not stored.problems(desc):
-        return stored
-    return mapping.map_rig(desc)
+    """The source's bone map, without storing anything on it (the source is never changed): its stored map when
+    it fits, else detection's, but a map the user typed is checked and never replaced (mapping.read_map)."""
+    return mapping.read_map(obj)
 
 
 def check_source(obj):

@@ -402,6 +402,23 @@ def test_bad_input_is_one_line_and_changes_nothing():
     assert target.animation_data is None or target.animation_data.action is None
 
 
+def test_a_sources_typed_map_is_used_as_typed_and_its_problem_named():
+    """A map the user typed on the source is checked, never swapped for detection's: when it names a bone the
+    source lacks, the retarget stops with that one line and changes nothing."""
+    source = import_clip()
+    target = add_metarig()
+    mapping.ensure_map(source)
+    item = next(item for item in source.fullbody_adjust.bone_map if item.group == "arm.L")
+    bone = item.bone
+    item.bone = "NoSuchBone"
+    stored = [(i.group, i.bone) for i in source.fullbody_adjust.bone_map]
+    with pytest.raises(AdjustError, match=f"typed on '{source.name}' does not fit it: arm.L: no bone 'NoSuchBone'"):
+        retarget.retarget(bpy.context, source, target, 2, 20)
+    assert [(i.group, i.bone) for i in source.fullbody_adjust.bone_map] == stored
+    item.bone = bone
+    assert source_map(source).source == "stored"
+
+
 # ---------------------------------------------------------------------------------------------------------
 # The operator
 
