@@ -272,17 +272,22 @@ def effector_points(rig, pose, effector):
 
 def rest_forward(rig):
     """The skeleton's facing at rest: its forward (3,) in world space, horizontal and of unit length, from its
-    hips and feet whatever its object's axes: left x up of the rest body frame (left = right hip -> left hip,
-    up = root -> SC); where that is nearly vertical (a rig lying down), the horizontal direction from the
-    ankles to the toes (the mean of the feet's sole points ahead of the ankles)."""
+    feet and hips whatever its object's axes. The feet first: the horizontal direction from the ankles to the
+    toes (the mean of the feet's sole points ahead of the ankles), which is where a character looks and walks even
+    when its hips are yawed (GDQuest's mannequin: hip and shoulder lines 13 degrees off its face and toes); the
+    hips where the feet do not say (flat feet pointing sideways, more than 60 degrees off the hips, or none ahead
+    of the ankles): left x up of the rest body frame (left = right hip -> left hip, up = root -> SC)."""
     heads, ends = rest_points(rig)
     frame = body_frame(rig, heads, ends)
-    forward = np.cross(frame[:, 0], frame[:, 2])
-    flat = np.array([forward[0], forward[1], 0.0])
-    if np.hypot(flat[0], flat[1]) < 0.3:
-        toes = np.mean([rig.sole_points(rig.rest, foot).mean(axis=0) - heads[rig.groups[foot][0]]
-                        for foot in FEET], axis=0)
-        flat = np.array([toes[0], toes[1], 0.0])
+    hips = np.cross(frame[:, 0], frame[:, 2])
+    hips = np.array([hips[0], hips[1], 0.0])
+    toes = np.mean([rig.sole_points(rig.rest, foot).mean(axis=0) - heads[rig.groups[foot][0]] for foot in FEET],
+                   axis=0)
+    toes = np.array([toes[0], toes[1], 0.0])
+    hips_size, toes_size = np.hypot(hips[0], hips[1]), np.hypot(toes[0], toes[1])
+    flat = hips
+    if toes_size > 1e-9 * max(hips_size, 1e-300) and (hips_size < 0.3 or dot(toes, hips) > 0.5 * toes_size * hips_size):
+        flat = toes
     size = np.hypot(flat[0], flat[1])
     return flat / size if size > 1e-12 else np.array([0.0, -1.0, 0.0])
 

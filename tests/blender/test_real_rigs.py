@@ -50,38 +50,10 @@ KNOWN = {
         "exit 2: --target 'Rig' cannot be mapped: Cannot map rig 'Rig': no hips (root) bone found",
     ('walk_exit', 'godot_robot'):
         "exit 2: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left leg found",
-    ('walk_soles', 'kenney'): 'planted soles p95 106.2 mm, lowest -155.6 mm',
     ('walk_soles', 'quaternius_matt'):
         "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left foot found",
-    ('walk_soles', 'quaternius_mannequin_f'): 'planted soles p95 30.2 mm, lowest -54.0 mm',
-    ('walk_soles', 'kaykit_manny'): 'planted soles p95 57.2 mm, lowest -113.5 mm',
-    ('walk_soles', 'godot_plush'):
-        "exit 2: --target 'Rig' cannot be mapped: Cannot map rig 'Rig': no hips (root) bone found",
     ('walk_soles', 'godot_robot'):
         "exit 2: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left leg found",
-    ('walk_soles', 'gdquest_mannequiny'): 'planted soles p95 32.5 mm, lowest -64.2 mm',
-    ('walk_soles', 'metarig'): 'planted soles p95 24.4 mm, lowest -25.7 mm',
-    ('walk_soles', 'metarig_tpose'): 'planted soles p95 24.4 mm, lowest -25.7 mm',
-    ('walk_soles', 'metarig_apose'): 'planted soles p95 24.4 mm, lowest -25.7 mm',
-    ('walk_soles', 'metarig_face_px'): 'planted soles p95 24.4 mm, lowest -25.7 mm',
-    ('walk_soles', 'metarig_face_nx'): 'planted soles p95 24.4 mm, lowest -25.7 mm',
-    ('walk_soles', 'metarig_face_py'): 'planted soles p95 24.4 mm, lowest -25.7 mm',
-    ('walk_soles', 'metarig_low_soles'): 'planted soles p95 82.0 mm, lowest -84.0 mm',
-    ('walk_soles', 'metarig_cm_units'): 'planted soles p95 24.4 mm, lowest -25.7 mm',
-    ('walk_soles', 'metarig_object_scale_0.01'): 'planted soles p95 24.4 mm, lowest -25.7 mm',
-    ('walk_soles', 'metarig_object_scale_100'): 'planted soles p95 24.4 mm, lowest -25.7 mm',
-    ('walk_soles', 'metarig_unnamed'): 'planted soles p95 24.4 mm, lowest -25.7 mm',
-    ('walk_soles', 'metarig_gltf_blender'): 'planted soles p95 16.9 mm, lowest -20.7 mm',
-    ('walk_soles', 'metarig_gltf_temperance'): 'planted soles p95 16.9 mm, lowest -20.7 mm',
-    ('walk_soles', 'metarig_gltf_fortune'): 'planted soles p95 44.6 mm, lowest -54.1 mm',
-    ('walk_soles', 'metarig_fbx'): 'planted soles p95 12.6 mm, lowest -15.4 mm',
-    ('walk_soles', 'metarig_fbx_auto_orient'): 'planted soles p95 12.6 mm, lowest -15.4 mm',
-    ('walk_soles', 'metarig_fbx_no_leaf'): 'planted soles p95 13.7 mm, lowest -18.2 mm',
-    ('walk_soles', 'metarig_fbx_auto_orient_no_leaf'): 'planted soles p95 13.7 mm, lowest -18.2 mm',
-    ('walk_soles', 'metarig_gltf_unnamed_face_px'):
-        "exit 2: --target 'metarig' cannot be mapped: Cannot map rig 'metarig': no right leg found",
-    ('walk_soles', 'mannequin_f_face_px'): 'planted soles p95 30.2 mm, lowest -54.0 mm',
-    ('walk_soles', 'mannequin_f_face_py'): 'planted soles p95 30.2 mm, lowest -54.0 mm',
     ('walk_slide', 'kenney'): "slide p95 14.8 mm (the source's own 21.0 mm)",
     ('walk_slide', 'quaternius_matt'):
         "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left foot found",
@@ -122,13 +94,6 @@ KNOWN = {
         "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left foot found",
     ('walk_heading', 'godot_robot'):
         "exit 2: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left leg found",
-    ('walk_heading', 'metarig_face_px'): "heading -89.3 deg off the source's travel",
-    ('walk_heading', 'metarig_face_nx'): "heading 90.7 deg off the source's travel",
-    ('walk_heading', 'metarig_face_py'): "heading -179.3 deg off the source's travel",
-    ('walk_heading', 'metarig_gltf_unnamed_face_px'):
-        "exit 2: --target 'metarig' cannot be mapped: Cannot map rig 'metarig': no right leg found",
-    ('walk_heading', 'mannequin_f_face_px'): "heading -89.1 deg off the source's travel",
-    ('walk_heading', 'mannequin_f_face_py'): "heading -179.1 deg off the source's travel",
     ('walk_pops', 'quaternius_matt'):
         "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left foot found",
     ('walk_pops', 'kaykit_manny'): '11 pop frames (source 0), largest step 43.6 deg',
@@ -136,38 +101,10 @@ KNOWN = {
         "exit 2: --target 'Rig' cannot be mapped: Cannot map rig 'Rig': no hips (root) bone found",
     ('walk_pops', 'godot_robot'):
         "exit 2: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left leg found",
-    ('walk_report', 'kenney'): 'report and written file differ by 155.6 mm',
     ('walk_report', 'quaternius_matt'):
         "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left foot found",
-    ('walk_report', 'quaternius_mannequin_f'): 'report and written file differ by 54.0 mm',
-    ('walk_report', 'kaykit_manny'): 'report and written file differ by 113.5 mm',
-    ('walk_report', 'godot_plush'):
-        "exit 2: --target 'Rig' cannot be mapped: Cannot map rig 'Rig': no hips (root) bone found",
     ('walk_report', 'godot_robot'):
         "exit 2: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left leg found",
-    ('walk_report', 'gdquest_mannequiny'): 'report and written file differ by 64.2 mm',
-    ('walk_report', 'metarig'): 'report and written file differ by 25.7 mm',
-    ('walk_report', 'metarig_tpose'): 'report and written file differ by 25.7 mm',
-    ('walk_report', 'metarig_apose'): 'report and written file differ by 25.7 mm',
-    ('walk_report', 'metarig_face_px'): 'report and written file differ by 25.7 mm',
-    ('walk_report', 'metarig_face_nx'): 'report and written file differ by 25.7 mm',
-    ('walk_report', 'metarig_face_py'): 'report and written file differ by 25.7 mm',
-    ('walk_report', 'metarig_low_soles'): 'report and written file differ by 84.0 mm',
-    ('walk_report', 'metarig_cm_units'): 'report and written file differ by 25.7 mm',
-    ('walk_report', 'metarig_object_scale_0.01'): 'report and written file differ by 25.7 mm',
-    ('walk_report', 'metarig_object_scale_100'): 'report and written file differ by 25.7 mm',
-    ('walk_report', 'metarig_unnamed'): 'report and written file differ by 25.7 mm',
-    ('walk_report', 'metarig_gltf_blender'): 'report and written file differ by 20.7 mm',
-    ('walk_report', 'metarig_gltf_temperance'): 'report and written file differ by 20.7 mm',
-    ('walk_report', 'metarig_gltf_fortune'): 'report and written file differ by 54.1 mm',
-    ('walk_report', 'metarig_fbx'): 'report and written file differ by 15.4 mm',
-    ('walk_report', 'metarig_fbx_auto_orient'): 'report and written file differ by 15.4 mm',
-    ('walk_report', 'metarig_fbx_no_leaf'): 'report and written file differ by 18.2 mm',
-    ('walk_report', 'metarig_fbx_auto_orient_no_leaf'): 'report and written file differ by 18.2 mm',
-    ('walk_report', 'metarig_gltf_unnamed_face_px'):
-        "exit 2: --target 'metarig' cannot be mapped: Cannot map rig 'metarig': no right leg found",
-    ('walk_report', 'mannequin_f_face_px'): 'report and written file differ by 54.0 mm',
-    ('walk_report', 'mannequin_f_face_py'): 'report and written file differ by 54.0 mm',
 }
 
 

@@ -130,6 +130,22 @@ def test_the_target_faces_its_travel_as_the_source_faces_its_own(source_turn, ta
         assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 1e-3  # arccos near 1: 1e-8 rad rounding
 
 
+def test_the_feet_say_where_a_character_faces_when_its_hips_are_yawed():
+    """GDQuest's mannequin has its hip line 13 degrees off its face and toes: the rest forward follows the toes
+    (a hip line turned, the legs and feet as they were), and the hips still decide where the feet say nothing."""
+    rig = cmu_rig(WALK)
+    plain = rt.rest_forward(rig)
+    rest = rig.rest.copy()
+    hips = [rig.groups["leg.L"][0], rig.groups["leg.R"][0]]
+    centre = rest[hips, :3, 3].mean(axis=0)
+    turn = _rotation_about(np.array([0.0, 0.0, 1.0]), np.radians(13.0))
+    rest[hips, :3, 3] = (rest[hips, :3, 3] - centre) @ turn.T + centre
+    yawed = rt.Rig(rig.names, rig.parents, rest, rig.lengths, rig.connected, rig.groups, rig.matrix_world)
+    hip_forward = np.cross(*rt.body_frame(yawed, *rt.rest_points(yawed))[:, [0, 2]].T)
+    assert np.degrees(np.arccos(np.dot(hip_forward[:2], plain[:2]) / np.linalg.norm(hip_forward[:2]))) > 12.0
+    np.testing.assert_allclose(rt.rest_forward(yawed), plain, atol=1e-9)
+
+
 def test_an_object_turn_undone_in_the_data_changes_nothing():
     """A character whose data faces +X and whose object turns it back to -Y moves in the world exactly as the
     plain one: the heading comes from the skeleton in the world, not from the object's axes."""
