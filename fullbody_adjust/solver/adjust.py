@@ -207,7 +207,6 @@ class _Problem(SubBasePlacement, LimbPlacement):
         for name in self._PER_FRAME:
             setattr(sub, name, getattr(self, name)[rows])
         sub.iterations = np.zeros(len(rows), dtype=np.int64)
-        sub.default_limits = False  # its limits are a restriction of the prepared ones
         for name in self._PER_FRAME_DICTS:
             setattr(sub, name, {k: v[rows] for k, v in getattr(self, name).items()})
         sub.limits = {k: LimbLimits(_take_limits(v.limits, rows),

@@ -28,6 +28,7 @@ from . import hinge_axis_plain
 from .errors import SolverInputError
 from .geometry import all_set, any_perpendicular, apply_matrix, cross, dot, norm, normalize
 from .limits import CONE, HINGE, JointLimits
+from .start_range import widened_ranges
 from .vocabulary import EFFECTORS, GROUPS, REQUIRED_GROUPS, SINGLE_BONE_GROUPS
 
 # Chain groups ("limbs"), in the order Algorithm 1 solves them: trunk, then arms (and head), then legs.
@@ -453,8 +454,14 @@ class LimitStart:
             parent_dir = segs[:, 0]
             for i in range(m):
                 set_cone(i, human.neck)
-        limits = _checked_ranges(kind, cone, lo, hi, twist).derived(hinge_axis=axes)
-        return LimbLimits(limits, None if parent_dir is None else normalize(parent_dir))
+        parent_dir = None if parent_dir is None else normalize(parent_dir)
+        # A start pose outside these ranges is the rig's own range there (start_range): widened to hold it.
+        limits = _checked_ranges(kind, cone, lo, hi, twist)  # the HumanLimits as given must be valid
+        wide = widened_ranges(kind, cone, lo, hi, axes, parent_dir, segs)
+        if any(not np.array_equal(a, b) for a, b in zip(wide, (cone, lo, hi))):
+            limits = _checked_ranges(kind, *wide, twist)
+        limits = limits.derived(hinge_axis=axes)
+        return LimbLimits(limits, parent_dir)
 
 
 # JointLimits' checks of a limb's kinds and ranges (cone angles, hinge ranges and twists: the HumanLimits it was
