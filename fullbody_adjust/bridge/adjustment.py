@@ -231,11 +231,12 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
                                                      of=model))
         boxes = _armature_boxes(corners, to_arm, centre, radius + solve_settings.chain.margin)
     try:
+        hinges = snapshot.derived("hinge axes", lambda: ik_limits.hinge_hints(model, snapshot.rest_matrices,
+                                                                             snapshot.pose_matrices), of=model)
         limits = ik_limits.joint_limits(obj, model, heads, tails, snapshot.pose_matrices, settings,
-                                        controls=rig.fk_controls)
+                                        controls=rig.fk_controls, hinge_axes=hinges)
         result = solve_frames(model, heads, tails, arm_targets, targets.EFFECTORS, priorities, obstacles=boxes,
-                              settings=solve_settings,
-                              bone_x_axes=snapshot.pose_matrices[..., :3, 0], limits=limits,
+                              settings=solve_settings, bone_x_axes=hinges, limits=limits,
                               end_turns=end_turns, poles=poles)
     except SolverInputError as ex:
         raise AdjustError(f"Cannot adjust '{obj.name}': {ex}") from None
