@@ -257,13 +257,13 @@ class LimbPlacement:
         if not any_set(keep):
             return keep
         c0, target = self.chain0[name][rows], self.limb_target[name][rows]
+        tol = self.settings.chain.tolerance  # a straight limb on its target reaches it, however its lengths round
         if len(rows) == 1:  # one frame: the same two distances in plain floats
             r, joints, goal = int(rows[0]), c0[0].tolist(), target[0].tolist()
-            keep[0] = (gp.norm(gp.sub(joints[-1], goal)) <= self.settings.chain.tolerance
-                       and not gp.norm(gp.sub(goal, joints[0])) > self.reach[name][r])
+            keep[0] = (gp.norm(gp.sub(joints[-1], goal)) <= tol
+                       and not gp.norm(gp.sub(goal, joints[0])) > self.reach[name][r] + tol)
         else:
-            keep &= (norm(c0[:, -1] - target) <= self.settings.chain.tolerance) \
-                & ~(norm(target - c0[:, 0]) > self.reach[name][rows])
+            keep &= (norm(c0[:, -1] - target) <= tol) & ~(norm(target - c0[:, 0]) > self.reach[name][rows] + tol)
         if any_set(keep) and self.obstacles is not None:
             # Clear of every box, the chain solve finds nothing to respond to and nothing to note.
             boxes = self.obstacles.select(rows)

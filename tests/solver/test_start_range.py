@@ -176,3 +176,29 @@ def test_default_limits_hold_the_start_of_every_frame(rig):
     alone = default_limits(model, h[None], t[None], HUMAN, x[None])
     assert alone["arm.R"].limits.hinge_max[elbow] == HUMAN.elbow[1]
     assert limits["leg.L"].limits.cone_angle[0] > HUMAN.hip + 0.1 and alone["leg.L"].limits.cone_angle[0] == HUMAN.hip
+
+
+def test_a_straight_leg_on_its_target_stays_however_its_reach_rounds(rig):
+    """A leg straightened exactly, its ankle target half the tolerance beyond the ankle along the leg (past the
+    sum of its lengths, as rounding can put a straight leg's own ankle): the target is met where it stands, so
+    the pelvis stays and only the right arm moves for a near right-hand target."""
+    model, h, t, _x = rig
+    leg = model.limbs["leg.L"]
+    joints = leg.joints(h, t)
+    u, v = joints[1] - joints[0], joints[2] - joints[1]
+    axis = np.cross(v, u)
+    heads, tails = _turned(model, h, t, leg.bones[-1], axis, math.atan2(np.linalg.norm(axis), u @ v))
+    joints = leg.joints(heads, tails)
+    assert _bend(joints) < 1e-9
+    targets = metarig.wrists_and_ankles(model, heads)
+    tol = AdjustSettings().chain.tolerance
+    targets[2] = joints[-1] + 0.5 * tol * (joints[-1] - joints[0]) / np.linalg.norm(joints[-1] - joints[0])
+    assert np.linalg.norm(targets[2] - joints[0]) > np.linalg.norm(np.diff(joints, axis=0), axis=1).sum()
+    arm = model.limbs["arm.R"].joints(heads, tails)
+    targets[1] = arm[-1] + 0.2 * (arm[0] - arm[-1])
+    res = _solve(rig, heads, tails, targets)
+    assert res.root_displacement == 0.0 and res.status[2] == "reached"
+    moving = set(model.limbs["arm.R"].bones) | set(_subtree(model, model.limbs["arm.R"].end_bone))
+    others = [j for j in range(len(model.names)) if j not in moving]
+    np.testing.assert_array_equal(res.heads[others], heads[others])
+    np.testing.assert_array_equal(res.rotations[others], np.broadcast_to(np.eye(3), (len(others), 3, 3)))
