@@ -81,7 +81,8 @@ def adjust_frames(model, heads, tails, targets, effectors, priorities=None, *, o
     `effectors` (E,) (from hand.L hand.R foot.L foot.R head), a NaN row meaning no target on that frame;
     priorities (E,) >= 0, higher wins (default all 1); obstacles: Boxes shared (K,3) or per frame (F,K,3);
     limits: {limb name: body.LimbLimits} to replace the defaults (a limb missing from the dict is free);
-    bone_x_axes: optional per-bone world X axes (J,3)/(F,J,3) for the default hinge axes;
+    bone_x_axes: optional per-bone world axes (J,3)/(F,J,3) for the default hinge axes of straight elbows and
+    knees (the forearms' and shins' rows: body.default_limits);
     end_turns (F,E,3,3): world rotation deltas wanted for the hand and foot bones (e.g. to a target's
     orientation), turned no further from where the forearm/shin carries them than END_SWING allows; a NaN
     entry (or None) keeps the bone's world orientation;

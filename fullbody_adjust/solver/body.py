@@ -325,8 +325,9 @@ class HumanLimits:
     elbow_twist: float = math.radians(80)
     knee_twist: float = math.radians(45)
     # A start bend above this (radians) defines the hinge plane and its positive side; below it the bend side
-    # is ambiguous (mocap noise on a straight limb), so the bone's X axis or the body-frame heuristic decides
-    # the side. Kept below -elbow[0] and -knee[0] so a start pose is never outside its own hinge range.
+    # is ambiguous (mocap noise on a straight limb), so the given hinge axis (bone_x_axes) or the body-frame
+    # heuristic decides the side. Kept below -elbow[0] and -knee[0] so a start pose is never outside its own
+    # hinge range.
     bent: float = 0.15
 
 
@@ -360,9 +361,11 @@ class LimbLimits:
 def default_limits(model: BodyModel, heads, tails, human: HumanLimits = HumanLimits(), bone_x_axes=None):
     """Default human limits for every limb of `model` at the start poses heads/tails (F,J,3).
 
-    bone_x_axes: optional per-bone local X axes in world space (J,3) or (F,J,3). Blender limbs bend about
-    their bone's X axis, so the bridge can pass it to orient the elbow/knee hinge of a straight limb, where the
-    start pose says nothing about the bend side. Returns {limb name: LimbLimits}."""
+    bone_x_axes: optional per-bone axes in world space (J,3) or (F,J,3), read on the forearms' and shins' rows:
+    the axis each elbow/knee bends about where the start pose is (nearly) straight and says nothing about the
+    bend side. The bridge passes the axes found at rest (rest_hinges.py: rest joints and facing, never bone
+    roll) carried into the start pose; a rig whose rolls were set for its hinges may pass its bones' X axes.
+    Each range holds the start pose (start_range.py). Returns {limb name: LimbLimits}."""
     start = LimitStart(model, heads, tails, bone_x_axes)
     return {limb.name: start.limb_limits(limb, human) for limb in model.limbs.values()}
 
