@@ -461,7 +461,7 @@ class LimitStart:
         # A start pose outside these ranges is the rig's own range there (start_range): widened to hold it.
         limits = _checked_ranges(kind, cone, lo, hi, twist)  # the HumanLimits as given must be valid
         wide = widened_ranges(kind, cone, lo, hi, axes, parent_dir, segs)
-        if any(not np.array_equal(a, b) for a, b in zip(wide, (cone, lo, hi))):
+        if any(w is not given for w, given in zip(wide, (cone, lo, hi))):
             limits = _checked_ranges(kind, *wide, twist)
         limits = limits.derived(hinge_axis=axes)
         return LimbLimits(limits, parent_dir)

@@ -26,6 +26,7 @@ import numpy as np
 from .body import HumanLimits
 from .geometry import any_perpendicular, cross, dot, norm, normalize
 
+_UP = np.array([0.0, 0.0, 1.0])
 # A rest bend below this (radians, about 3 degrees) is modelling noise unless it lies near the facing rule's plane.
 REST_BENT = 0.05
 _HINGED = (("arm.L", 1.0), ("arm.R", 1.0), ("leg.L", -1.0), ("leg.R", -1.0))  # limb, bend side along forward
@@ -43,23 +44,19 @@ def rest_facing(model, heads):
 
 
 def rest_hinge_axis(upper, lower, bend_side, bent):
-    """The unit hinge axis (3,) of a joint between segments upper -> lower (3,) at rest (module docstring), with
-    bend_side the direction the limb bends toward."""
-    u = normalize(upper)
-    rule = cross(u, normalize(bend_side))
-    rule = normalize(rule) if norm(rule) >= 0.3 else any_perpendicular(u)
-    v = normalize(lower)
+    """Unit hinge axes (k,3) of joints between segments upper -> lower (k,3) at rest (module docstring), with
+    bend_side (k,3) the direction each limb bends toward."""
+    u = normalize(upper, fallback=_UP)
+    rule = cross(u, normalize(bend_side, fallback=_UP))
+    rule = np.where((norm(rule) >= 0.3)[:, None], normalize(rule, fallback=_UP), any_perpendicular(u))
+    v = normalize(lower, fallback=_UP)
     bend = cross(u, v)
-    angle = math.atan2(norm(bend), dot(u, v))
-    if angle <= REST_BENT:
-        return rule
-    plane = normalize(bend)
+    angle = np.arctan2(norm(bend), dot(u, v))
+    plane = normalize(bend, fallback=rule)
     agree = dot(plane, rule)
-    if angle > bent:
-        return plane
-    if abs(agree) >= 0.5:
-        return plane if agree >= 0.0 else -plane
-    return rule
+    slight = (angle > REST_BENT) & (np.abs(agree) >= 0.5)
+    axis = np.where(slight[:, None], np.where((agree < 0.0)[:, None], -plane, plane), rule)
+    return np.where((angle > bent)[:, None], plane, axis)
 
 
 def rest_hinge_axes(model, heads, rotations, bent=HumanLimits().bent):
@@ -70,16 +67,12 @@ def rest_hinge_axes(model, heads, rotations, bent=HumanLimits().bent):
     heads = np.asarray(heads, dtype=np.float64)
     rotations = np.asarray(rotations, dtype=np.float64)
     _up, _left, forward = rest_facing(model, heads)
-    bones, carriers, axes = [], [], []
-    for name, side in _HINGED:
-        limb = model.limbs[name]
-        if len(limb.bones) < 2:
-            continue
-        joints = limb.joints(heads, heads)  # arms and legs end at the hand's / foot's head: heads only
-        axis = rest_hinge_axis(joints[-2] - joints[-3], joints[-1] - joints[-2], side * forward, bent)
-        carrier = limb.bones[-2]
-        frame = rotations[carrier] / norm(rotations[carrier].T)  # unit columns
-        bones.append(limb.bones[-1])
-        carriers.append(carrier)
-        axes.append(frame.T @ axis)
-    return np.array(bones, dtype=np.int64), np.array(carriers, dtype=np.int64), np.array(axes).reshape(-1, 3)
+    limbs = [(model.limbs[name], side) for name, side in _HINGED if len(model.limbs[name].bones) >= 2]
+    joints = np.array([limb.joints(heads, heads)[-3:] for limb, _side in limbs])  # heads only: arms, legs
+    sides = np.array([side * forward for _limb, side in limbs])
+    axes = rest_hinge_axis(joints[:, 1] - joints[:, 0], joints[:, 2] - joints[:, 1], sides, bent)
+    bones = np.array([limb.bones[-1] for limb, _side in limbs], dtype=np.int64)
+    carriers = np.array([limb.bones[-2] for limb, _side in limbs], dtype=np.int64)
+    frames = rotations[carriers]
+    frames = frames / norm(np.swapaxes(frames, -1, -2))[:, None, :]  # unit columns
+    return bones, carriers, np.einsum("kji,kj->ki", frames, axes).reshape(-1, 3)

@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from .geometry import any_perpendicular, cross, dot, norm, normalize
+from .geometry import TINY, cross, dot, norm
 from .limits import CONE, FREE, HINGE
 
 # Added to a widened bound (radians) so the start is strictly inside it whatever the rounding of a later check.
@@ -26,25 +26,41 @@ MARGIN = 1e-9
 def widened_ranges(kind, cone, lo, hi, axes, parent_direction, segments):
     """(cone, lo, hi) (m,) widened to hold the start pose: ``kind``, ``cone``, ``lo``, ``hi`` (m,) the ranges,
     ``axes`` (F,m,3) the hinge axes at the start, ``parent_direction`` (F,3) joint 0's parent direction (None:
-    joint 0 is free), ``segments`` (F,m,3) the start chain's segments. New arrays; the given ones unchanged.
-    A bound is only ever widened (never past a half turn), so ranges that were invalid stay invalid."""
-    cone, lo, hi = cone.copy(), lo.copy(), hi.copy()
-    for i in np.nonzero(kind != FREE)[0]:
-        parent = parent_direction if i == 0 else segments[:, i - 1]
-        if parent is None:
-            continue
-        u = normalize(parent)
-        v = normalize(segments[:, i])
-        c = dot(u, v)
-        angle = np.arctan2(norm(v - c[:, None] * u), c)  # as limits.apply_cone measures it
-        if kind[i] == CONE:
-            cone[i] = max(cone[i], min(float(angle.max()) + MARGIN, math.pi))
-        elif kind[i] == HINGE:
-            a = axes[:, i] - dot(axes[:, i], u)[:, None] * u
-            a = normalize(a, fallback=any_perpendicular(u))
-            positive = dot(v, cross(a, u)) >= 0.0
-            if np.any(positive):
-                hi[i] = max(hi[i], min(float(angle[positive].max()) + MARGIN, math.pi))
-            if np.any(~positive):
-                lo[i] = min(lo[i], max(-float(angle[~positive].max()) - MARGIN, -math.pi))
+    joint 0 is free), ``segments`` (F,m,3) the start chain's segments. An array that widens is a new one (the
+    given ones are never changed); one that does not is returned as given. A bound is only ever widened (never
+    past a half turn), so ranges that were invalid stay invalid."""
+    limited = kind != FREE
+    if parent_direction is None:
+        limited[0] = False
+    joints = np.flatnonzero(limited)
+    if joints.size == 0:
+        return cone, lo, hi
+    parents = segments[:, joints - 1]
+    if joints[0] == 0:
+        parents[:, 0] = parent_direction
+    # Unit directions; a zero-length segment (the chains' own error to report, prepared.chains) gives no angle.
+    u = parents / np.maximum(norm(parents), TINY)[..., None]
+    v = segments[:, joints] / np.maximum(norm(segments[:, joints]), TINY)[..., None]
+    c = dot(u, v)
+    angle = np.arctan2(norm(v - c[..., None] * u), c)  # (F,k), as limits.apply_cone measures it
+    widest = np.minimum(angle.max(axis=0) + MARGIN, math.pi)
+    kinds = kind[joints]
+    wider = (kinds == CONE) & (widest > cone[joints])
+    if np.any(wider):
+        cone = cone.copy()
+        cone[joints[wider]] = widest[wider]
+    hinges = np.flatnonzero(kinds == HINGE)
+    if hinges.size:
+        # The side a hinge's positive bends lie on is axis x parent; the axis' part along the parent adds nothing.
+        positive = dot(v[:, hinges], cross(axes[:, joints[hinges]], u[:, hinges])) >= 0.0
+        bend = np.minimum(angle[:, hinges] + MARGIN, math.pi)
+        at = joints[hinges]
+        over = np.where(positive, bend, -math.inf).max(axis=0)
+        under = np.where(positive, math.inf, -bend).min(axis=0)
+        if np.any(over > hi[at]):
+            hi = hi.copy()
+            hi[at] = np.maximum(hi[at], over)
+        if np.any(under < lo[at]):
+            lo = lo.copy()
+            lo[at] = np.minimum(lo[at], under)
     return cone, lo, hi
