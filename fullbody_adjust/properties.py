@@ -99,7 +99,8 @@ class FULLBODY_ADJUST_PG_settings(bpy.types.PropertyGroup):
     variant: EnumProperty(name="Variant", items=VARIANT_ITEMS, default=DEFAULT_VARIANT.upper(),
                           description="How the groups meeting at the chest and at the pelvis settle conflicting "
                                       "targets", update=_solve_setting_changed)
-    margin: _distance("Margin", "Clearance kept between joints and obstacle boxes (the paper's Δd)",
+    margin: _distance("Margin", "Clearance kept between a skinned limb's surface and obstacle boxes (without a "
+                                "mesh: the paper's Δd, how far past a box a joint is pushed)",
                       default=0.01, min=0.0, soft_max=0.5)
     tolerance: _distance("Tolerance", "A target counts as reached within this distance",
                          default=1e-5, min=1e-9, soft_max=0.01, precision=6)

@@ -1,9 +1,10 @@
 """The one way through: active armature → bone mapping → targets and obstacles → the solver → bone channels
 → keyframes. Operators and the command line call only ``adjust_pose`` and ``adjust_frames`` here.
 
-The solve runs in the armature's own space (its object transform undone): bone lengths are rigid there
-even under non-uniform object scale, targets map into it exactly, and each obstacle is its mesh's bounding
-box with the mesh's rotation (an oriented box) carried into it.
+The solve runs in the armature's own space (its object transform undone) scaled to world units (_solve_space):
+bone lengths are rigid there even under non-uniform object scale, targets map into it exactly, every distance
+the solver reports is in world units, and each obstacle is its mesh's bounding box with the mesh's rotation (an
+oriented box) carried into it.
 """
 
 from collections.abc import Callable
@@ -15,11 +16,14 @@ import numpy as np
 
 from ..solver import Boxes, ChainSettings, SolverInputError
 from ..solver.adjust import AdjustSettings, adjust_frames as solve_frames
+from ..solver.adjust_types import UNCONSTRAINED
 from ..solver.body import CHAIN, END, ROOT
 from ..solver.geometry import norm
+from ..solver.joint_ends import end_points
 from ..solver.obstacle_reach import body_reach, skeleton_reach
 from ..solver.obstacles import penetrations
-from . import control_rig, frames as frames_module, ik_limits, keyframes, mapping, obstacles, pose, rig_cache, targets
+from . import (control_rig, frames as frames_module, ik_limits, keyframes, limb_thickness, mapping, obstacles, pose,
+               rig_cache, targets)
 from .control_match import control_channels
 from .errors import AdjustError
 
@@ -220,43 +224,53 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
     priorities = _priorities(obj)
     progress("solving", 0.3)
 
-    to_arm, heads, tails = snapshot.derived("armature space", lambda: _armature_space(snapshot))
-    arm_targets = _apply(to_arm, world_targets)
-    end_turns, poles = _end_goals(model, snapshot, goals, to_arm)
-    solve_settings = _in_armature_units(settings, snapshot.derived("object scales", lambda: _object_scales(snapshot)))
+    to_solve, heads, tails, unit = snapshot.derived("solve space", lambda: _solve_space(snapshot, rig.ends), of=rig)
+    arm_targets = _apply(to_solve, world_targets)
+    end_turns, poles = _end_goals(model, snapshot, goals, to_solve)
+    solve_settings = _in_solve_units(settings, snapshot.derived("object scales", lambda: _object_scales(snapshot)),
+                                     unit)
     boxes = None
     if corners.shape[1]:  # a set's meshes far from the character are left out before they are built into boxes
+        # Each limb keeps its mesh's radius plus the margin from the boxes (limb_thickness; none without a mesh).
+        solve_settings = replace(solve_settings, clearance=limb_thickness.limb_clearances(
+            obj, rig, unit, solve_settings.chain.margin))
         centre, radius = body_reach(model, heads, tails, arm_targets,
                                     snapshot.derived("skeleton reach", lambda: skeleton_reach(model, heads, tails),
                                                      of=model))
-        boxes = _armature_boxes(corners, to_arm, centre, radius + solve_settings.chain.margin)
+        pad = max([solve_settings.chain.margin] + [clearance for _limb, clearance in solve_settings.clearance])
+        boxes = _armature_boxes(corners, to_solve, centre, radius + pad)
     try:
         hinges = snapshot.derived("hinge axes", lambda: ik_limits.hinge_hints(model, snapshot.rest_matrices,
                                                                              snapshot.pose_matrices), of=model)
         limits = ik_limits.joint_limits(obj, model, heads, tails, snapshot.pose_matrices, settings,
                                         controls=rig.fk_controls, hinge_axes=hinges)
-        result = solve_frames(model, heads, tails, arm_targets, targets.EFFECTORS, priorities, obstacles=boxes,
-                              settings=solve_settings, bone_x_axes=hinges, limits=limits,
-                              end_turns=end_turns, poles=poles)
+        served = _served(obj, model, world_targets)
+        result = solve_frames(model, heads, tails, arm_targets[:, served], _columns(targets.EFFECTORS, served),
+                              priorities[served], obstacles=boxes, settings=solve_settings,
+                              bone_x_axes=hinges, limits=limits,
+                              end_turns=None if end_turns is None else end_turns[:, served],
+                              poles=None if poles is None else poles[:, served])
     except SolverInputError as ex:
         raise AdjustError(f"Cannot adjust '{obj.name}': {ex}") from None
+    status, reasons = (_widened(values, served, fill) for values, fill in
+                       ((result.status, UNCONSTRAINED), (result.reasons, "no target on this frame")))
     progress("writing", 0.8)
 
     oriented = goals.oriented.any(axis=0)  # (E,) effectors that take their target's orientation
-    written = _bones_to_write(model, snapshot, result, keep_hands, oriented)
+    written = _bones_to_write(model, snapshot, result, unit, keep_hands, oriented)
     names = tuple(snapshot.names[j] for j in written)
     action = None
     if controlled and names:
-        channels = _control_channels(context, obj, frames, snapshot, result, bone_map, keep_hands, oriented,
-                                     solve_settings.chain.tolerance, apply_pose)
+        channels = _control_channels(context, obj, frames, snapshot, result, unit, bone_map, keep_hands, oriented,
+                                     solve_settings.chain.tolerance / float(unit.max()), apply_pose)
         names = tuple(channels)
         if options.insert_keys and names:
             action = keyframes.key_bones_frames(obj, None, frames, channels, action_name=options.new_action)
     elif names:
         # Both writers check all their input before writing any of it; the channels come from the snapshot
         # just read, so once keying has started the pose write cannot fail.
-        channels = pose.armature_rotations_to_channels(obj, snapshot, _new_pose_matrices(snapshot, result, written),
-                                                       names)
+        channels = pose.armature_rotations_to_channels(obj, snapshot,
+                                                       _new_pose_matrices(snapshot, result, unit, written), names)
         if options.insert_keys:
             action = keyframes.key_bones_frames(obj, None, frames, channels, action_name=options.new_action)
         if apply_pose:
@@ -272,23 +286,24 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
         heads[0, ends] = pose.evaluated_heads(obj, [model.names[j] for j in ends])
         world_effectors = _effector_positions(model, heads, np.eye(4)[None])
     else:
-        world_effectors = _effector_positions(model, result.heads, snapshot.matrix_world)
+        world_effectors = _effector_positions(model, _armature_units(result.heads, unit), snapshot.matrix_world)
     residuals = norm(world_effectors - world_targets)
     return Outcome(frames=np.asarray(frames, dtype=np.float64), effectors=tuple(targets.EFFECTORS),
-                   residuals=residuals, status=result.status, reasons=result.reasons, moved_bones=names,
+                   residuals=residuals, status=status, reasons=reasons, moved_bones=names,
                    count_penetrations=lambda: _penetrations(model, result.heads, result.tails, boxes), action=action)
 
 
-def _new_pose_matrices(snapshot, result, bones):
-    """Armature-space matrices (F,k,4,4) of ``bones`` in the solved pose (their scale kept)."""
+def _new_pose_matrices(snapshot, result, unit, bones):
+    """Armature-space matrices (F,k,4,4) of ``bones`` in the solved pose (their scale kept); ``unit`` (F,): the
+    solve space's length of one armature unit (_solve_space)."""
     new_pose = np.zeros(snapshot.pose_matrices[:, bones].shape)
     new_pose[..., :3, :3] = result.rotations[:, bones] @ snapshot.pose_matrices[:, bones, :3, :3]
-    new_pose[..., :3, 3] = result.heads[:, bones]
+    new_pose[..., :3, 3] = _armature_units(result.heads[:, bones], unit)
     new_pose[..., 3, 3] = 1.0
     return new_pose
 
 
-def _control_channels(context, obj, frames, snapshot, result, bone_map, keep_hands, oriented, tolerance,
+def _control_channels(context, obj, frames, snapshot, result, unit, bone_map, keep_hands, oriented, tolerance,
                       apply_pose):
     """A control rig's solved pose as its controls' channels {control: {property: (F,k)}}: on each frame the
     controls are placed so the mapped bones reach the solve (control_match), and the controls that moved on some
@@ -296,7 +311,7 @@ def _control_channels(context, obj, frames, snapshot, result, bone_map, keep_han
     every frame is stepped to and the pose is put back afterwards."""
     names = [bone for _group, bone in bone_map.items()]
     mapped = snapshot.indices(names)
-    desired = _new_pose_matrices(snapshot, result, mapped)
+    desired = _new_pose_matrices(snapshot, result, unit, mapped)
     if not keep_hands:  # the hands and feet keep their pose relative to the forearm and shin (as _bones_to_write)
         old = snapshot.pose_matrices[:, mapped]
         position = {name: k for k, name in enumerate(names)}
@@ -313,13 +328,15 @@ def _control_channels(context, obj, frames, snapshot, result, bone_map, keep_han
         return control_channels(obj, context.view_layer, pairs, names, desired, tolerance, rows, start=snapshot)
 
 
-def _in_armature_units(settings, scales):
-    """``settings`` (world units) for a solve in armature space: the tolerance shrunk by the largest object
-    scale, so a target met in armature space is met in the world; the obstacle margin grown by the smallest,
-    so the clearance kept in the world is at least the margin. ``scales``: _object_scales."""
+def _in_solve_units(settings, scales, unit):
+    """``settings`` (world units) for a solve in the solve space (_solve_space): the tolerance shrunk by the
+    largest object scale, so a target met in the solve space is met in the world; the obstacle margin grown by
+    the smallest, so the clearance kept in the world is at least the margin. Under a uniform object scale both
+    stay as they are. ``scales``: _object_scales; ``unit`` (F,): _solve_space's."""
     largest, smallest = scales
     chain = settings.chain
-    chain = replace(chain, tolerance=chain.tolerance / largest, margin=chain.margin / smallest)
+    chain = replace(chain, tolerance=chain.tolerance * float(unit.min()) / largest,
+                    margin=chain.margin * float(unit.max()) / smallest)
     return replace(settings, chain=chain)
 
 
@@ -329,11 +346,18 @@ def _object_scales(snapshot):
     return float(scales.max()), float(scales.min())
 
 
-def _armature_space(snapshot):
-    """(to_arm (F,4,4), heads, tails (F,B,3)): the world-to-armature matrices and the bones in armature
-    space, read-only (they are kept with the snapshot)."""
-    to_arm = pose.affine_inverse(snapshot.matrix_world)
-    out = (to_arm, _apply(to_arm, snapshot.heads), _apply(to_arm, snapshot.tails))
+def _solve_space(snapshot, ends):
+    """(to_solve (F,4,4), heads, tails (F,B,3), unit (F,)), read-only (they are kept with the snapshot): the solve
+    runs in the armature's space scaled by ``unit``, the world length of one armature unit (the cube root of the
+    object scale's volume), so that bone lengths are rigid there even under a non-uniform object scale, while every
+    distance the solver reports (residuals, reaches, in its reasons) is in world units: an armature in centimetres
+    under an object scale of 0.01 is solved in metres. The tails are where the bones end as joints (``ends``,
+    rig_cache.Rig.ends), not where the importer left them."""
+    unit = np.cbrt(np.linalg.det(snapshot.matrix_world[:, :3, :3]))
+    to_solve = unit[:, None, None] * pose.affine_inverse(snapshot.matrix_world)
+    to_solve[:, 3] = (0.0, 0.0, 0.0, 1.0)
+    out = (to_solve, _apply(to_solve, snapshot.heads),
+           unit[:, None, None] * end_points(snapshot.pose_matrices, ends), unit)
     for array in out:
         array.flags.writeable = False
     return out
@@ -442,6 +466,28 @@ def _orthonormal(matrices):
     return u @ vt
 
 
+def _served(obj, model, world_targets):
+    """Columns of the EFFECTORS the model can serve (the head only with neck bones mapped); AdjustError naming the
+    slot when an enabled target asks for one it cannot."""
+    served = [k for k, effector in enumerate(targets.EFFECTORS) if effector in model.effectors]
+    for k, effector in enumerate(targets.EFFECTORS):
+        if k not in served and np.isfinite(world_targets[:, k]).any():
+            raise AdjustError(f"The {effector} target of '{obj.name}' needs neck bones mapped below the head: "
+                              f"map them in Bone Mapping, or switch the {effector} slot off")
+    return served
+
+
+def _columns(values, served):
+    return tuple(values[k] for k in served)
+
+
+def _widened(values, served, fill):
+    """(F,k) values of the served effectors as (F,E), ``fill`` for the others."""
+    out = np.full(values.shape[:1] + (len(targets.EFFECTORS),), fill, dtype=object)
+    out[:, served] = values
+    return out.astype(str)
+
+
 def _priorities(obj):
     by_effector = {slot.effector: int(slot.priority) for slot in obj.fullbody_adjust.targets}
     return np.array([by_effector.get(e, targets.DEFAULT_PRIORITY[e]) for e in targets.EFFECTORS], dtype=np.float64)
@@ -526,9 +572,11 @@ def _armature_boxes(world_corners, to_arm, centre, radius):
 _last_boxes = {}
 
 
-def _bones_to_write(model, snapshot, result, keep_hands, oriented):
-    """Indices of the bones the solver drives whose transform changed on some frame, parents first. ``oriented``
-    (E,) bool: effectors whose end bone takes its target's orientation, written even without ``keep_hands``."""
+def _bones_to_write(model, snapshot, result, unit, keep_hands, oriented):
+    """Indices of the bones the solver drives whose transform changed on some frame, or below one that did (a
+    foot that keeps its world orientation while its shin turns changes its local rotation), parents first.
+    ``oriented`` (E,) bool: effectors whose end bone takes its target's orientation, written even without
+    ``keep_hands``."""
     driven = _driven(model.roles, with_ends=keep_hands)
     for limb in model.limbs.values():
         if limb.effector in targets.EFFECTORS and oriented[targets.EFFECTORS.index(limb.effector)]:
@@ -536,9 +584,20 @@ def _bones_to_write(model, snapshot, result, keep_hands, oriented):
     driven = np.nonzero(driven)[0]  # only these are measured (a fraction of a full rig's bones)
     turn = np.abs(result.rotations[:, driven] - np.eye(3)).max(axis=(-1, -2))  # (F,k)
     old_heads = snapshot.pose_matrices[..., :3, 3]
-    shift = norm(result.heads[:, driven] - old_heads[:, driven]) / snapshot.derived("armature size",
-                                                                                  lambda: _size(old_heads))
-    return driven[((turn > _MOVED) | (shift > _MOVED)).any(axis=0)]
+    shift = norm(_armature_units(result.heads[:, driven], unit) - old_heads[:, driven])
+    shift = shift / snapshot.derived("armature size", lambda: _size(old_heads))
+    changed = np.zeros(len(model.names), dtype=bool)
+    changed[driven[((turn > _MOVED) | (shift > _MOVED)).any(axis=0)]] = True
+    below = np.zeros(len(model.names), dtype=bool)  # some ancestor changed
+    for bone in model.order.tolist():
+        parent = int(model.parents[bone])
+        below[bone] = parent >= 0 and (changed[parent] or below[parent])
+    return driven[changed[driven] | below[driven]]
+
+
+def _armature_units(points, unit):
+    """Solve-space points (F,...,3) in armature units (_solve_space's ``unit`` (F,))."""
+    return points / unit.reshape((-1,) + (1,) * (points.ndim - 1))
 
 
 def _effector_positions(model, heads, matrix_world):

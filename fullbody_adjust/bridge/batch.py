@@ -8,6 +8,7 @@ import os
 import bpy
 import numpy as np
 
+from ..solver.joint_ends import end_points, joint_ends
 from . import mapping, obstacles, pose, targets
 from .errors import AdjustError
 
@@ -115,13 +116,10 @@ def default_armature(context):
 
 def check_mappable(obj, option):
     """AdjustError (one line, naming ``option``) unless ``obj``'s stored bone map fits it or its bones can be
-    mapped onto the body model. Changes nothing."""
-    desc = mapping.describe_armature(obj)
-    stored = mapping.load_map(obj)
-    if stored is not None and not stored.problems(desc):
-        return
+    mapped onto the body model (a map the user typed is checked, never replaced: mapping.read_map). Changes
+    nothing."""
     try:
-        mapping.map_rig(desc)
+        mapping.read_map(obj)
     except mapping.MappingError as ex:
         raise AdjustError(f"{option} '{obj.name}' cannot be mapped: {ex}") from None
 
@@ -201,12 +199,17 @@ def stored_settings(obj):
 # --- for the preview -----------------------------------------------------------------------------------------
 
 def skeleton_segments(obj, frames):
-    """World (head, tail) of the armature's deforming bones (every bone when none deforms) at each frame:
-    (F, M, 2, 3)."""
+    """World (head, end) of the armature's deforming bones (every bone when none deforms) at each frame:
+    (F, M, 2, 3). A bone is drawn to where it ends as a joint (solver.joint_ends), not to its tail, which an
+    importer may have left far past the next joint."""
     snapshot = pose.read_pose_frames(obj, frames)
-    deform = np.array([bone.use_deform for bone in obj.data.bones], dtype=bool)
+    bones = obj.data.bones
+    tails = np.array([tuple(bone.tail_local) for bone in bones], dtype=np.float64).reshape(-1, 3)
+    ends = joint_ends(snapshot.parents, snapshot.rest_matrices, tails)
+    world = snapshot.matrix_world[:, None] @ snapshot.pose_matrices
+    deform = np.array([bone.use_deform for bone in bones], dtype=bool)
     keep = deform if deform.any() else np.ones(len(deform), dtype=bool)
-    return np.stack([snapshot.heads[:, keep], snapshot.tails[:, keep]], axis=2)
+    return np.stack([snapshot.heads[:, keep], end_points(world, ends)[:, keep]], axis=2)
 
 
 def effector_positions(obj, frames):

@@ -92,16 +92,23 @@ class BoneMap:
                     out.append(f"{end}.{s}: '{desc.names[tip[0]]}' does not hang below '{desc.names[chain[-1]]}'")
         if len(out) > len(missing):
             return out
+        for s in "LR":  # a leg goes down: its ankle is below its hip joint
+            chain, tip = idx.get(f"leg.{s}"), idx.get(f"foot.{s}")
+            if chain and tip and sk.heads[tip[0], 2] >= sk.heads[chain[0], 2]:
+                out.append(f"foot.{s}: the ankle ('{desc.names[tip[0]]}') is not below the hip joint "
+                           f"('{desc.names[chain[0]]}')")
         for group, chain in idx.items():
             if group not in CHAIN_GROUPS:
                 continue
             end = idx.get({"arm.L": "hand.L", "arm.R": "hand.R", "leg.L": "foot.L", "leg.R": "foot.R"}.get(group))
-            # Chain joints: heads of the chain bones + the effector's head (limbs) or the last bone's tail.
-            joints = [desc.heads[b] for b in chain] + [desc.heads[end[0]] if end else desc.tails[chain[-1]]]
-            for k, b in enumerate(chain):
+            # Chain joints are heads: of the chain bones, then of the hand or foot (limbs). Where the trunk and
+            # the head end is not a joint of the map, so their last bone's segment is not checked.
+            joints = [desc.heads[b] for b in chain] + ([desc.heads[end[0]]] if end else [])
+            for k, b in enumerate(chain[:len(joints) - 1]):
                 segment = joints[k + 1] - joints[k]
                 if np.linalg.norm(segment) <= sk.tiny:
-                    out.append(f"{group}: '{desc.names[b]}' ends where it starts (zero-length segment)")
+                    out.append(f"{group}: '{desc.names[b]}' has no length (its head is where "
+                               f"'{desc.names[(chain + (end or []))[k + 1]]}' starts)")
                 elif self._is_split(desc, b) and angle_between(segment, desc.tails[b] - desc.heads[b]) > SPLIT_SEGMENT:
                     out.append(f"{group}: '{desc.names[b]}' is split ('{desc.names[b]}.001' follows) but the "
                                f"next joint is not along it")

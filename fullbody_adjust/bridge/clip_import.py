@@ -59,10 +59,28 @@ def import_clip(context, path, options=ImportOptions()):
     if source.animation_data is None or source.animation_data.action is None:
         remove_ids(added)
         raise AdjustError(f"{os.path.basename(path)} has no motion")
+    _carry_longest_take(source, [i for i in added if isinstance(i, bpy.types.Action)])
     for action in (i for i in added if isinstance(i, bpy.types.Action)):
         action.name = f"{action.name} (source)"  # the clip's own name is for the action the retarget makes
     context.view_layer.update()
     return source, added
+
+
+def _carry_longest_take(source, actions):
+    """Make the longest of the clip's takes the armature's action. An FBX file may hold several (Kenney's and
+    Mixamo's add a one-frame 'Targeting Pose' beside the motion) and Blender's importer leaves the first one active,
+    which would carry a still pose instead of the clip. A take of one frame is a pose, not a clip; between takes of
+    the same length the importer's choice stands."""
+    anim = source.animation_data
+    current = anim.action
+
+    def length(action):
+        start, end = action.frame_range
+        return end - start
+
+    longest = max(actions, key=length, default=current)
+    if longest is not current and length(longest) > length(current):
+        anim.action = longest  # on Blender 4.4 and later the action's slot for the object is taken with it
 
 
 def remove_ids(ids):

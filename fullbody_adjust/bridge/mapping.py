@@ -4,14 +4,16 @@
 heads and tails; no bpy): the name presets first (``preset_matching`` over ``mapping_presets``), then detection
 from the shape of the hierarchy (``mapping_detection``); the result is a ``bone_map.BoneMap``, or a one-line
 ``MappingError`` naming what is missing. The Blender side (functions taking bpy objects, at the end; this module
-never imports bpy): ``describe_armature``, ``store_map``, ``load_map``, ``ensure_map``; the map is stored on the
-armature object as ``obj.fullbody_adjust.bone_map`` (items with string ``group`` and ``bone``, a group's items in
-chain order).
+never imports bpy): ``describe_armature``, ``store_map``, ``load_map``, ``read_map``, ``ensure_map``; the map is
+stored on the armature object as ``obj.fullbody_adjust.bone_map`` (items with string ``group`` and ``bone``, a
+group's items in chain order). A map the user typed or edited there is used as it is, checked, never replaced
+by detection (``read_map``).
 
 Conventions. Positions are compared in the rig's world orientation (``RigDescription.orientation``, the
-object's rotation: an FBX import keeps Y-up bones under a rotated object): z is up and, as in Blender's own
-conventions (Rigify's ``.L`` bones, the BVH importer), the character's left is +X. A side marker in a name
-wins over the x sign (``rig_description.side_of_name``).
+object's rotation: an FBX import keeps Y-up bones under a rotated object): z is up. Joints are bone heads, never
+tails (``rig_description``). The .L groups are the limbs on the character's own left, from where its skeleton
+faces (``body_sides``: feet and knees, whatever the object's axes), side markers in names deciding when the
+skeleton does not say clearly (``rig_description.side_of_name``).
 
 Rigify: a generated rig (``control_rig``) is described in its metarig's hierarchy and mapped to its ORG- bones,
 which the solve moves and its controls follow. A rig with only DEF- bones (a game export) maps to those:
@@ -29,15 +31,17 @@ which the solve moves and its controls follow. A rig with only DEF- bones (a gam
 import numpy as np
 
 from ..solver.vocabulary import REQUIRED_GROUPS
+from . import body_sides
+from .body_sides import Limb
 from .bone_map import GROUP_LABELS, BoneMap, MappingError
-from .mapping_detection import REPORT_ORDER, NotFound, detect, detect_map, missing_message
+from .mapping_detection import REPORT_ORDER, STAGE, NotFound, detect, detect_map, missing_message
 from .pose import parent_indices
 from .preset_matching import preset_maps
 from .rig_description import RigDescription, side_of_name
 
 # What callers import from here: the map, its errors and labels, the rig as data and the two ways of mapping.
 __all__ = ["GROUP_LABELS", "BoneMap", "MappingError", "RigDescription", "describe_armature", "detect_map",
-           "ensure_map", "load_map", "map_rig", "preset_maps", "side_of_name", "store_map"]
+           "ensure_map", "is_typed", "load_map", "map_rig", "preset_maps", "read_map", "side_of_name", "store_map"]
 
 # --- the whole mapping ------------------------------------------------------------------------------------
 
@@ -49,21 +53,44 @@ def map_rig(desc):
     attempts = preset_maps(desc)
     for label, bone_map, problems in attempts:
         if not problems:
-            return bone_map
+            return with_body_sides(desc, bone_map)
     try:
         return detect(desc)
     except NotFound as failure:
         detected = failure
-    # Report what a preset nearly found when it got at least half the groups, else detection's failure.
+    # Report what a preset nearly found when it got at least half the groups, unless detection got further
+    # through the body (REPORT_ORDER stages: a missing root or trunk comes before a missing foot or hand),
+    # else detection's failure, which names the bone where it stopped.
     nearest = max(attempts, key=lambda a: len(REQUIRED_GROUPS) - len(a[1].missing()), default=None)
     if nearest is not None and len(REQUIRED_GROUPS) - len(nearest[1].missing()) >= len(REQUIRED_GROUPS) / 2:
         label, bone_map, problems = nearest
         missing = bone_map.missing()
-        if missing:
-            group = min(missing, key=REPORT_ORDER.index)
-            raise MappingError(missing_message(desc, group, matched=f"other bones have {label} names"))
-        raise MappingError(f"Cannot map rig '{desc.name}': it has {label} names but {problems[0]}")
+        group = min(missing, key=REPORT_ORDER.index) if missing else None
+        if group is None or STAGE[group] >= STAGE[detected.group]:
+            if group:
+                raise MappingError(missing_message(desc, group, matched=f"other bones have {label} names"))
+            raise MappingError(f"Cannot map rig '{desc.name}': it has {label} names but {problems[0]}")
     raise MappingError(missing_message(desc, detected.group, detected.detail))
+
+
+def with_body_sides(desc, bone_map):
+    """``bone_map`` with its .L and .R groups swapped when the skeleton clearly faces the other way than its
+    side names say (``body_sides``: mirrored labels, as on the Godot platformer robot); else itself."""
+    sk = desc._skeleton
+    idx = {g: [desc.index(b) for b in bones] for g, bones in bone_map.groups.items()}
+    legs = [Limb(tuple(idx[f"leg.{s}"]), idx[f"foot.{s}"][0]) for s in "LR"]
+    arms = [Limb(tuple(idx[f"arm.{s}"]), idx[f"hand.{s}"][0]) for s in "LR"]
+    lat = body_sides.lateral(sk, *legs)
+    if lat is None:
+        return bone_map
+    # Only a map whose left arm is on its left leg's side can be mirrored as a whole.
+    if float((sk.heads[arms[0].end] - sk.heads[arms[1].end]) @ lat) <= 0:
+        return bone_map
+    if body_sides.left_pair(sk, legs, arms).left == 0:
+        return bone_map
+    swap = {"L": "R", "R": "L"}
+    groups = {(g[:-1] + swap[g[-1]] if g[-2:] in (".L", ".R") else g): bones for g, bones in bone_map.groups.items()}
+    return BoneMap(groups, source=f"{bone_map.source}, sides from the skeleton's facing")
 
 
 # --- Blender ------------------------------------------------------------------------------------------------
@@ -88,14 +115,28 @@ def describe_armature(obj):
                           name=obj.name, orientation=rotation)
 
 
-def store_map(obj, bone_map):
-    """Write ``bone_map`` to ``obj.fullbody_adjust.bone_map`` (replacing what was there)."""
-    items = obj.fullbody_adjust.bone_map
+_MADE = "mapped_automatically"  # ID property on obj.fullbody_adjust: the items of the last map mapping stored
+
+
+def store_map(obj, bone_map, typed=False):
+    """Write ``bone_map`` to ``obj.fullbody_adjust.bone_map`` (replacing what was there). Unless ``typed``, it
+    is recorded as made by mapping, so that ``read_map`` may map afresh when it stops fitting, as long as
+    nobody edits it."""
+    settings = obj.fullbody_adjust
+    items = settings.bone_map
     items.clear()
     for group, bone in bone_map.items():
         item = items.add()
         item.group = group
         item.bone = bone
+    if typed:
+        settings.pop(_MADE, None)
+    else:
+        settings[_MADE] = _as_text(bone_map.items())
+
+
+def _as_text(items):
+    return "\n".join(f"{group}\t{bone}" for group, bone in items)
 
 
 def load_map(obj):
@@ -104,18 +145,43 @@ def load_map(obj):
     return BoneMap.from_items(pairs, source="stored") if pairs else None
 
 
-def ensure_map(obj):
-    """The stored map when it still fits the rig; otherwise the rig is mapped afresh and the new map stored.
-    MappingError when the rig cannot be mapped (the stored items are then left as they were).
-
-    A generated control rig (Rigify) is solved on its ORG- bones, so only a map of ORG- bones fits it."""
-    desc = describe_armature(obj)
-    control_rig = _is_control_rig(obj)
+def is_typed(obj):
+    """The stored map is the user's: typed or edited in the Bone Mapping sub-panel since mapping stored it."""
     stored = load_map(obj)
-    if stored is not None and not stored.problems(desc) and (not control_rig or _all_org(stored)):
-        return stored
-    bone_map = _map_control_rig(desc) if control_rig else map_rig(desc)
-    store_map(obj, bone_map)
+    return stored is not None and obj.fullbody_adjust.get(_MADE) != _as_text(stored.items())
+
+
+def read_map(obj):
+    """The map a solve or a retarget uses on ``obj``, storing nothing: the stored map when it fits; else the
+    rig mapped afresh (``map_rig``; a generated Rigify rig on its ORG- bones), unless the stored map is the
+    user's.
+
+    A map the user typed or edited in the Bone Mapping sub-panel (``is_typed``) is used as it is, never
+    replaced by detection: when it does not fit the rig, MappingError names its first problem, the bone and
+    why, in one line, and Map Again (``map_rig`` + ``store_map``) starts over. A map mapping stored itself and
+    nobody edited is mapped again when the rig changed under it (a bone renamed or removed)."""
+    desc = describe_armature(obj)
+    stored = load_map(obj)
+    if stored is not None:
+        problems = stored.problems(desc)
+        if not problems and _is_control_rig(obj):
+            problems = [f"{group}: '{bone}' is not an ORG- bone (a generated Rigify rig is solved on its ORG- "
+                        f"bones)" for group, bone in stored.items() if not bone.startswith(_control_rig().ORG)]
+        if not problems:
+            return stored
+        if is_typed(obj):
+            more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+            raise MappingError(f"The bone map typed on '{obj.name}' does not fit it: {problems[0]}{more}; fix it "
+                               f"in Bone Mapping or press Map Again")
+    return _map_control_rig(desc) if _is_control_rig(obj) else map_rig(desc)
+
+
+def ensure_map(obj):
+    """``read_map(obj)``, stored on ``obj`` when it is not the stored map. MappingError (one line) when the
+    user's map does not fit or the rig cannot be mapped; the stored items are then left as they were."""
+    bone_map = read_map(obj)
+    if bone_map.source != "stored":
+        store_map(obj, bone_map)
     return bone_map
 
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..solver import SolverInputError
 from ..solver.body import BodyModel
+from ..solver.joint_ends import joint_ends
 from . import control_rig, mapping, pose
 from .errors import AdjustError
 
@@ -35,6 +36,9 @@ class Rig:
     rest: dict  # pose.read_static's fields but the rotation modes
     # On a generated control rig: each limb chain bone's FK control (control_rig.fk_control), or None.
     fk_controls: dict = None
+    # (J,3) where each bone ends as a joint, in its own rest frame (solver.joint_ends): what the solve takes for
+    # the bones' tails, whatever the importer did with them.
+    ends: np.ndarray = None
 
     @property
     def controlled(self):
@@ -73,7 +77,9 @@ def rig_of(obj):
     if controlled:
         fk_controls = control_rig.fk_controls(obj, [model.names[b] for limb in model.limbs.values()
                                                     for b in limb.bones])
-    rig = Rig(bone_map=bone_map, model=model, rest=rest, fk_controls=fk_controls)
+    ends = joint_ends(model.parents, rest["rest_matrices"], _rest_tails(obj), model.groups)
+    ends.flags.writeable = False
+    rig = Rig(bone_map=bone_map, model=model, rest=rest, fk_controls=fk_controls, ends=ends)
     _entries[obj.name] = _Entry(_fingerprint(obj), rig)
     _entries.move_to_end(obj.name)
     while len(_entries) > _CAPACITY:
@@ -88,6 +94,14 @@ def body_model(names, parents, bone_map):
                                           {group: list(bones) for group, bones in bone_map.groups.items()})
     except SolverInputError as ex:
         raise AdjustError(f"Bone mapping does not fit the rig: {ex}") from None
+
+
+def _rest_tails(obj):
+    """The bones' rest tails (J,3) in armature space, in obj.data.bones order."""
+    bones = obj.data.bones
+    buffer = np.empty(len(bones) * 3, dtype=np.float32)
+    bones.foreach_get("tail_local", buffer)
+    return buffer.reshape(-1, 3).astype(np.float64)
 
 
 def clear():

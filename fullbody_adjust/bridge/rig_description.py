@@ -1,6 +1,13 @@
 """A rig as plain data for bone mapping (no bpy): bone names, parents, rest heads and tails in armature space,
-and the hierarchy questions mapping asks of it (subtrees, paths, sides). Side markers in names are read here too:
-``L``/``R``/``Left``/``Right`` as whole name tokens, split at ``. _ - :``, spaces, digits and camelCase.
+and the hierarchy questions mapping asks of it (subtrees, paths, extents). Side markers in names are read here
+too: ``L``/``R``/``Left``/``Right`` as whole name tokens, split at ``. _ - :``, spaces, digits and camelCase.
+
+Joints are bone heads. Importers put tails anywhere (Blender's glTF importer often far past the next joint, its
+FBX importer along each bone's Y axis), so no joint, length or extent here is read from a tail, with one
+exception: where nothing follows a bone, its tail is the only sign of how far it goes (a fingertip, a big head
+with nothing above it). So how high a subtree reaches (``_Skeleton.top``) counts tails within the rig's size of
+their heads, and a leaf's length (``_Skeleton.leaf_reach``) is its tail's distance when that is no more than
+twice the step from its parent's head (a BVH End Site, a glTF leaf pointing on as its parent did), else 0.
 """
 
 from dataclasses import dataclass, field
@@ -12,7 +19,7 @@ import numpy as np
 
 
 
-MIDLINE = 0.01  # a bone without side marker whose head is this close to the root's x is at the middle
+MIDLINE = 0.01  # a bone whose head is this close (fraction of the height) to the body's middle plane is at it
 
 
 @dataclass(frozen=True, eq=False)
@@ -132,17 +139,30 @@ class _Skeleton:
         self.order = np.array(order, dtype=np.int64)
         self.heads = desc.heads @ desc.orientation.T
         self.tails = desc.tails @ desc.orientation.T
-        points = np.concatenate([self.heads, self.tails]) if n else np.zeros((1, 3))
+        # Sizes from the joints (heads); tails only when the heads give none (a single bone).
+        points = self.heads if n > 1 and np.ptp(self.heads, axis=0).any() else \
+            (np.concatenate([self.heads, self.tails]) if n else np.zeros((1, 3)))
         extent = points.max(axis=0) - points.min(axis=0)
         self.size = float(np.linalg.norm(extent)) or 1.0
         self.height = float(extent[2]) or self.size
         self.tiny = 1e-6 * self.size
         self.name_sides = [side_of_name(name) for name in desc.names]
-        # Highest point (heads and tails) of each bone's subtree.
-        self.top = np.maximum(self.heads[:, 2], self.tails[:, 2]) if n else np.zeros(0)
+        # Highest point of each bone's subtree: its heads, and its tails within the rig's size of their heads.
+        reach = np.linalg.norm(self.tails - self.heads, axis=1) if n else np.zeros(0)
+        tail_z = np.where(reach <= self.size, self.tails[:, 2], -np.inf) if n else np.zeros(0)
+        self.top = np.maximum(self.heads[:, 2], tail_z) if n else np.zeros(0)
         for b in reversed(order):
             for c in self.children[b]:
                 self.top[b] = max(self.top[b], self.top[c])
+        # Leaf bones FBX exporters add at each chain's end ("<parent>_end"): markers of where it ends, not bones.
+        self.end_marker = [not self.children[b] and self.parent[b] >= 0
+                           and desc.names[b] == desc.names[self.parent[b]] + "_end" for b in range(n)]
+        self.leaf_reach = np.zeros(n)
+        for b in range(n):
+            p = self.parent[b]
+            if not self.children[b] and p >= 0:
+                step = float(np.linalg.norm(self.heads[b] - self.heads[p]))
+                self.leaf_reach[b] = reach[b] if reach[b] <= 2.0 * step else 0.0
 
     def subtree(self, b):
         return self.order[self.tin[b]:self.tout[b]]
@@ -165,26 +185,13 @@ class _Skeleton:
                 return -1
         return a
 
-    def side(self, b, mid_x):
-        """Name marker first, else the x sign of the head relative to the midline (+X is left), else None."""
-        if self.name_sides[b]:
-            return self.name_sides[b]
-        dx = self.heads[b, 0] - mid_x
-        if abs(dx) <= MIDLINE * self.height:
-            return None
-        return "L" if dx > 0 else "R"
-
-    def joints(self, path):
-        """Heads of the bones on a path plus the tail of the last: (len+1, 3)."""
-        return np.concatenate([self.heads[path], self.tails[path[-1]][None]])
-
     def longest_path(self, b):
-        """From b to the leaf that makes the longest run of joints (fingers beat twist bones)."""
+        """From b to the leaf that makes the longest run of joints, head to head (fingers beat twist bones)."""
         best = {}
         for x in reversed(self.subtree(b).tolist()):
             kids = self.children[x]
             if not kids:
-                best[x] = (float(np.linalg.norm(self.tails[x] - self.heads[x])), None)
+                best[x] = (float(self.leaf_reach[x]), None)
                 continue
             c = max(kids, key=lambda c: float(np.linalg.norm(self.heads[c] - self.heads[x])) + best[c][0])
             best[x] = (float(np.linalg.norm(self.heads[c] - self.heads[x])) + best[c][0], c)

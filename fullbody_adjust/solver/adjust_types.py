@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from .body import HumanLimits
+from .body import LIMB_NAMES, HumanLimits
 from .chain import ChainSettings
 from .errors import SolverInputError
 from .vocabulary import DEFAULT_VARIANT, VARIANTS
@@ -35,7 +36,14 @@ class AdjustSettings:
     help_held_limbs: a limb whose target lies within its length but whose limits hold it short does not serve
         alone (rule (i) means a limb that can reach): its sub-base moves to help, as for a target beyond its
         length. False reads rule (i) by length alone: the sub-base then stays and the task is 'limited'.
-        Either way a limb that reaches its target alone leaves the SC and root exactly where they were."""
+        Either way a limb that reaches its target alone leaves the SC and root exactly where they were.
+    clearance: per limb (a mapping or (limb, distance) pairs; stored as sorted pairs), the distance its centre
+        line keeps from every obstacle box: its surface's radius plus the margin the user wants between surface
+        and box (bridge/limb_thickness.py measures the radius from the meshes the armature deforms). The limb's
+        chain solve tests its joints and segments against the boxes grown by it (obstacles.grown_clear_of; a box
+        its target or base lies nearer than that is grown less). A limb not listed (the default: every limb)
+        keeps the paper's behaviour: its joints and segments out of the boxes themselves, `chain.margin` only
+        the Δd of the push out."""
 
     chain: ChainSettings = ChainSettings()
     variant: str = DEFAULT_VARIANT
@@ -46,8 +54,10 @@ class AdjustSettings:
     sub_base_passes: int = 4
     limit_passes: int = 2
     help_held_limbs: bool = True
+    clearance: tuple = ()
 
     def __post_init__(self):
+        object.__setattr__(self, "clearance", _clearance_pairs(self.clearance))
         if not isinstance(self.help_held_limbs, bool):
             raise SolverInputError("help_held_limbs must be a bool")
         if not isinstance(self.chain, ChainSettings):
@@ -60,6 +70,28 @@ class AdjustSettings:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
                 raise SolverInputError(f"{name} must be an integer >= {low}")
+
+    def clearance_of(self, limb):
+        """The clearance of `limb` (0.0: none, the paper's behaviour)."""
+        for name, distance in self.clearance:
+            if name == limb:
+                return distance
+        return 0.0
+
+
+def _clearance_pairs(clearance):
+    """AdjustSettings.clearance as sorted (limb, float) pairs, checked."""
+    try:
+        pairs = dict(clearance.items() if hasattr(clearance, "items") else clearance)
+    except (TypeError, ValueError):
+        raise SolverInputError("clearance must map limb names to distances") from None
+    for limb, distance in pairs.items():
+        if limb not in LIMB_NAMES:
+            raise SolverInputError(f"clearance for unknown limb {limb!r} (use {', '.join(LIMB_NAMES)})")
+        if isinstance(distance, bool) or not isinstance(distance, (int, float, np.floating, np.integer)) \
+                or not math.isfinite(distance) or distance < 0:
+            raise SolverInputError(f"clearance of {limb} must be a finite number >= 0")
+    return tuple(sorted((limb, float(distance)) for limb, distance in pairs.items()))
 
 
 @dataclass

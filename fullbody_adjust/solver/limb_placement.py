@@ -13,10 +13,14 @@ from .chain_types import ChainBatchResult, _final_status
 from .geometry import any_set, apply_matrix, norm, stack_rows
 from .limb_rotations import _EYE, LimbSolve, end_rotation, set_segment_rotations
 from .limits import HINGE, JointLimits, carry_axis
-from .obstacles import points_inside, segments_cross
+from .obstacles import grown_clear_of, points_inside, segments_cross
 from .two_bone_start import two_bone_start
 
 _EYE_ROWS = _EYE.tolist()
+
+# The fractions of a limb's clearance it is solved with, in turn, where the previous one kept it from its target
+# (LimbPlacement._eased): the clearance is kept where the target allows it, then as much of it as does.
+_EASED = (1.0, 0.5, 0.0)
 
 
 class LimbPlacement:
@@ -27,9 +31,10 @@ class LimbPlacement:
         _solve_stacked on this one limb."""
         return self._solve_stacked([ChainTask(name, rows, start, targets, carry)])[0]
 
-    def _solve_stacked(self, tasks):
+    def _solve_stacked(self, tasks, ease=1.0):
         """One solve_chain_batch for `tasks` (ChainTask), their rows stacked in order, with each limb's limits
-        and its frames' obstacles; one ChainBatchResult per task. The tasks' limbs share a _stack_key (chain
+        and its frames' obstacles (grown by `ease` times its clearance: _limb_boxes, _eased); one
+        ChainBatchResult per task. The tasks' limbs share a _stack_key (chain
         length, per-joint limits): the chain solve treats its rows independently, so a stacked row equals the
         limb solved alone, and numpy's per-call cost is paid once for all of them. `carry` (b,3,3): the
         rotation that took the limb's start-pose chain to `start` (its parent's rotation), applied to joint 0's
@@ -74,12 +79,55 @@ class LimbPlacement:
             start[pending] = two_bone_start(start[pending], targets[pending], np.zeros((pending.size, 3)),
                                             pole[pending])
         if self.obstacles is not None:
-            kwargs["obstacles"] = self.obstacles.select(rows)
+            kwargs["obstacles"] = self._limb_boxes([(t.name, t.rows, t.start[:, 0], t.targets) for t in tasks], ease)
         res = solve_chain_batch(start, targets, settings=self.settings.chain, **kwargs)
         out = [res] if len(tasks) == 1 else _split(res, [len(t.rows) for t in tasks])
         for t, r in zip(tasks, out):
             self.iterations[t.rows] += r.iterations  # per task: two limbs' rows may be the same frames
+        if self.obstacles is not None and ease == _EASED[0]:
+            self._eased(tasks, out)
         return out
+
+    def _eased(self, tasks, results):
+        """Where a limb's clearance kept it from its target (status 'blocked'), the limb solved again with less
+        (_EASED): a retry is taken where it reaches the target, the last (none: the paper's joints and segments
+        out of the boxes themselves) also where it comes nearer; its reason says how much clearance it kept.
+        `results` (one ChainBatchResult per task) are updated in place."""
+        for less in _EASED[1:]:
+            retries = []
+            for t, r in zip(tasks, results):
+                clearance = self.settings.clearance_of(t.name)
+                blocked = np.nonzero(r.status == "blocked")[0] if clearance > 0.0 else []
+                if len(blocked):
+                    retries.append((t, r, blocked, clearance))
+            if not retries:
+                return
+            again = self._solve_stacked([ChainTask(t.name, t.rows[b], t.start[b], t.targets[b],
+                                                   None if t.carry is None else t.carry[b],
+                                                   None if t.still is None else t.still[b])
+                                         for t, _r, b, _c in retries], less)
+            for (t, r, blocked, clearance), redo in zip(retries, again):
+                take = (redo.status == "reached") | ((less == 0.0) & (redo.residual < r.residual[blocked]))
+                kept = f"kept {less * clearance:.3g} of its clearance {clearance:.3g} from the obstacles" if less \
+                    else f"its clearance {clearance:.3g} from the obstacles not kept"
+                r.status, r.reason = r.status.astype(object), r.reason.astype(object)  # fixed width would cut
+                redo.reason = redo.reason.astype(object)
+                redo.reason[take] = [f"{why}; {kept}" for why in redo.reason[take]]
+                for field in ("positions", "iterations", "residual", "reachable", "status", "reason"):
+                    getattr(r, field)[blocked[take]] = getattr(redo, field)[take]
+
+    def _limb_boxes(self, parts, ease=1.0):
+        """The obstacle boxes a chain solve of `parts` [(limb, rows (b,), bases (b,3), targets (b,3))], their rows
+        stacked in order, tests against: each limb's frames' boxes grown by its clearance (settings.clearance,
+        obstacles.grown_clear_of: less near its base and target); the frames' boxes as they are where no limb
+        of them has one (the paper's behaviour)."""
+        rows = stack_rows([part[1] for part in parts])
+        boxes = self.obstacles.select(rows)
+        clearance = [ease * self.settings.clearance_of(part[0]) for part in parts]
+        if not any(clearance):
+            return boxes
+        keep_out = np.stack([stack_rows([part[2] for part in parts]), stack_rows([part[3] for part in parts])], 1)
+        return grown_clear_of(boxes, np.repeat(clearance, [len(part[1]) for part in parts]), keep_out)
 
     def _stack_key(self, task):
         """What limbs solved in one stacked chain solve must share: the chain length and, when limited, the
@@ -266,7 +314,7 @@ class LimbPlacement:
             keep &= (norm(c0[:, -1] - target) <= tol) & ~(norm(target - c0[:, 0]) > self.reach[name][rows] + tol)
         if any_set(keep) and self.obstacles is not None:
             # Clear of every box, the chain solve finds nothing to respond to and nothing to note.
-            boxes = self.obstacles.select(rows)
+            boxes = self._limb_boxes([(name, rows, c0[:, 0], target)])
             keep &= ~points_inside(c0, boxes).any(axis=(1, 2)) & ~points_inside(target, boxes).any(axis=1) \
                 & ~segments_cross(c0[:, :-1], c0[:, 1:], boxes).any(axis=(1, 2))
         ll = self.limits.get(name)

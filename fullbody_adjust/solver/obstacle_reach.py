@@ -13,7 +13,9 @@ target:
     head);
   - a bone that does not move (outside the body model) stays where it starts.
 The radius used is T + 8S, or the farthest start point if that is farther: loose on purpose, since a box it keeps
-only costs its tests."""
+only costs its tests. A limb with a clearance (AdjustSettings.clearance: its surface's radius plus the margin) tests
+against its boxes grown by it: the caller adds the margin to the radius, and the surface's radius, a limb's
+thickness, lies well within the 2S the bound has to spare."""
 
 import numpy as np
 

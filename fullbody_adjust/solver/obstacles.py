@@ -129,6 +129,38 @@ class Boxes:
             object.__setattr__(out, name, arr)
         return out
 
+    def grown(self, by):
+        """These boxes grown by `by`, (B,K) per problem and box (shared boxes become per-problem ones): every face
+        pushed out by it along the box's own axes, so a point outside a grown box is at least `by` from the box."""
+        by = np.asarray(by, dtype=np.float64)[..., None]
+        mins, maxs = self.mins - by, self.maxs + by
+        axes = None if self.axes is None else np.broadcast_to(self.axes, mins.shape + (3,))
+        return Boxes(mins, maxs, axes)
+
+
+# A box is grown by less than a limb's clearance where the limb's target or base lies nearer to it: by this
+# fraction of that distance, so the point stays outside the grown box with room for the end joint's approach.
+_APPROACH = 0.9
+
+
+def grown_clear_of(boxes, clearance, keep_out):
+    """The boxes a limb with a clearance (a limb's surface radius plus margin) tests its centre line against:
+    `boxes` (shared, or per problem for B problems) grown by `clearance` (B,), each box by less where one of the
+    problem's `keep_out` points (B,P,3: the chain's base and target) lies nearer to it than that, to _APPROACH of
+    that distance. Such a point then stays outside the grown box: the chain's last segment still avoids the
+    box, only as near as the target asks (a box holding the target or base itself is not grown, and the chain
+    ignores it for that segment as the paper does). Per-problem Boxes (B,K,3)."""
+    gaps = distances_to_boxes(keep_out, boxes)  # (B,P,K): per-problem boxes pair with the first axis
+    return boxes.grown(np.minimum(np.asarray(clearance, dtype=np.float64)[:, None], _APPROACH * gaps.min(axis=1)))
+
+
+def distances_to_boxes(points, boxes):
+    """(...,3) points, K boxes -> (..., K): each point's distance to each closed box (0 inside it)."""
+    p = np.asarray(points, dtype=np.float64)
+    mins, maxs, axes = _box_arrays(boxes, p.ndim - 1)
+    q = _in_box_frames(p, axes)
+    return np.linalg.norm(np.maximum(np.maximum(mins - q, q - maxs), 0.0), axis=-1)
+
 
 def as_boxes(obstacles):
     """None, Boxes, or an array of box corners ((K,8,3), (K,2,3) or per problem (B,K,...,3)) -> Boxes or None."""

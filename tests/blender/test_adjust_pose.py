@@ -110,6 +110,25 @@ def test_reachable_target_is_met(kind, task, capfd):
         assert root_moved > 0.05 * before.height()
 
 
+@pytest.mark.parametrize("kind", RIG_KINDS)
+def test_planted_feet_keep_their_world_orientation(kind, capfd):
+    """The pelvis comes down and the shins turn: the feet, planted where they stand, keep their world
+    orientation (they are keyed although their own world transform did not change), so the toes stay put."""
+    obj = rig_with_targets(kind)
+    before = Pose(obj)
+    reach_left_hand(obj, before, "pelvis")
+    adjust(capfd)
+    after = Pose(obj)
+    groups = bone_map(obj)
+    for side in "LR":
+        shin = before.index[groups[f"leg.{side}"][-1]]
+        assert not np.allclose(after.matrices[shin, :3, :3], before.matrices[shin, :3, :3], atol=1e-3)
+        foot = groups[f"foot.{side}"][0]
+        below = [i for i, name in enumerate(before.names) if name == foot
+                 or obj.data.bones[name].parent_recursive and foot in {b.name for b in obj.data.bones[name].parent_recursive}]
+        np.testing.assert_allclose(after.matrices[below], before.matrices[below], atol=1e-5 * before.height())
+
+
 @pytest.mark.parametrize("transform", ("moved_rotated_scaled", "non_uniform_scale"))
 def test_object_transform(transform, capfd):
     obj = rig_with_targets("basic")
@@ -445,3 +464,22 @@ def test_a_target_missed_within_reach_is_a_warning(capfd):
     assert "Warning: hand.L missed its target within reach by" in out, out
     reported = float(out.split("within reach by ")[1].split()[0])
     assert reported == pytest.approx(missed, rel=1e-2)
+
+
+def test_rig_without_neck_bones(capfd):
+    """A head mapped without neck bones (many game characters) serves no head target, yet the rig adjusts; a
+    head target switched on anyway gets one line naming the slot."""
+    obj = rig_with_targets("basic")
+    items = obj.fullbody_adjust.bone_map
+    for index in reversed(range(len(items))):  # the head group without its neck bones, as a user may map it
+        if items[index].group == "head" and items[index].bone != bone_map(obj)["head"][-1]:
+            items.remove(index)
+    assert len(bone_map(obj)["head"]) == 1
+    before = Pose(obj)
+    enabled = reach_left_hand(obj, before, "arm")
+    assert_met(obj, adjust(capfd), enabled, before.height())
+    head_slot = slot(obj, "head")
+    head_slot.target = slot(obj, "hand.L").target
+    head_slot.enabled = True
+    with pytest.raises(RuntimeError, match="head target of 'metarig' needs neck bones"):
+        bpy.ops.fullbody_adjust.adjust_pose()

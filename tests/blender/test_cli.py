@@ -267,6 +267,19 @@ def _unmappable_scene(tmp_path):
     return path
 
 
+def _typed_map_scene(tmp_path):
+    """The basic metarig with targets, its bone map then edited by hand to name a bone it does not have."""
+    bpy.ops.wm.read_homefile(use_empty=True)
+    bpy.ops.preferences.addon_enable(module="rigify")
+    bpy.ops.object.armature_basic_human_metarig_add()
+    obj = bpy.context.active_object
+    bpy.ops.fullbody_adjust.create_targets()
+    next(item for item in obj.fullbody_adjust.bone_map if item.bone == "forearm.L").bone = "lower_arm.L"
+    path = tmp_path / "typed.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    return path
+
+
 @pytest.mark.parametrize("case, extra, words", [
     ("missing file", [], "no such file"),
     ("unknown armature", ["--armature", "Nobody"], "no object named 'Nobody'"),
@@ -278,11 +291,14 @@ def _unmappable_scene(tmp_path):
     ("report over the input", ["--report", "{input}"], "would overwrite the input"),
     ("output folder read-only", ["--output", "{tmp}/locked/out.blend"], "not writable"),
     ("unmappable rig", [], "mapp"),
+    ("typed map that does not fit", [], "typed on 'metarig' does not fit it: arm.L: no bone 'lower_arm.L'"),
     ("not a blend file", [], "Cannot open"),
 ])
 def test_bad_input_exits_2_and_leaves_the_input(cli, capsys, tmp_path, case, extra, words):
     if case == "unmappable rig":
         path = _unmappable_scene(tmp_path)
+    elif case == "typed map that does not fit":
+        path = _typed_map_scene(tmp_path)
     elif case == "not a blend file":
         path = tmp_path / "notes.blend"
         path.write_text("not a blend file\n")

@@ -162,6 +162,23 @@ def test_an_fbx_clip_through_blenders_fbx_importer_and_kept_sources(cli, capsys,
     assert len(keyed) == row["frames"] == 20 and min(keyed) == row["frame_start"]
 
 
+def test_an_fbx_with_several_takes_carries_the_motion_not_the_pose(cli, capsys, tmp_path, character):
+    """Kenney's run (tests/data/rigs, CC0) holds a one-frame 'Targeting Pose' beside the run, and Blender's FBX
+    importer makes the pose the armature's action: the batch carries the run's frames."""
+    clip = Path(__file__).resolve().parents[1] / "data" / "rigs" / "kenney_run.fbx"
+    code, _, err = run(cli, capsys, "retarget", character, "--target", "Hero", "--source-file", clip, "--jobs", 1,
+                       "--output", tmp_path / "out.blend", "--report", tmp_path / "r.json", "--quiet")
+    row = json.loads((tmp_path / "r.json").read_text())["rows"][0]
+    assert row["status"] == "done", row["reason"]
+    import addon_utils
+    bpy.ops.wm.read_homefile(use_empty=True)
+    addon_utils.enable("io_scene_fbx", default_set=False)
+    bpy.ops.import_scene.fbx(filepath=str(clip))
+    takes = {a.name: a.frame_range[1] - a.frame_range[0] + 1 for a in bpy.data.actions}
+    assert sorted(takes.values()) == [2, 17]  # the pose and the run, as the importer reads them
+    assert row["frames"] == max(takes.values()) > 2
+
+
 def test_the_blender_worker_command_runs_the_worker_loop(tmp_path, clips, character, extension_module_name):
     # Under Blender a worker is `blender -b --factory-startup --python-expr CODE`; no Blender binary here, so CODE
     # runs in this Python (with the bpy module) and serves one clip through the pool.

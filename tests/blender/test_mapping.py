@@ -15,8 +15,10 @@ from fullbody_adjust.bridge.mapping import (
     describe_armature,
     detect_map,
     ensure_map,
+    is_typed,
     load_map,
     map_rig,
+    read_map,
     store_map,
 )
 from tests.helpers.bvh import CMU_GROUPS, MOCAP_DIR
@@ -235,14 +237,74 @@ def test_ensure_map_maps_stores_and_keeps_a_fitting_edit():
     assert ensure_map(obj) == kept
 
 
-def test_ensure_map_maps_again_when_the_stored_map_no_longer_fits():
+def test_ensure_map_maps_again_when_its_own_map_no_longer_fits():
     obj = rigify_metarig()
     ensure_map(obj)
+    assert not is_typed(obj)
     obj.data.bones["forearm.L"].name = "lower_arm.L"  # the stored map now names a missing bone
     remapped = ensure_map(obj)
     assert remapped.source == "detected from the hierarchy"  # no preset has lower_arm.L
     assert remapped.bones("arm.L") == ("shoulder.L", "upper_arm.L", "lower_arm.L")
-    assert load_map(obj) == remapped
+    assert load_map(obj) == remapped and not is_typed(obj)
+
+
+def test_a_typed_map_that_no_longer_fits_is_kept_and_its_problem_named():
+    obj = rigify_metarig()
+    ensure_map(obj)
+    # The user drops the clavicle from the left arm in the panel: the map is now theirs.
+    items = obj.fullbody_adjust.bone_map
+    items.remove(next(i for i, item in enumerate(items) if item.bone == "shoulder.L"))
+    assert is_typed(obj)
+    obj.data.bones["forearm.L"].name = "lower_arm.L"  # then renames a bone it names
+    before = stored_items(obj)
+    for read in (ensure_map, read_map):
+        with pytest.raises(MappingError) as caught:
+            read(obj)
+        assert str(caught.value) == (f"The bone map typed on '{obj.name}' does not fit it: arm.L: no bone "
+                                     f"'forearm.L'; fix it in Bone Mapping or press Map Again")
+    assert stored_items(obj) == before  # never replaced by detection
+    # Fixed by hand in the panel: used as typed.
+    next(item for item in items if item.bone == "forearm.L").bone = "lower_arm.L"
+    fixed = ensure_map(obj)
+    assert fixed.source == "stored" and fixed.bones("arm.L") == ("upper_arm.L", "lower_arm.L")
+    assert stored_items(obj) == [(g, "lower_arm.L" if b == "forearm.L" else b) for g, b in before]
+
+
+@pytest.mark.parametrize("edit, problem", [
+    (("hand.L", "hand.L", "hand.R"), "bone 'hand.R' is in both hand.L and hand.R"),
+    (("foot.R", "foot.R", "toe.R"), None),  # a shorter foot still fits
+    (("foot.R", "foot.R", "breast.R"), "foot.R: 'breast.R' does not hang below 'shin.R'"),
+    (("arm.L", "forearm.L", "heel.02.L"), "arm.L: 'heel.02.L' does not hang below 'upper_arm.L'"),
+    (("leg.L", "thigh.L", "thigh.R"), "bone 'thigh.R' is in both leg.L and leg.R"),
+    (("hand.R", "hand.R", ""), "no bones in group 'hand.R'"),
+    (("head", "spine.006", "Skull"), "head: no bone 'Skull'"),
+])
+def test_a_hand_typed_map_is_checked_not_replaced(edit, problem):
+    obj = rigify_metarig()
+    store_map(obj, rigify_groups(), typed=True)
+    group, old, new = edit
+    next(item for item in obj.fullbody_adjust.bone_map if (item.group, item.bone) == (group, old)).bone = new
+    typed = stored_items(obj)
+    if problem is None:
+        assert ensure_map(obj).source == "stored" and stored_items(obj) == typed
+        return
+    with pytest.raises(MappingError) as caught:
+        ensure_map(obj)
+    message = str(caught.value)
+    assert "\n" not in message
+    assert message.startswith(f"The bone map typed on '{obj.name}' does not fit it: {problem}")
+    assert stored_items(obj) == typed
+
+
+def test_a_stored_map_whose_legs_go_up_is_refused():
+    obj = rigify_metarig()
+    groups = dict(rigify_groups().groups)
+    groups["leg.L"], groups["foot.L"] = ("spine.001",), ("spine.003",)  # a "leg" up the spine
+    groups["trunk"] = ("spine.002",)
+    store_map(obj, BoneMap(groups), typed=True)
+    with pytest.raises(MappingError, match=r"foot\.L: the ankle \('spine\.003'\) is not below the hip joint "
+                                           r"\('spine\.001'\)"):
+        ensure_map(obj)
 
 
 def test_ensure_map_on_a_rig_named_otherwise():

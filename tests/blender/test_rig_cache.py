@@ -93,13 +93,17 @@ def test_edited_map_is_used(rig, rig_cache):
     assert after.bone_map.bones("arm.L") == tuple(arm[1:])
 
 
-def test_map_that_no_longer_fits_is_replaced(rig, rig_cache):
+def test_map_that_no_longer_fits_is_mapped_again_unless_typed(rig, rig_cache):
     rig_cache.rig_of(rig)
-    # A stored item naming a bone the rig does not have: the rig is mapped afresh (and the map stored again).
-    next(item for item in rig.fullbody_adjust.bone_map if item.group == "hand.R").bone = "no such bone"
+    # A bone of the map mapping stored is renamed: the rig is mapped afresh (and the map stored again).
+    rename_bone(rig, "hand.R", "wrist_right")
     after = rig_cache.rig_of(rig)
-    assert model_bones(after, "hand.R") == ["hand.R"]
-    assert [i.bone for i in rig.fullbody_adjust.bone_map if i.group == "hand.R"] == ["hand.R"]
+    assert model_bones(after, "hand.R") == ["wrist_right"]
+    # A row the user typed naming a bone the rig does not have: their map is kept and its problem named.
+    next(item for item in rig.fullbody_adjust.bone_map if item.group == "hand.R").bone = "no such bone"
+    with pytest.raises(Exception, match=r"does not fit it: hand\.R: no bone 'no such bone'"):
+        rig_cache.rig_of(rig)
+    assert [i.bone for i in rig.fullbody_adjust.bone_map if i.group == "hand.R"] == ["no such bone"]
 
 
 def test_rest_data_is_the_rigs_and_rotation_modes_are_read_each_time(rig, rig_cache, extension_module_name):

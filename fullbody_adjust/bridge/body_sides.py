@@ -1,0 +1,143 @@
+"""Which limbs are on the character's own left, from its skeleton (no bpy).
+
+The facing comes from the body, never from the object's axes: up is world z (the rig's orientation applied);
+the two hip joints give the lateral line; forward is across it, on the side the toes point to (the heads of
+the foot's descendants, seen from the ankle), else the side the knees bend to (a knee's offset from the line
+hip joint - ankle), with the foot bones' own direction as a last hint. Left = up x forward (a character facing
+-Y has its left at +X).
+
+Side markers in names still count. When the names mark the two sides consistently (every mapped bone of one
+side L, of the other R) and the skeleton's facing is unclear, the names decide. When the skeleton's facing is
+clear (both feet's toes agree, or both knees and both foot bones do) and the names say the opposite, the
+skeleton decides: such a rig's labels are mirrored (the Godot platformer robot's ``l-`` bones lie on its right,
+its toes and knees point to -Y), and arm.L must be the arm on the character's own left for a left-hand target or
+a source's left arm to drive it. Without names and without any sign of facing, the convention of Blender's front
+view is kept: the body faces -Y, the side towards +X is left (towards +Y for a rig turned exactly sideways).
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .rig_description import UP
+
+_TOE_REACH = 0.1  # a toe joint lies at least this many leg lengths from the ankle, horizontally
+_TOE_CLEAR = 0.5  # cosine between the toes' horizontal direction and forward for a clear facing
+_KNEE_BEND = 0.01  # a knee lies at least this many leg lengths off the hip - ankle line to count
+_FOOT_FLAT = 0.3  # a foot bone's horizontal part is at least this fraction of its length to count
+
+
+@dataclass(frozen=True)
+class Limb:
+    """One limb's joints as bone indices: ``chain`` base first, ``end`` the hand or foot bone."""
+
+    chain: tuple
+    end: int
+
+
+@dataclass(frozen=True)
+class Sides:
+    """Which of two limb pairs (pair 0, pair 1) is on the character's left, and why, for messages."""
+
+    left: int
+    why: str
+
+
+def lateral(sk, leg0, leg1):
+    """Unit horizontal vector from leg 1 to leg 0 (hip joints, else knees, else ankles), or None."""
+    for k in range(3):
+        a = _joint(sk, leg0, k)
+        b = _joint(sk, leg1, k)
+        d = (a - b) * np.array([1.0, 1.0, 0.0])
+        norm = float(np.linalg.norm(d))
+        if norm > 10 * sk.tiny:
+            return d / norm
+    return None
+
+
+def _joint(sk, leg, k):
+    """Hip joint (0), knee (1) or ankle (2) of a leg."""
+    return sk.heads[leg.chain[0] if k == 0 else leg.chain[-1] if k == 1 else leg.end]
+
+
+def _length(sk, leg):
+    return float(np.linalg.norm(_joint(sk, leg, 0) - _joint(sk, leg, 2))) or 1.0
+
+
+def _toes(sk, leg, across):
+    """Cosine between across and the horizontal direction from the ankle to the farthest joint below the
+    foot, or None when the foot has no such joint."""
+    ankle = sk.heads[leg.end]
+    below = [c for c in sk.subtree(leg.end).tolist() if c != leg.end]
+    if not below:
+        return None
+    offsets = (sk.heads[below] - ankle) * np.array([1.0, 1.0, 0.0])
+    reach = np.linalg.norm(offsets, axis=1)
+    k = int(np.argmax(reach))
+    if reach[k] < _TOE_REACH * _length(sk, leg):
+        return None
+    return float(offsets[k] @ across) / float(reach[k])
+
+
+def _knee(sk, leg, across):
+    """Signed offset of the knee from the hip - ankle line along across, in leg lengths."""
+    hip, knee, ankle = (_joint(sk, leg, k) for k in range(3))
+    line = ankle - hip
+    t = float((knee - hip) @ line) / max(float(line @ line), sk.tiny ** 2)
+    return float((knee - (hip + t * line)) @ across) / _length(sk, leg)
+
+
+def _foot(sk, leg, across):
+    """Cosine between across and the foot bone's own horizontal direction (head to tail), or None."""
+    direction = sk.tails[leg.end] - sk.heads[leg.end]
+    flat = direction * np.array([1.0, 1.0, 0.0])
+    if np.linalg.norm(flat) < _FOOT_FLAT * max(float(np.linalg.norm(direction)), sk.tiny):
+        return None
+    return float(flat @ across) / float(np.linalg.norm(flat))
+
+
+def facing(sk, legs, lat):
+    """(sign, clear): the body faces sign * (up x lat) (0: no sign of it); clear when the toes of both feet
+    agree, or both knees and both foot bones do."""
+    across = np.cross(UP, lat)
+    toes = [_toes(sk, leg, across) for leg in legs]
+    if all(t is not None and abs(t) > _TOE_CLEAR for t in toes) and np.sign(toes[0]) == np.sign(toes[1]):
+        return int(np.sign(toes[0])), True
+    knees = [_knee(sk, leg, across) for leg in legs]
+    feet = [_foot(sk, leg, across) for leg in legs]
+    knee_signs = {int(np.sign(k)) for k in knees if abs(k) > _KNEE_BEND}
+    foot_signs = {int(np.sign(f)) for f in feet if f is not None and abs(f) > _TOE_CLEAR}
+    if (len(knee_signs) == 1 and all(abs(k) > _KNEE_BEND for k in knees) and foot_signs == knee_signs
+            and all(f is not None and abs(f) > _TOE_CLEAR for f in feet)):
+        return knee_signs.pop(), True
+    votes = sum(np.sign(t) for t in toes if t is not None and abs(t) > _TOE_CLEAR)
+    votes += sum(np.sign(k) for k in knees if abs(k) > _KNEE_BEND)
+    votes += 0.5 * sum(np.sign(f) for f in feet if f is not None and abs(f) > _TOE_CLEAR)
+    return int(np.sign(votes)), False
+
+
+def _names(sk, limbs):
+    """The one side marker all the limbs' bones carry ('L'/'R'), else None."""
+    marks = {sk.name_sides[b] for limb in limbs for b in (*limb.chain, limb.end)} - {None}
+    return marks.pop() if len(marks) == 1 else None
+
+
+def left_pair(sk, legs, arms):
+    """Sides of two limb pairs: ``legs`` (leg 0, leg 1) and ``arms`` (arm 0 on leg 0's side, arm 1), each a
+    Limb (``arms`` may be None). Returns Sides: which pair is on the character's left (module docstring)."""
+    lat = lateral(sk, *legs)
+    names = [_names(sk, [legs[k]] + ([arms[k]] if arms else [])) for k in (0, 1)]
+    named = names[0] is not None and names[1] is not None and names[0] != names[1]
+    if lat is None:
+        return Sides(names.index("L") if named else 0, "the legs are not side by side")
+    sign, clear = facing(sk, legs, lat)
+    # Facing sign * (up x lat): left = up x forward = -sign * lat, so pair 0 (at +lat) is left when sign < 0.
+    geometric = None if sign == 0 else (0 if sign < 0 else 1)
+    if named:
+        by_name = names.index("L")
+        if clear and geometric != by_name:
+            return Sides(geometric, "the skeleton's facing, against mirrored side names")
+        return Sides(by_name, "side names")
+    if geometric is not None:
+        return Sides(geometric, "the skeleton's facing")
+    return Sides(0 if float(lat @ np.array([1.0, 1e-3, 0.0])) > 0 else 1, "no sign of facing: +X is left")

@@ -1,0 +1,161 @@
+"""Splitting a limb found by detection (mapping_detection) into its groups' bones, from joint positions (bone
+heads): a leg into thigh, shin and foot, an arm into clavicle, upper arm, forearm and hand. No bpy."""
+
+import math
+
+import numpy as np
+
+from . import body_sides
+from .rig_description import DOWN, MIDLINE, angle_between
+
+SIDE_WORDS = {"L": "left", "R": "right"}
+# Thresholds (fractions of the rig's height unless said otherwise), chosen on the rigs in the tests.
+LEG_MIN_DROP = 0.2  # hip joint to ankle (thigh and shin; between the lowest joints of the two legs and the root)
+_DOWNWARD = math.radians(40.0)  # a thigh segment is within this of straight down (hip connectors are not) ...
+_SWUNG = math.radians(65.0)  # ... or within this when it is long:
+_LONG_SEGMENT = 0.25  # at least this fraction of the path from the hips down
+_ANKLE_HEIGHT = 0.25  # the ankle is below this fraction of the hip joint's height above the leg's lowest point
+_UPPER_TO_FOREARM = 1.15  # typical upper arm / forearm length ratio
+_HAND_TO_FOREARM = (0.25, 1.3)  # range of (wrist to fingertip) / forearm length
+_HAND_WEIGHT = 0.5  # weight of a hand length outside that range (per unit of log ratio)
+_NOT_A_HAND = 0.25  # penalty for a hand bone with one child that is not one of fingers fanning out from the wrist
+_LEAF_HAND_FIT = 0.5  # worst arm score accepted with a hand bone that ends the path (its length unknown) ...
+_LEAF_HAND = 0.1  # ... and the penalty for not knowing it
+_CLAVICLE = 0.45  # a clavicle is at most this fraction of the upper arm and forearm together
+_ARM_FIT_LIMIT = 0.7  # worst accepted arm score (0.7: upper arm / forearm twice or half the usual ratio)
+
+
+class NotFound(Exception):
+    """Detection found no bones for ``group``; ``detail`` says where it stopped."""
+
+    def __init__(self, group, detail=""):
+        super().__init__(group, detail)
+        self.group, self.detail = group, detail
+
+
+def segments(sk, path):
+    """Joints (heads) of a path, the segments between them and their lengths."""
+    joints = sk.heads[path]
+    segments = joints[1:] - joints[:-1]
+    return joints, segments, np.linalg.norm(segments, axis=1)
+
+
+def split_leg(sk, path, s):
+    """Limb([thigh, shin], foot) on a path from the hips down to the lowest bone of one leg."""
+    names, group = sk.desc.names, f"leg.{s}"
+    if not path:
+        raise NotFound(group, f"the {SIDE_WORDS[s]} leg shares all its bones with the other")
+    joints, seg, length = segments(sk, path)
+    total = float(length.sum())
+    # Thigh: the first clearly downward segment (skips hip-joint connectors like CMU LHipJoint, Daz lButtock).
+    i = 0
+    # A long segment may lean further (a thigh swung forward in a rest taken mid-stride).
+    while i < len(seg) and (length[i] <= max(0.05 * total, sk.tiny) or angle_between(seg[i], DOWN) > (
+            _DOWNWARD if length[i] < _LONG_SEGMENT * total else _SWUNG)):
+        i += 1
+    if len(path) - i < 2:
+        raise NotFound(group, f"no chain of 2+ bones goes down from '{names[path[0]]}'")
+    # Foot: the first bone after thigh and shin whose head (the ankle) is close to the leg's lowest point, or
+    # in the leg's lower half where the path turns forward (a tall foot, as on a plush toy).
+    low = joints[i:, 2].min()
+    hip = joints[i, 2] - low
+    foot = next((k for k in range(i + 2, len(path)) if joints[k, 2] - low < _ANKLE_HEIGHT * hip or (
+        k < len(seg) and joints[k, 2] - low < 0.5 * hip and angle_between(seg[k], DOWN) > _DOWNWARD)), None)
+    if foot is None:
+        raise NotFound(f"foot.{s}", f"the {SIDE_WORDS[s]} leg ends at '{names[path[-1]]}' with no foot "
+                                    f"below it{_loose_foot(sk, path[i:])}")
+    reach = float(length[i:foot].sum())
+    if reach < LEG_MIN_DROP * sk.height:
+        raise NotFound(group, f"from '{names[path[i]]}' to '{names[path[foot]]}' is only {reach:.3g} long")
+    # Knee: the joint that halves the way from hip joint to ankle (thigh and shin are about equally long).
+    before = np.concatenate([[0.0], np.cumsum(length[i:foot])])
+    knees = [k for k in range(i + 1, foot) if length[k] > sk.tiny]
+    if not knees:
+        raise NotFound(group, f"no knee between '{names[path[i]]}' and '{names[path[foot]]}'")
+    knee = min(knees, key=lambda k: abs(before[k - i] / before[-1] - 0.5))
+    return body_sides.Limb((path[i], path[knee]), path[foot])
+
+
+def _loose_foot(sk, leg):
+    """', and <bone> at its end hangs from <bone>' for a foot bone outside the leg (an IK-style foot), or ''."""
+    names, hip, last = sk.desc.names, sk.heads[leg[0]], sk.heads[leg[-1]]
+    length = float(np.linalg.norm(last - hip))
+    # Where the ankle would be: as far below the last joint as the leg is long so far, straight down.
+    ankle = last + length * DOWN
+    near = [b for b in range(len(sk.desc)) if not sk.is_ancestor(leg[-1], b) and b not in leg
+            and np.linalg.norm(sk.heads[b] - ankle) < 0.4 * length]
+    if not near:
+        return ""
+    foot = min(near, key=lambda b: (np.linalg.norm(sk.heads[b] - ankle), sk.depth[b]))
+    parent = sk.parent[foot]
+    return (f" ('{names[foot]}', at its end, hangs from '{names[parent]}' instead: the body model needs the foot "
+            f"below the shin)" if parent >= 0 else f" ('{names[foot]}', at its end, has no parent)")
+
+
+def split_arm(sk, path, s, clavicle=None):
+    """Limb([clavicle?, upper arm, forearm], hand) on the longest path out from the chest.
+
+    Every split of the path into clavicle (optional, one bone), upper arm and forearm (each possibly several
+    bones, as with twist bones) and hand + fingers is scored by how far it is from a human arm: upper arm about
+    1.15 forearms, hand + fingers 0.25..1.3 forearms (head to head; unknown for a hand bone that ends the path,
+    which then must fit the arm closer); a hand bone that is neither a branch (fingers) nor where fingers
+    branch is a twist or wrist link, less likely, and so is a forearm with a branching bone inside. ``clavicle``
+    (True/False) says whether the path's first bone is a clavicle, when the caller knows. The best split wins (on a tie the earlier wrist); when
+    nothing fits, the hand or the arm is reported missing.
+    """
+    names = sk.desc.names
+    _, _, length = segments(sk, path)
+    # Path length from each joint (head) to the tip: the last bone's own length when it is a believable leaf.
+    after = np.concatenate([np.cumsum(length[::-1])[::-1], [0.0]]) + sk.leaf_reach[path[-1]]
+
+    def arm_fit(first, elbow, wrist):
+        upper = float(after[first] - after[elbow])
+        fore = float(after[elbow] - after[wrist])
+        if min(upper, fore) <= sk.tiny:
+            return math.inf
+        return abs(math.log(upper / fore / _UPPER_TO_FOREARM))
+
+    # The upper arm starts at the first or second bone (after a clavicle).
+    best = (math.inf, None)
+    for wrist in range(2, len(path)):
+        if sk.end_marker[path[wrist]]:
+            continue
+        kids = [c for c in sk.children[path[wrist]] if not sk.end_marker[c]]
+        link = len(kids) == 1 and not _fans_out(sk, path[wrist])
+        ends = after[wrist] <= sk.tiny  # the hand bone ends the path, its length unknown
+        for first in range(min(2, wrist - 1)):
+            if clavicle is not None and first != int(clavicle):
+                continue
+            for elbow in range(first + 1, wrist):
+                fit = arm_fit(first, elbow, wrist)
+                if first and length[0] > _CLAVICLE * (after[first] - after[wrist]):
+                    continue
+                fore, hand = float(after[elbow] - after[wrist]), float(after[wrist])
+                if fit == math.inf or (ends and fit > _LEAF_HAND_FIT):
+                    continue
+                # Bones branching between elbow and wrist: the split's forearm runs on into the hand's fingers.
+                branched = any(len(sk.children[path[k]]) > 1 for k in range(elbow + 1, wrist))
+                score = fit + (_NOT_A_HAND if link else 0.0) + (_NOT_A_HAND if branched else 0.0) + (
+                    _LEAF_HAND if ends else _HAND_WEIGHT * max(
+                    0.0, math.log(_HAND_TO_FOREARM[0] * fore / hand), math.log(hand / (_HAND_TO_FOREARM[1] * fore))))
+                if score < best[0] - 1e-9:
+                    best = (score, (first, elbow, wrist))
+    if best[0] > _ARM_FIT_LIMIT:
+        if len(path) <= 3:
+            raise NotFound(f"hand.{s}", f"the {SIDE_WORDS[s]} arm ends at '{names[path[-1]]}' with no hand "
+                                        f"below it")
+        raise NotFound(f"arm.{s}", f"the bones from the chest to '{names[path[-1]]}' are not shaped like an arm")
+    first, elbow, wrist = best[1]
+    chain = ([path[0]] if first > 0 else []) + [path[first], path[elbow]]
+    return body_sides.Limb(tuple(chain), path[wrist])
+
+
+def _fans_out(sk, b):
+    """b is one of 3+ bones starting at the same point (fingers hanging straight from the forearm, as in
+    Quaternius' rigs): its head is then the wrist though it has one child."""
+    parent = sk.parent[b]
+    if parent < 0:
+        return False
+    near = [c for c in sk.children[parent]
+            if np.linalg.norm(sk.heads[c] - sk.heads[b]) <= MIDLINE * sk.height]
+    return len(near) >= 3
