@@ -509,13 +509,15 @@ def _hinge_axis(parent_seg, child_seg, bend_side, x_axis, bent_angle):
         axis = np.where(ok[:, None], x, axis)
     # A clearly bent start pose is on the natural side (nobody hyperextends an elbow by 15 deg), so it wins.
     # A slightly bent (or slightly hyperextended) one still defines a plane: kept, signed to the natural side,
-    # when it is within 60 deg of the fallback axis, so the start pose lies exactly on its own hinge.
+    # when it is within 10 deg of the fallback axis (hinge_axis_plain.SLIGHT_AGREES), so the start pose lies
+    # exactly on its own hinge; further off, the fallback axis, whose twist range holds such a start (a nearly
+    # straight knee bent 4 deg in a plane 15 deg off its body's is noise, not the plane it bends in).
     v = normalize(child_seg)
     bend = cross(u, v)
     angle = np.arctan2(norm(bend), dot(u, v))
     bend_axis = normalize(bend, fallback=axis)
     agree = dot(bend_axis, axis)
-    slight = (angle > 1e-3) & (np.abs(agree) >= 0.5)
+    slight = (angle > 1e-3) & (np.abs(agree) >= hinge_axis_plain.SLIGHT_AGREES)
     signed = np.where((agree < 0.0)[:, None], -bend_axis, bend_axis)
     axis = np.where(slight[:, None], signed, axis)
     return normalize(np.where((angle > bent_angle)[:, None], bend_axis, axis))

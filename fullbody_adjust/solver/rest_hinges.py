@@ -8,7 +8,8 @@ knees sideways into an X. So the axis is found at REST from joint positions (bon
 body's facing at rest:
 
   - the limb's rest bend plane where it is bent at rest: clearly (more than HumanLimits.bent), or slightly (more
-    than REST_BENT) in a plane within 60 degrees of the facing rule below, which then gives the bend side;
+    than REST_BENT, about 5 degrees) in a plane within 60 degrees of the facing rule below, which then gives the
+    bend side;
   - else the facing rule: elbows bend forward, knees backward (axis = upper segment x bend side), with forward
     = left x up, left = right hip -> left hip, up = hips -> shoulders (the arms' bases), as body.body_frame.
 
@@ -27,8 +28,9 @@ from .body import HumanLimits
 from .geometry import any_perpendicular, cross, dot, norm, normalize
 
 _UP = np.array([0.0, 0.0, 1.0])
-# A rest bend below this (radians, about 3 degrees) is modelling noise unless it lies near the facing rule's plane.
-REST_BENT = 0.05
+# A rest bend below this (radians, about 5 degrees) is modelling noise: GDQuest's mannequin rests its knees bent 4
+# degrees in planes 15 degrees off its hips' facing, and bending them there swings the knees 16 mm sideways.
+REST_BENT = 0.09
 _HINGED = (("arm.L", 1.0), ("arm.R", 1.0), ("leg.L", -1.0), ("leg.R", -1.0))  # limb, bend side along forward
 
 

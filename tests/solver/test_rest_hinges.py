@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from fullbody_adjust.solver.adjust import adjust_pose
+from fullbody_adjust.solver.body import HumanLimits
 from fullbody_adjust.solver.rest_hinges import REST_BENT, rest_facing, rest_hinge_axes
 from tests.helpers import metarig
 from tests.helpers.rotations import about_axis
@@ -105,15 +106,16 @@ def test_straight_limbs_take_the_facing_rule(rig):
 
 
 def test_a_slight_rest_bend_gives_its_plane_only_near_the_facing_rule(rig):
-    """A knee bent 2 REST_BENT at rest in the rule's plane (backward) gives that plane; bent as much sideways,
-    the facing rule; bent less than REST_BENT, the rule too."""
+    """A knee bent 1.5 REST_BENT at rest (still below HumanLimits.bent) in the rule's plane (backward) gives that
+    plane; bent as much sideways, the facing rule; bent less than REST_BENT, the rule too."""
     model, h, t, _x = rig
     heads, tails = _straightened(model, h, t)
     _up, left, forward = rest_facing(model, heads)
     leg = model.limbs["leg.L"]
     thigh = leg.joints(heads, tails)[1] - leg.joints(heads, tails)[0]
     rule = _unit(np.cross(thigh, -forward))
-    for about, angle, expected in ((rule, 2 * REST_BENT, rule), (_unit(np.cross(thigh, rule)), 2 * REST_BENT, rule),
+    assert 1.5 * REST_BENT < HumanLimits().bent
+    for about, angle, expected in ((rule, 1.5 * REST_BENT, rule), (_unit(np.cross(thigh, rule)), 1.5 * REST_BENT, rule),
                                    (rule, 0.5 * REST_BENT, rule)):
         bent_heads, bent_tails = heads.copy(), tails.copy()
         below = [leg.bones[-1]] + [j for j in range(len(model.names)) if j != leg.bones[-1]
