@@ -240,12 +240,14 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
         pad = max([solve_settings.chain.margin] + [clearance for _limb, clearance in solve_settings.clearance])
         boxes = _armature_boxes(corners, to_solve, centre, radius + pad)
     try:
+        hinges = snapshot.derived("hinge axes", lambda: ik_limits.hinge_hints(model, snapshot.rest_matrices,
+                                                                             snapshot.pose_matrices), of=model)
         limits = ik_limits.joint_limits(obj, model, heads, tails, snapshot.pose_matrices, settings,
-                                        controls=rig.fk_controls)
+                                        controls=rig.fk_controls, hinge_axes=hinges)
         served = _served(obj, model, world_targets)
         result = solve_frames(model, heads, tails, arm_targets[:, served], _columns(targets.EFFECTORS, served),
                               priorities[served], obstacles=boxes, settings=solve_settings,
-                              bone_x_axes=snapshot.pose_matrices[..., :3, 0], limits=limits,
+                              bone_x_axes=hinges, limits=limits,
                               end_turns=None if end_turns is None else end_turns[:, served],
                               poles=None if poles is None else poles[:, served])
     except SolverInputError as ex:

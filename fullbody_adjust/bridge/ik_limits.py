@@ -15,6 +15,8 @@ keeps the solved pose and the pose Blender evaluates from it the same at any inf
 import numpy as np
 
 from ..solver.body import default_limits
+from ..solver.geometry import norm
+from ..solver.rest_hinges import rest_hinge_axes
 from ..solver.rig_limits import AXES, BoneLimitSpec, rig_limits
 from . import control_rig
 from .errors import AdjustError
@@ -68,14 +70,30 @@ def _limits_of(obj, pose_bone, controls):
     return spec
 
 
-def joint_limits(obj, model, heads, tails, pose_matrices, settings, defaults=None, controls=None):
+def hinge_hints(model, rest_matrices, pose_matrices):
+    """The axes (F,J,3) the default elbow and knee hinges of ``model``'s start poses bend about, in the solve's
+    (armature) space, for the solver's ``bone_x_axes``: on each forearm's and shin's row the hinge axis found at
+    rest (solver.rest_hinges: from the rest joints and the body's facing, never from bone roll) carried into the
+    start pose by the upper arm's / thigh's rotation; on every other row the bone's X axis (unread).
+    rest_matrices (J,4,4) (Bone.matrix_local), pose_matrices (F,J,4,4) (PoseBone.matrix)."""
+    bones, carriers, local = rest_hinge_axes(model, rest_matrices[:, :3, 3], rest_matrices[:, :3, :3])
+    hints = np.array(pose_matrices[..., :3, 0], dtype=np.float64)
+    if bones.size:
+        turned = pose_matrices[..., carriers, :3, :3]
+        turned = turned / norm(np.swapaxes(turned, -1, -2))[..., None, :]  # unit columns (a bone may be scaled)
+        hints[..., bones, :] = np.einsum("...ij,...j->...i", turned, local)
+    return hints
+
+
+def joint_limits(obj, model, heads, tails, pose_matrices, settings, defaults=None, controls=None, hinge_axes=None):
     """The limits a solve of armature ``obj`` should use: ``defaults`` ({limb: LimbLimits}; None: the default
     human limits, which the solver computes itself) with the rig's own limits of the limbs' chain bones in
     place (solver.rig_limits). heads, tails (F,J,3) and pose_matrices (F,J,4,4) are the start poses of
     ``model``'s bones in the solve's space; ``controls``: on a generated control rig, its chain bones' FK
-    controls as rig_cache keeps them (found here when not given). Returns ``defaults`` as given when joint
-    limits are off or no chain bone limits its direction, so such a rig is solved exactly as without this
-    reading."""
+    controls as rig_cache keeps them (found here when not given); ``hinge_axes`` (F,J,3): what the solve is
+    given as bone_x_axes (hinge_hints), for the default limits computed here (None: the bones' X axes).
+    Returns ``defaults`` as given when joint limits are off or no chain bone limits its direction, so such a
+    rig is solved exactly as without this reading."""
     if not settings.use_limits:
         return defaults
     bones = obj.pose.bones
@@ -87,5 +105,6 @@ def joint_limits(obj, model, heads, tails, pose_matrices, settings, defaults=Non
         return defaults
     rotations = pose_matrices[..., :3, :3]
     if defaults is None:
-        defaults = default_limits(model, heads, tails, settings.human_limits, rotations[..., 0])
+        hinge_axes = rotations[..., 0] if hinge_axes is None else hinge_axes
+        defaults = default_limits(model, heads, tails, settings.human_limits, hinge_axes)
     return rig_limits(defaults, model, heads, tails, rotations, specs)

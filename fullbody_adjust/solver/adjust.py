@@ -81,7 +81,8 @@ def adjust_frames(model, heads, tails, targets, effectors, priorities=None, *, o
     `effectors` (E,) (from hand.L hand.R foot.L foot.R head), a NaN row meaning no target on that frame;
     priorities (E,) >= 0, higher wins (default all 1); obstacles: Boxes shared (K,3) or per frame (F,K,3);
     limits: {limb name: body.LimbLimits} to replace the defaults (a limb missing from the dict is free);
-    bone_x_axes: optional per-bone world X axes (J,3)/(F,J,3) for the default hinge axes;
+    bone_x_axes: optional per-bone world axes (J,3)/(F,J,3) for the default hinge axes of straight elbows and
+    knees (the forearms' and shins' rows: body.default_limits);
     end_turns (F,E,3,3): world rotation deltas wanted for the hand and foot bones (e.g. to a target's
     orientation), turned no further from where the forearm/shin carries them than END_SWING allows; a NaN
     entry (or None) keeps the bone's world orientation;
@@ -207,7 +208,6 @@ class _Problem(SubBasePlacement, LimbPlacement):
         for name in self._PER_FRAME:
             setattr(sub, name, getattr(self, name)[rows])
         sub.iterations = np.zeros(len(rows), dtype=np.int64)
-        sub.default_limits = False  # its limits are a restriction of the prepared ones
         for name in self._PER_FRAME_DICTS:
             setattr(sub, name, {k: v[rows] for k, v in getattr(self, name).items()})
         sub.limits = {k: LimbLimits(_take_limits(v.limits, rows),

@@ -28,6 +28,7 @@ from . import hinge_axis_plain
 from .errors import SolverInputError
 from .geometry import all_set, any_perpendicular, apply_matrix, cross, dot, norm, normalize
 from .limits import CONE, HINGE, JointLimits
+from .start_range import widened_ranges
 from .vocabulary import EFFECTORS, GROUPS, REQUIRED_GROUPS, SINGLE_BONE_GROUPS
 
 # Chain groups ("limbs"), in the order Algorithm 1 solves them: trunk, then arms (and head), then legs.
@@ -324,8 +325,9 @@ class HumanLimits:
     elbow_twist: float = math.radians(80)
     knee_twist: float = math.radians(45)
     # A start bend above this (radians) defines the hinge plane and its positive side; below it the bend side
-    # is ambiguous (mocap noise on a straight limb), so the bone's X axis or the body-frame heuristic decides
-    # the side. Kept below -elbow[0] and -knee[0] so a start pose is never outside its own hinge range.
+    # is ambiguous (mocap noise on a straight limb), so the given hinge axis (bone_x_axes) or the body-frame
+    # heuristic decides the side. Kept below -elbow[0] and -knee[0] so a start pose is never outside its own
+    # hinge range.
     bent: float = 0.15
 
 
@@ -359,9 +361,11 @@ class LimbLimits:
 def default_limits(model: BodyModel, heads, tails, human: HumanLimits = HumanLimits(), bone_x_axes=None):
     """Default human limits for every limb of `model` at the start poses heads/tails (F,J,3).
 
-    bone_x_axes: optional per-bone local X axes in world space (J,3) or (F,J,3). Blender limbs bend about
-    their bone's X axis, so the bridge can pass it to orient the elbow/knee hinge of a straight limb, where the
-    start pose says nothing about the bend side. Returns {limb name: LimbLimits}."""
+    bone_x_axes: optional per-bone axes in world space (J,3) or (F,J,3), read on the forearms' and shins' rows:
+    the axis each elbow/knee bends about where the start pose is (nearly) straight and says nothing about the
+    bend side. The bridge passes the axes found at rest (rest_hinges.py: rest joints and facing, never bone
+    roll) carried into the start pose; a rig whose rolls were set for its hinges may pass its bones' X axes.
+    Each range holds the start pose (start_range.py). Returns {limb name: LimbLimits}."""
     start = LimitStart(model, heads, tails, bone_x_axes)
     return {limb.name: start.limb_limits(limb, human) for limb in model.limbs.values()}
 
@@ -453,8 +457,14 @@ class LimitStart:
             parent_dir = segs[:, 0]
             for i in range(m):
                 set_cone(i, human.neck)
-        limits = _checked_ranges(kind, cone, lo, hi, twist).derived(hinge_axis=axes)
-        return LimbLimits(limits, None if parent_dir is None else normalize(parent_dir))
+        parent_dir = None if parent_dir is None else normalize(parent_dir)
+        # A start pose outside these ranges is the rig's own range there (start_range): widened to hold it.
+        limits = _checked_ranges(kind, cone, lo, hi, twist)  # the HumanLimits as given must be valid
+        wide = widened_ranges(kind, cone, lo, hi, axes, parent_dir, segs)
+        if any(w is not given for w, given in zip(wide, (cone, lo, hi))):
+            limits = _checked_ranges(kind, *wide, twist)
+        limits = limits.derived(hinge_axis=axes)
+        return LimbLimits(limits, parent_dir)
 
 
 # JointLimits' checks of a limb's kinds and ranges (cone angles, hinge ranges and twists: the HumanLimits it was
@@ -499,13 +509,15 @@ def _hinge_axis(parent_seg, child_seg, bend_side, x_axis, bent_angle):
         axis = np.where(ok[:, None], x, axis)
     # A clearly bent start pose is on the natural side (nobody hyperextends an elbow by 15 deg), so it wins.
     # A slightly bent (or slightly hyperextended) one still defines a plane: kept, signed to the natural side,
-    # when it is within 60 deg of the fallback axis, so the start pose lies exactly on its own hinge.
+    # when it is within 10 deg of the fallback axis (hinge_axis_plain.SLIGHT_AGREES), so the start pose lies
+    # exactly on its own hinge; further off, the fallback axis, whose twist range holds such a start (a nearly
+    # straight knee bent 4 deg in a plane 15 deg off its body's is noise, not the plane it bends in).
     v = normalize(child_seg)
     bend = cross(u, v)
     angle = np.arctan2(norm(bend), dot(u, v))
     bend_axis = normalize(bend, fallback=axis)
     agree = dot(bend_axis, axis)
-    slight = (angle > 1e-3) & (np.abs(agree) >= 0.5)
+    slight = (angle > 1e-3) & (np.abs(agree) >= hinge_axis_plain.SLIGHT_AGREES)
     signed = np.where((agree < 0.0)[:, None], -bend_axis, bend_axis)
     axis = np.where(slight[:, None], signed, axis)
     return normalize(np.where((angle > bent_angle)[:, None], bend_axis, axis))

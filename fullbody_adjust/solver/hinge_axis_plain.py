@@ -11,6 +11,11 @@ from . import geometry_plain as g
 from .errors import SolverInputError
 from .geometry import TINY
 
+# A slight start bend (up to HumanLimits.bent) keeps its own plane only within this cosine (10 degrees) of the given
+# or body-frame axis: further off it is more likely noise on a nearly straight limb than the plane the limb bends
+# in, and the hinge's twist range holds such a start anyway (45 degrees for knees, 80 for elbows).
+SLIGHT_AGREES = math.cos(math.radians(10.0))
+
 
 def hinge_axes(parent_seg, child_seg, bend_side, x_axis, bent_angle):
     """(F,3) hinge axes as body._hinge_axis computes them, or None to leave every frame to it."""
@@ -46,7 +51,7 @@ def _hinge_axis(parent, child, side, x_axis, bent_angle):
         angle = float(np.arctan2(g.norm(bend), g.dot(u, v)))
         bend_axis = g.normalize(bend) if g.norm(bend) > TINY else g.normalize(axis)  # geometry.normalize's fallback
         agree = g.dot(bend_axis, axis)
-        if angle > 1e-3 and abs(agree) >= 0.5:
+        if angle > 1e-3 and abs(agree) >= SLIGHT_AGREES:
             axis = (-bend_axis[0], -bend_axis[1], -bend_axis[2]) if agree < 0.0 else bend_axis
         return g.normalize(bend_axis if angle > bent_angle else axis)
     except (ZeroDivisionError, SolverInputError):  # a vector of no length: the numpy path raises or falls back

@@ -265,11 +265,11 @@ class LimbPlacement:
     def _start_limb(self, name, base, parent_rot, parent_moved):
         """Limb `name` on the frames where its effector has a target, from its base `base` (F,3) riding on its
         parent (rotation parent_rot (F,3,3), moved (F,) bool); the start chain is the old one carried rigidly.
-        A limb whose parent did not move and whose start pose already meets its target (within its limits,
-        clear of the obstacles) stays exactly as it was: not solved, so its bones keep their positions
-        bit-exact and their rotations exactly identity ("moves only the joints that need to"). Returns its
-        LimbSolve as carried (the caller writes the solved frames in) and the ChainTask of the frames left
-        to solve (None if none)."""
+        A limb whose parent did not move and whose start pose already meets its target (clear of the
+        obstacles; within the caller's limits, if given) stays exactly as it was: not solved, so its bones keep
+        their positions bit-exact and their rotations exactly identity ("moves only the joints that need to").
+        Returns its LimbSolve as carried (the caller writes the solved frames in) and the ChainTask of the frames
+        left to solve (None if none)."""
         F = self.F
         c0 = self.chain0[name]
         r = np.broadcast_to(_EYE, (F, 3, 3)) if parent_rot is None else parent_rot
@@ -295,31 +295,32 @@ class LimbPlacement:
         return LimbSolve(carried, solved, status, reason), task
 
     def _untouched_start(self, name, rows, parent_moved):
-        """(b,) bool over frames `rows`: the chain solve would return limb `name`'s start chain untouched (0
-        iterations, status reached: parent not moved, the target within reach and met at the start, the start
-        within the limb's limits and, with obstacles, every joint and segment and the target outside every
-        box), known from the prepared start pose without building a chain solve."""
+        """(b,) bool over frames `rows`: limb `name` stays exactly as it started, as a chain solve returns a start
+        it finds nothing to do about (0 iterations, status reached): parent not moved, the target within reach
+        and met at the start and, with obstacles, every joint and segment and the target outside every box;
+        known from the prepared start pose without building a chain solve. The default limits do not enter:
+        they bound motion (start_range.py), and a limb that need not move makes none, wherever its start lies.
+        Limits the caller gave are left to the chain solve, which moves a start that breaks them."""
         keep = ~parent_moved[rows]
         if not any_set(keep):
             return keep
         c0, target = self.chain0[name][rows], self.limb_target[name][rows]
+        tol = self.settings.chain.tolerance  # a straight limb on its target reaches it, however its lengths round
         if len(rows) == 1:  # one frame: the same two distances in plain floats
             r, joints, goal = int(rows[0]), c0[0].tolist(), target[0].tolist()
-            keep[0] = (gp.norm(gp.sub(joints[-1], goal)) <= self.settings.chain.tolerance
-                       and not gp.norm(gp.sub(goal, joints[0])) > self.reach[name][r])
+            keep[0] = (gp.norm(gp.sub(joints[-1], goal)) <= tol
+                       and not gp.norm(gp.sub(goal, joints[0])) > self.reach[name][r] + tol)
         else:
-            keep &= (norm(c0[:, -1] - target) <= self.settings.chain.tolerance) \
-                & ~(norm(target - c0[:, 0]) > self.reach[name][rows])
+            keep &= (norm(c0[:, -1] - target) <= tol) & ~(norm(target - c0[:, 0]) > self.reach[name][rows] + tol)
         if any_set(keep) and self.obstacles is not None:
             # Clear of every box, the chain solve finds nothing to respond to and nothing to note.
             boxes = self._limb_boxes([(name, rows, c0[:, 0], target)])
             keep &= ~points_inside(c0, boxes).any(axis=(1, 2)) & ~points_inside(target, boxes).any(axis=1) \
                 & ~segments_cross(c0[:, :-1], c0[:, 1:], boxes).any(axis=(1, 2))
         ll = self.limits.get(name)
-        if any_set(keep) and ll is not None and ll.limits.any_active:
-            if not self.default_limits:  # the caller's limits, or a re-solve's subset: a chain solve checks them
-                return np.zeros(rows.size, dtype=bool)
-            keep &= self.prepared.start_keeps_limits(name, self.settings.chain)[rows]
+        if any_set(keep) and ll is not None and ll.limits.any_active and not self.default_limits:
+            # The caller's limits (a rig's own ranges, retargeting's): a chain solve checks the start against them.
+            return np.zeros(rows.size, dtype=bool)
         return keep
 
 

@@ -8,9 +8,7 @@ is a different key.
   - the limbs' start chains and their reach;
   - the default human limits of every limb (body.default_limits);
   - the model's hierarchy levels (the order the top-down pass visits the bones in) and its groups' bones (which
-    groups a result moved), once per model;
-  - per limb, whether its start chain keeps its default limits (the check a chain solve runs before it
-    returns a start pose that already meets its target untouched).
+    groups a result moved), once per model.
 
 The cache holds the last few start poses of up to _MAX_CACHED_FRAMES frames (a bounded, least recently used
 dict); a longer frame range is prepared for its one solve only.
@@ -18,7 +16,7 @@ dict); a longer frame range is prepared for its one solve only.
 A start pose that is new may still share limbs with a recent one: Adjust Pose solves from the pose the click
 before it keyed, in which only the limbs that moved differ. A limb's default limits and its start check are
 therefore also kept per limb (_limb_records), keyed on everything they are computed from (body.LimitStart.inputs
-and the settings), so a limb whose inputs are the same bit for bit gets the very same results without
+and the settings), so a limb whose inputs are the same bit for bit gets the very same limits without
 computing them.
 """
 
@@ -27,7 +25,6 @@ from collections import OrderedDict
 import numpy as np
 
 from .body import CHAIN, END, FIXED, ROOT, LimitStart
-from .chain_model import ChainModel
 from .chain_types import _reach_bounds
 from .errors import SolverInputError
 from .geometry import any_set, norm
@@ -104,31 +101,12 @@ class PreparedStart:
                 if remember else make()
         return out
 
-    def start_keeps_limits(self, name, chain_settings):
-        """(F,) bool: limb `name`'s start chain keeps its default limits on each frame, as the chain solve
-        checks it for a start already at its target whose parent did not move (no obstacles)."""
-        record = self._records().get(name)
-        if record is None or not record.limits.limits.any_active:
-            return np.ones(self._heads.shape[0], dtype=bool)
-        ok = record.start_ok.get(chain_settings)
-        if ok is None:
-            c0 = self.chains()[0][name]  # the joints the record's inputs were read from
-            # Carried by an unmoved parent's rotation (the identity) as the solve carries them, so even the sign
-            # of a zero is the same.
-            still = np.broadcast_to(np.eye(3), (c0.shape[0], 3, 3))
-            limits, pdir = record.limits.for_chains(c0, np.arange(c0.shape[0]), still)
-            chain = ChainModel(c0.copy(), c0[:, -1].copy(), chain_settings, limits, None, pdir)
-            ok = _read_only(~chain.violations(c0, np.arange(c0.shape[0])))
-            record.start_ok[chain_settings] = ok
-        return ok
-
 
 class _LimbRecord:
-    """One limb's default limits at a start pose, and its start check per chain settings."""
+    """One limb's default limits at a start pose."""
 
     def __init__(self, limits):
         self.limits = limits
-        self.start_ok = {}
 
 
 def prepare(model, heads, tails, settings, bone_x_axes=None) -> PreparedStart:

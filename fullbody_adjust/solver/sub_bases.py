@@ -43,16 +43,19 @@ class SubBasePlacement:
         return centres, radii, active, prio
 
     def _in_reach(self, names, rows, bases):
-        """(b,) every active limb's target lies within its reach from `bases[name]` (rule (i), no margin)."""
+        """(b,) every active limb's target lies within its reach from `bases[name]` (rule (i), no margin beyond
+        the tolerance that counts a target as met: a straight limb whose end is on its target is in reach, however
+        its lengths' sum rounds)."""
+        tol = self.settings.chain.tolerance
         if len(rows) == 1:  # one frame (Adjust Pose, Live): the same distances in plain floats
             r = int(rows[0])
             return np.array([all(not self.limb_active[n][r]
                                  or gp.norm(gp.sub(self.limb_target[n][r].tolist(), bases[n][0].tolist()))
-                                 <= self.reach_eff[n][r] for n in names)])
+                                 <= self.reach_eff[n][r] + tol for n in names)])
         ok = np.ones(len(rows), dtype=bool)
         for n in names:
             d = norm(self.limb_target[n][rows] - bases[n])
-            ok &= ~self.limb_active[n][rows] | (d <= self.reach_eff[n][rows])
+            ok &= ~self.limb_active[n][rows] | (d <= self.reach_eff[n][rows] + tol)
         return ok
 
     def _place_sc(self, rows, pref, trunk_base, offsets):

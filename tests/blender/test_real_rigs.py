@@ -29,16 +29,10 @@ KNOWN = {
     ('mapping', 'quaternius_matt'): "Cannot map rig 'CharacterArmature': no left foot found",
     ('mapping', 'godot_robot'): "Cannot map rig 'Skeleton': no left leg found",
     ('near', 'quaternius_matt'): "Cannot map rig 'CharacterArmature': no left foot found",
-    ('near', 'kaykit_manny'):
-        "Cannot adjust 'Rig_Medium': effector 'head' needs a head group with neck bones and a head bone",
     ('near', 'godot_robot'): "Cannot map rig 'Skeleton': no left leg found",
-    ('near', 'gdquest_mannequiny'):
-        "Cannot adjust 'root': effector 'head' needs a head group with neck bones and a head bone",
     ('far', 'quaternius_matt'): "Cannot map rig 'CharacterArmature': no left foot found",
     ('far', 'godot_plush'): "Cannot map rig 'Rig': no hips (root) bone found",
     ('far', 'godot_robot'): "Cannot map rig 'Skeleton': no left leg found",
-    ('far', 'gdquest_mannequiny'):
-        "Cannot adjust 'root': effector 'head' needs a head group with neck bones and a head bone",
     ('obstacle', 'quaternius_matt'): "Cannot map rig 'CharacterArmature': no left foot found",
     ('obstacle', 'kaykit_manny'):
         "Cannot adjust 'Rig_Medium': effector 'head' needs a head group with neck bones and a head bone",

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from fullbody_adjust.solver.adjust import AdjustSettings, adjust_frames, adjust_pose
-from fullbody_adjust.solver.body import HumanLimits
+from fullbody_adjust.solver.body import LimbLimits, default_limits
 from fullbody_adjust.solver.obstacles import points_inside, segments_cross
 from tests.helpers import metarig
 
@@ -124,24 +124,33 @@ def test_a_box_where_the_forearm_would_go_is_avoided(rig):
 
 
 def test_a_hand_the_held_trunk_cannot_bring_into_reach_reports_the_trunk(rig):
-    """A spine held nearly straight (2 and 1 degree cones) and a hand target to the side that only a bending trunk
-    would bring into reach: the trunk's chain ends limited, and a hand left short says so, with the trunk's status
-    (on the batch's frames as when each pose is solved alone)."""
+    """A spine held nearly straight (2 and 1 degree cones, given as the caller's limits: the default ones widen to
+    the rest pose's own curve) and a hand target to the side that only a bending trunk would bring into reach:
+    the trunk's chain ends limited, and a hand left short says so, with the trunk's status (on the batch's
+    frames as when each pose is solved alone)."""
     model, h, t, x = rig
     height = float(np.ptp(np.concatenate([h, t])[:, 2]))
-    stiff = AdjustSettings(human_limits=HumanLimits(lumbar=np.radians(2.0), spine=np.radians(1.0)))
+
+    def stiff(n):  # the default limits of n frames of the rest pose, the trunk's cones tightened
+        limits = default_limits(model, np.repeat(h[None], n, 0), np.repeat(t[None], n, 0),
+                                bone_x_axes=np.repeat(x[None], n, 0))
+        trunk = limits["trunk"].limits.with_cone(0, np.radians(2.0))
+        for i in range(1, len(trunk)):
+            trunk = trunk.with_cone(i, np.radians(1.0))
+        return {**limits, "trunk": LimbLimits(trunk, limits["trunk"].parent_direction)}
+
     base, _ = metarig.case(model, h, t, "near")
     targets = np.repeat(base[None], 3, axis=0)
     side = np.array([[-0.36, 0.53, 0.065], [0.51, 0.56, -0.285], [0.36, 0.51, -0.034]])  # in body heights
     targets[:, 0] = h[model.root] + side * height
-    batch = _frames(rig, targets, None, settings=stiff)
-    tol = stiff.chain.tolerance
+    batch = _frames(rig, targets, None, limits=stiff(3))
+    tol = AdjustSettings().chain.tolerance
     by_trunk = np.char.startswith(batch.reasons, "the trunk could not bring the SC into reach: ")
     assert by_trunk[:, :2].any(axis=1).all() and not by_trunk[:, 2:].any()  # hands only, on every frame
     assert np.all(batch.status[by_trunk] == "limited") and np.all(batch.residuals[by_trunk] > tol)
     assert np.all(batch.sc_displacement > 0.0)
     for f in range(len(targets)):
         alone = adjust_pose(model, h, t, targets[f], metarig.EFFECTORS, metarig.PRIORITIES, bone_x_axes=x,
-                            settings=stiff)
+                            limits=stiff(1))
         np.testing.assert_array_equal(alone.status, batch.status[f])
         np.testing.assert_array_equal(alone.reasons, batch.reasons[f])
