@@ -119,8 +119,11 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
         model, bones = rt.body_model(target)
         start, heads, tails = plan.start_pose[:, bones], plan.heads[:, bones], plan.tails[:, bones]
         settings = adjustment.settings_of(target_obj)
-        limits = rt.motion_limits(model, start, heads, tails, settings.human_limits) if settings.use_limits else None
-        limits = ik_limits.joint_limits(target_obj, model, heads, tails, start, settings, defaults=limits)
+        hinges = ik_limits.hinge_hints(model, target.rest[bones], start)  # elbows and knees as found at rest
+        limits = rt.motion_limits(model, start, heads, tails, settings.human_limits,
+                                  bone_x_axes=hinges) if settings.use_limits else None
+        limits = ik_limits.joint_limits(target_obj, model, heads, tails, start, settings, defaults=limits,
+                                        hinge_axes=hinges)
 
         def solve():
             return solve_frames(model, heads, tails, plan.targets, rt.EFFECTORS,

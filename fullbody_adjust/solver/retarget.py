@@ -129,14 +129,17 @@ def solved_pose(plan, rotations, heads, bones):
 _CLEARLY_BENT = 0.2
 
 
-def motion_limits(model, start_pose, heads, tails, human=HumanLimits()):
+def motion_limits(model, start_pose, heads, tails, human=HumanLimits(), bone_x_axes=None):
     """Joint limits for adjusting the frames of a motion: body.default_limits of the start poses, except
     each elbow and knee hinge axis, which is fixed in its upper bone's frame (upper arm, thigh) as a real
     elbow or knee is, found from the frames where the limb is clearly bent (their bend axes, weighted by
     how bent). Per-frame axes guessed from each pose alone switch between the bend plane and a fallback as
     a limb straightens, and a knee solved about a switching axis pops sideways. Limbs never clearly bent keep
-    the default axes. start_pose (F,J,4,4), heads, tails (F,J,3): the start poses in the solve's space."""
-    limits = default_limits(model, heads, tails, human, start_pose[..., :3, 0])
+    the default axes. start_pose (F,J,4,4), heads, tails (F,J,3): the start poses in the solve's space;
+    bone_x_axes (F,J,3): what default_limits takes them from for a limb never clearly bent (the bridge's
+    rest-found hinge axes; None: the bones' X axes, as a Rigify rig has them)."""
+    limits = default_limits(model, heads, tails, human,
+                            start_pose[..., :3, 0] if bone_x_axes is None else bone_x_axes)
     for name in ("arm.L", "arm.R", "leg.L", "leg.R"):
         limb, current = model.limbs.get(name), limits.get(name)
         if limb is None or current is None or len(limb.bones) < 2:
