@@ -21,7 +21,7 @@ import traceback
 import bpy
 import numpy as np
 
-from .bridge import adjustment, batch
+from .bridge import adjustment, batch, start_checks
 from .bridge.retarget import retarget as retarget_motion
 from .bridge.errors import AdjustError
 from .reporting import preview, summary
@@ -211,7 +211,7 @@ def _progress(args, frames, label):
 def _adjust(args, context):
     obj = (batch.armature_named(context, args.armature) if args.armature is not None
            else batch.default_armature(context))
-    adjustment.check_armature(obj)
+    start_checks.check_armature(obj)
     batch.check_mappable(obj, "--armature")
     start, end = batch.frame_range(obj, context.scene, args.frame_start, args.frame_end)
     batch.check_frame_budget(context, obj, start, end)
@@ -257,7 +257,7 @@ def retarget_target(args, context):
     """A retarget's --target armature, checked as retargeting onto it needs (one line otherwise), and its
     --contacts as the bridge takes them ('ground', or ('object', Object))."""
     target = batch.armature_named(context, args.target, "--target")
-    adjustment.check_armature(target)
+    start_checks.check_armature(target)
     batch.check_mappable(target, "--target")
     contacts = [kind if name is None else (kind, batch.object_named(context, name, "--contacts object"))
                 for kind, name in args.contacts or [("ground", None)]]

@@ -4,7 +4,7 @@ obstacles and settings, and the buttons that run the operators."""
 
 import bpy
 
-from .bridge import adjustment, live
+from .bridge import live, start_checks
 from .bridge.mapping import GROUP_LABELS
 
 
@@ -64,7 +64,7 @@ class FULLBODY_ADJUST_PT_main(bpy.types.Panel):
         else:
             row.label(text="Not mapped yet", icon='ERROR')
         row.operator("fullbody_adjust.map_bones", text="Map Bones" if not mapped else "Map Again")
-        summary = adjustment.rig_summary(obj)
+        summary = start_checks.rig_summary(obj)
         if summary is not None:
             line, ok = summary
             layout.label(text=line, icon='ARMATURE_DATA' if ok else 'ERROR')

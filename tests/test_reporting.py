@@ -18,7 +18,7 @@ EFFECTORS = ("hand.L", "hand.R", "foot.L", "foot.R", "head")
 # --- summary -------------------------------------------------------------------------------------------------
 
 def _outcome(frames=10, seed=0):
-    """Arrays shaped like bridge.adjustment.Outcome: hand.L reached, hand.R out of reach on frames 6-9, foot.L
+    """Arrays shaped like bridge.outcome.Outcome: hand.L reached, hand.R out of reach on frames 6-9, foot.L
     blocked on 2-3 (and limited on 4), foot.R reached, head without target."""
     rng = np.random.default_rng(seed)
     residuals = rng.uniform(0.0, 1e-5, (frames, len(EFFECTORS)))

@@ -30,7 +30,7 @@ import bpy
 import numpy as np
 from bpy.app.handlers import persistent
 
-from . import adjustment, frames, keyframes, obstacles, pose, rig_cache, targets
+from . import adjustment, frames, keyframes, obstacles, pose, rig_cache, start_checks, targets
 from .errors import AdjustError
 
 # How a live solve differs from Adjust Pose: no keys, a deleted target's slot is left out, and no residuals
@@ -97,7 +97,7 @@ def settings_changed(obj):
 def key_pose(context, obj):
     """Key what Live shows: the bones Live moved, on the current frame (keys on other frames and other bones
     untouched). Their channels become the base pose. Returns the names of the bones keyed."""
-    adjustment.check_armature(obj)
+    start_checks.check_armature(obj)
     state = state_of(obj)
     if state is None:
         raise AdjustError(f"Live Adjust is off for '{obj.name}': turn it on first")

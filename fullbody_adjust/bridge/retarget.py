@@ -30,7 +30,7 @@ from ..solver import SolverInputError
 from ..solver import retarget as rt
 from ..solver.adjust import UNCONSTRAINED
 from ..solver.adjust import adjust_frames as solve_frames
-from . import adjustment, ik_limits, mapping, targets
+from . import adjustment, ik_limits, mapping, outcome, start_checks, targets
 from .errors import AdjustError
 from .retarget_read import (check_source, contact_boxes, frame_range, pose_property, read_motion, rig_of,
                             source_map, with_world)
@@ -73,7 +73,7 @@ class RetargetOutcome:
         a contact within reach that was not held; None when neither happened."""
         missed = ~np.isin(self.status, ("reached", "unreachable", UNCONSTRAINED))
         if missed.any():
-            return adjustment.missed_target_line(self.effectors, missed, self.residuals, self.status)
+            return outcome.missed_target_line(self.effectors, missed, self.residuals, self.status)
         for effector, figures in (self.contact_report or {}).get("effectors", {}).items():
             if figures["not_held_frames"]:
                 return f"{effector} does not hold its contact on {figures['not_held_frames']} frames within reach"
@@ -252,7 +252,7 @@ def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *
     """Check the input, read the source's motion and plan the retarget (see ``retarget``); changes nothing
     but the target's stored bone map."""
     check_source(source_obj)
-    adjustment.check_armature(target_obj)
+    start_checks.check_armature(target_obj)
     if target_obj.mode == 'EDIT':
         raise AdjustError(f"'{target_obj.name}' is in Edit Mode: leave it to retarget onto it")
     if source_obj == target_obj:

@@ -2,7 +2,7 @@
 frames, reachable and unreachable targets apart), penetrations after the solve, and which frames missed which
 target and why.
 
-Input is an Outcome-like set of arrays (``bridge.adjustment.Outcome`` has them all): frames (F,), effectors (E
+Input is an Outcome-like set of arrays (``bridge.outcome.Outcome`` has them all): frames (F,), effectors (E
 names), residuals (F,E) world distance effector -> target (NaN: no target), status and reasons (F,E) strings,
 joints_inside and segments_crossing (F,) counts.
 """
