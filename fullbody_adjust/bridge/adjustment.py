@@ -139,8 +139,8 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
         pad = max([solve_settings.chain.margin] + [clearance for _limb, clearance in solve_settings.clearance])
         boxes = solve_space.armature_boxes(corners, to_solve, centre, radius + pad)
     try:
-        hinges = snapshot.derived("hinge axes", lambda: ik_limits.hinge_hints(model, snapshot.rest_matrices,
-                                                                             snapshot.pose_matrices), of=model)
+        hinges = snapshot.derived("hinge axes", lambda: ik_limits.hinge_hints(
+            model, snapshot.rest_matrices, snapshot.pose_matrices, rig.rest_hinges), of=model)
         limits = ik_limits.joint_limits(obj, model, heads, tails, snapshot.pose_matrices, settings,
                                         controls=rig.fk_controls, hinge_axes=hinges)
         served = _served(obj, model, world_targets)
@@ -322,13 +322,14 @@ def _bones_to_write(model, snapshot, result, unit, keep_hands, oriented):
     old_heads = snapshot.pose_matrices[..., :3, 3]
     shift = norm(solve_space.armature_units(result.heads[:, driven], unit) - old_heads[:, driven])
     shift = shift / snapshot.derived("armature size", lambda: solve_space.size_of(old_heads))
-    changed = np.zeros(len(model.names), dtype=bool)
-    changed[driven[((turn > _MOVED) | (shift > _MOVED)).any(axis=0)]] = True
-    below = np.zeros(len(model.names), dtype=bool)  # some ancestor changed
+    changed = set(driven[((turn > _MOVED) | (shift > _MOVED)).any(axis=0)].tolist())
+    below = set()  # bones some ancestor of which changed
+    parents = model.parents.tolist()
     for bone in model.order.tolist():
-        parent = int(model.parents[bone])
-        below[bone] = parent >= 0 and (changed[parent] or below[parent])
-    return driven[changed[driven] | below[driven]]
+        parent = parents[bone]
+        if parent in changed or parent in below:
+            below.add(bone)
+    return np.array([bone for bone in driven.tolist() if bone in changed or bone in below], dtype=driven.dtype)
 
 
 def _effector_positions(model, heads, matrix_world):

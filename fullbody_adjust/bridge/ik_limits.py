@@ -70,19 +70,25 @@ def _limits_of(obj, pose_bone, controls):
     return spec
 
 
-def hinge_hints(model, rest_matrices, pose_matrices):
+def hinge_hints(model, rest_matrices, pose_matrices, rest_axes=None):
     """The axes (F,J,3) the default elbow and knee hinges of ``model``'s start poses bend about, in the solve's
     (armature) space, for the solver's ``bone_x_axes``: on each forearm's and shin's row the hinge axis found at
     rest (solver.rest_hinges: from the rest joints and the body's facing, never from bone roll) carried into the
     start pose by the upper arm's / thigh's rotation; on every other row the bone's X axis (unread).
-    rest_matrices (J,4,4) (Bone.matrix_local), pose_matrices (F,J,4,4) (PoseBone.matrix)."""
-    bones, carriers, local = rest_hinge_axes(model, rest_matrices[:, :3, 3], rest_matrices[:, :3, :3])
+    rest_matrices (J,4,4) (Bone.matrix_local), pose_matrices (F,J,4,4) (PoseBone.matrix); ``rest_axes``: what
+    ``rest_axes_of`` gives for them, from a caller that keeps it with the rig (None: found now)."""
+    bones, carriers, local = rest_axes_of(model, rest_matrices) if rest_axes is None else rest_axes
     hints = np.array(pose_matrices[..., :3, 0], dtype=np.float64)
     if bones.size:
         turned = pose_matrices[..., carriers, :3, :3]
         turned = turned / norm(np.swapaxes(turned, -1, -2))[..., None, :]  # unit columns (a bone may be scaled)
         hints[..., bones, :] = np.einsum("...ij,...j->...i", turned, local)
     return hints
+
+
+def rest_axes_of(model, rest_matrices):
+    """solver.rest_hinges.rest_hinge_axes of ``model`` at its rest matrices (J,4,4): depends on the rig alone."""
+    return rest_hinge_axes(model, rest_matrices[:, :3, 3], rest_matrices[:, :3, :3])
 
 
 def joint_limits(obj, model, heads, tails, pose_matrices, settings, defaults=None, controls=None, hinge_axes=None):

@@ -18,7 +18,7 @@ import numpy as np
 from ..solver import SolverInputError
 from ..solver.body import BodyModel
 from ..solver.joint_ends import joint_ends
-from . import control_rig, mapping, pose
+from . import control_rig, ik_limits, mapping, pose
 from .errors import AdjustError
 
 # Armatures remembered at once (a scene rarely has more characters being adjusted).
@@ -39,6 +39,8 @@ class Rig:
     # (J,3) where each bone ends as a joint, in its own rest frame (solver.joint_ends): what the solve takes for
     # the bones' tails, whatever the importer did with them.
     ends: np.ndarray = None
+    # The elbows' and knees' hinge axes found at rest (ik_limits.rest_axes_of), carried into each start pose.
+    rest_hinges: tuple = None
 
     @property
     def controlled(self):
@@ -79,7 +81,8 @@ def rig_of(obj):
                                                     for b in limb.bones])
     ends = joint_ends(model.parents, rest["rest_matrices"], _rest_tails(obj), model.groups)
     ends.flags.writeable = False
-    rig = Rig(bone_map=bone_map, model=model, rest=rest, fk_controls=fk_controls, ends=ends)
+    rig = Rig(bone_map=bone_map, model=model, rest=rest, fk_controls=fk_controls, ends=ends,
+              rest_hinges=ik_limits.rest_axes_of(model, rest["rest_matrices"]))
     _entries[obj.name] = _Entry(_fingerprint(obj), rig)
     _entries.move_to_end(obj.name)
     while len(_entries) > _CAPACITY:
