@@ -14,7 +14,7 @@ import numpy as np
 
 from .errors import SolverInputError
 from .joint_ends import end_points, joint_ends
-from .retarget_soles import default_soles, posed_soles, skin_soles
+from .retarget_soles import default_soles, descendants, posed_soles, skin_soles
 from .geometry import all_set, any_set, cross, cross_components, dot, norm, normalize
 from .vocabulary import LIMB_EFFECTORS
 
@@ -106,11 +106,7 @@ class Rig:
 
     def descendants(self, bone):
         """The bone and every bone below it."""
-        out = [bone]
-        for j in range(bone + 1, len(self.names)):
-            if self.parents[j] in out:
-                out.append(j)
-        return out
+        return descendants(self.parents, bone)
 
     def world_points(self, pose):
         """World heads and joint ends (…,J,3) of armature-space pose matrices (…,J,4,4): the ends where

@@ -15,7 +15,8 @@ import numpy as np
 FEET = ("foot.L", "foot.R")
 
 
-def _below(parents, bone):
+def descendants(parents, bone):
+    """``bone`` and every bone below it (parents (J,) listed parents first), in that order."""
     out = [bone]
     for j in range(bone + 1, len(parents)):
         if parents[j] in out:
@@ -38,7 +39,7 @@ def default_soles(rest, parents, groups, ends, tail_lengths):
     for foot in FEET:
         if not groups.get(foot):
             continue
-        bones = np.array(_below(parents, int(groups[foot][0])), dtype=np.int64)
+        bones = np.array(descendants(parents, int(groups[foot][0])), dtype=np.int64)
         tips = bones[kept_tail[bones]]
         points = np.concatenate([heads[bones], np.einsum("jik,jk->ji", rest[tips, :3, :3], ends[tips])
                                  + heads[tips]])

@@ -11,6 +11,7 @@ import addon_utils
 import bpy
 import numpy as np
 
+from tests.helpers.blender_data import bone_map, bulk, evaluated  # noqa: F401 (bone_map: for the tests)
 from tests.helpers.bvh import CMU_SCALE, MOCAP_DIR
 
 CMU_CLIP = MOCAP_DIR / "cmu_07_01_walk.bvh"
@@ -53,14 +54,6 @@ def add_single_bone_armature(name="Stick", bones=1):
     return obj
 
 
-def bone_map(obj):
-    """{group: [bone, ...]} as stored on the armature by the extension."""
-    groups = {}
-    for item in obj.fullbody_adjust.bone_map:
-        groups.setdefault(item.group, []).append(item.bone)
-    return groups
-
-
 def slot(obj, effector):
     return next(s for s in obj.fullbody_adjust.targets if s.effector == effector)
 
@@ -90,17 +83,6 @@ def inside_box(box, points):
     return np.all((points >= lo) & (points <= hi), axis=1)
 
 
-def evaluated(obj):
-    bpy.context.view_layer.update()
-    return obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
-
-
-def _bulk(collection, prop, shape):
-    out = np.empty(len(collection) * int(np.prod(shape)), dtype=np.float32)
-    collection.foreach_get(prop, out)
-    return out.reshape((len(collection),) + shape).astype(np.float64)
-
-
 class Pose:
     """The evaluated pose: per bone heads, tails and matrices in armature space, and heads in the world."""
 
@@ -109,9 +91,9 @@ class Pose:
         self.names = [pb.name for pb in ev.pose.bones]
         self.index = {name: i for i, name in enumerate(self.names)}
         self.matrix_world = np.array(ev.matrix_world, dtype=np.float64)
-        self.heads = _bulk(ev.pose.bones, "head", (3,))
-        self.tails = _bulk(ev.pose.bones, "tail", (3,))
-        self.matrices = _bulk(ev.pose.bones, "matrix", (4, 4)).transpose(0, 2, 1)  # foreach_get is column-major
+        self.heads = bulk(ev.pose.bones, "head", (3,))
+        self.tails = bulk(ev.pose.bones, "tail", (3,))
+        self.matrices = bulk(ev.pose.bones, "matrix", (4, 4)).transpose(0, 2, 1)  # foreach_get is column-major
         self.world_heads = self.to_world(self.heads)
 
     def to_world(self, points):

@@ -26,6 +26,8 @@ from __future__ import annotations
 import bpy
 import numpy as np
 
+from tests.helpers.blender_data import bulk, evaluated
+
 POP_DEGREES = 30.0
 POP_ROLES = ("hips", "shoulder", "elbow", "hip", "knee")  # the bones starting there: hips, upper arm, forearm,
 # thigh, shin (feet and toes turn 30+ degrees a frame at toe-off in a 24 fps walk, hands flick)
@@ -37,28 +39,17 @@ SEGMENTS = (("upper_arm", "shoulder", "elbow"), ("forearm", "elbow", "wrist"), (
 UP = np.array([0.0, 0.0, 1.0])
 
 
-def evaluated(obj):
-    bpy.context.view_layer.update()
-    return obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
-
-
-def _bulk(collection, prop, shape):
-    out = np.empty(len(collection) * int(np.prod(shape)), dtype=np.float32)
-    collection.foreach_get(prop, out)
-    return out.reshape((len(collection),) + shape).astype(np.float64)
-
-
 def pose_matrices(obj):
     """{bone: (4,4) evaluated armature-space matrix}."""
     ev = evaluated(obj)
-    matrices = _bulk(ev.pose.bones, "matrix", (4, 4)).transpose(0, 2, 1)
+    matrices = bulk(ev.pose.bones, "matrix", (4, 4)).transpose(0, 2, 1)
     return {pb.name: m for pb, m in zip(ev.pose.bones, matrices)}
 
 
 def world_heads(obj, bones=None):
     """(n,3) evaluated world positions of the heads of ``bones`` (all when None), in order."""
     ev = evaluated(obj)
-    heads = _bulk(ev.pose.bones, "head", (3,))
+    heads = bulk(ev.pose.bones, "head", (3,))
     index = {pb.name: i for i, pb in enumerate(ev.pose.bones)}
     names = list(index) if bones is None else list(bones)
     world = np.array(ev.matrix_world, dtype=np.float64)

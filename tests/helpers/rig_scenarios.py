@@ -16,6 +16,7 @@ import bpy
 import numpy as np
 
 from tests.helpers import real_rigs, rig_measures as rm
+from tests.helpers.blender_data import bone_map
 from tests.helpers.bvh import CMU_SCALE, MOCAP_DIR
 
 WALK = MOCAP_DIR / "cmu_07_01_walk.bvh"
@@ -56,13 +57,6 @@ def metres(rig, value):
     return float(value) * rig.metres_per_unit
 
 
-def mapped(obj):
-    groups = {}
-    for item in obj.fullbody_adjust.bone_map:
-        groups.setdefault(item.group, []).append(item.bone)
-    return groups
-
-
 def joint(rig, role):
     """World head of the rig's known joint ``role`` (None when it has none)."""
     bone = rig.joints.get(role)
@@ -73,7 +67,7 @@ def wrist_of(rig, side="R"):
     """The wrist: the known joint, else the head of the bone the product mapped to the hand (rigs without one)."""
     w = joint(rig, f"wrist.{side}")
     if w is None:
-        w = rm.world_heads(rig.armature, [mapped(rig.armature)[f"hand.{side}"][-1]])[0]
+        w = rm.world_heads(rig.armature, [bone_map(rig.armature)[f"hand.{side}"][-1]])[0]
     return w
 
 
@@ -115,7 +109,7 @@ def near_target(rig):
 def map_case(saved):
     rig = saved.open()
     bpy.ops.fullbody_adjust.map_bones()
-    groups = mapped(rig.armature)
+    groups = bone_map(rig.armature)
     hips = joint(rig, "hips")
     sides = {}
     for group in ("hand.L", "hand.R", "foot.L", "foot.R", "arm.L", "arm.R", "leg.L", "leg.R"):
