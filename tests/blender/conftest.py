@@ -8,6 +8,7 @@ extensions repository, enabled as `bl_ext.<repo>.fullbody_adjust`, whose __init_
 """
 
 import importlib.util
+import os
 from pathlib import Path
 
 import pytest
@@ -33,6 +34,29 @@ if not HAS_BPY:
     def pytest_pycollect_makemodule(module_path, parent):
         # Importing the module would fail on `import bpy`; a skip keeps it counted and says why.
         return ModuleNeedingBpy.from_parent(parent, path=module_path)
+
+
+# Test modules that import glTF files. On Blender 4.2 its glTF importer crashed the process (a segmentation fault
+# in the view layer update of its switch to Edit Mode) after a few hundred other tests had run in it, at a place
+# that moved as tests were added or reordered; each module alone runs clean. There they are skipped in the suite's
+# own process and run together in a fresh one by test_gltf_in_a_fresh_process.py.
+GLTF_MODULES = ("test_mapping_import.py", "test_real_rigs.py", "test_retarget_soles.py")
+FRESH_PROCESS = "FBA_GLTF_FRESH_PROCESS"
+
+
+def gltf_needs_a_fresh_process():
+    import bpy
+
+    return bpy.app.version < (4, 5, 0) and not os.environ.get(FRESH_PROCESS)
+
+
+def pytest_collection_modifyitems(config, items):
+    if not HAS_BPY or not gltf_needs_a_fresh_process():
+        return
+    skip = pytest.mark.skip(reason="run in a fresh process on Blender 4.2 (test_gltf_in_a_fresh_process.py)")
+    for item in items:
+        if item.path.name in GLTF_MODULES:
+            item.add_marker(skip)
 
 
 def pytest_report_header(config):

@@ -26,80 +26,84 @@ REQUIRED = ("root", "trunk", "arm.L", "arm.R", "hand.L", "hand.R", "leg.L", "leg
 
 # (test, rig) -> the figure measured on the code this file was written against (bpy 5.0.1).
 KNOWN = {
-    ('walk_exit', 'kaykit_manny'): 'exit 1: foot.L missed within reach on frames 56..57: limited',
-    ('mapping', 'quaternius_matt'): "Cannot map rig 'CharacterArmature': no left foot found",
-    ('mapping', 'godot_robot'): "Cannot map rig 'Skeleton': no left leg found",
-    ('near', 'quaternius_matt'): "Cannot map rig 'CharacterArmature': no left foot found",
-    ('near', 'godot_robot'): "Cannot map rig 'Skeleton': no left leg found",
-    ('far', 'quaternius_matt'): "Cannot map rig 'CharacterArmature': no left foot found",
-    ('far', 'godot_plush'): "Cannot map rig 'Rig': no hips (root) bone found",
-    ('far', 'godot_robot'): "Cannot map rig 'Skeleton': no left leg found",
-    ('obstacle', 'quaternius_matt'): "Cannot map rig 'CharacterArmature': no left foot found",
-    ('obstacle', 'kaykit_manny'):
-        "Cannot adjust 'Rig_Medium': effector 'head' needs a head group with neck bones and a head bone",
-    ('obstacle', 'godot_plush'): "Cannot map rig 'Rig': no hips (root) bone found",
-    ('obstacle', 'godot_robot'): "Cannot map rig 'Skeleton': no left leg found",
+    ('walk_exit', 'kaykit_manny'):
+        'exit 1: fullbody_adjust retarget: foot.L missed within reach on frames 56..57: limited',
+    ('mapping', 'quaternius_matt'):
+        "Cannot map rig 'CharacterArmature': no right foot found (looked for foot.R/foot_r/rFoot/RightFoot, or a bone at the end of the right leg, at the ankle; the right leg ends at 'LowerLeg.R' with no foot ",
+    ('mapping', 'godot_robot'):
+        "Cannot map rig 'Skeleton': no left hand found (looked for hand.L/hand_l/lHand/LeftHand, or a bone at the end of the left arm; the left arm ends at 'r-forearm' with no hand below it)",
+    ('near', 'quaternius_matt'):
+        "Cannot map rig 'CharacterArmature': no right foot found (looked for foot.R/foot_r/rFoot/RightFoot, or a bone at the end of the right leg, at the ankle; the right leg ends at 'LowerLeg.R' with no foot ",
+    ('near', 'godot_robot'):
+        "Cannot map rig 'Skeleton': no left hand found (looked for hand.L/hand_l/lHand/LeftHand, or a bone at the end of the left arm; the left arm ends at 'r-forearm' with no hand below it)",
+    ('far', 'quaternius_matt'):
+        "Cannot map rig 'CharacterArmature': no right foot found (looked for foot.R/foot_r/rFoot/RightFoot, or a bone at the end of the right leg, at the ankle; the right leg ends at 'LowerLeg.R' with no foot ",
+    ('far', 'godot_plush'): 'knees sideways L 10.9 mm, R 10.9 mm',
+    ('far', 'godot_robot'):
+        "Cannot map rig 'Skeleton': no left hand found (looked for hand.L/hand_l/lHand/LeftHand, or a bone at the end of the left arm; the left arm ends at 'r-forearm' with no hand below it)",
+    ('obstacle', 'quaternius_matt'):
+        "Cannot map rig 'CharacterArmature': no right foot found (looked for foot.R/foot_r/rFoot/RightFoot, or a bone at the end of the right leg, at the ankle; the right leg ends at 'LowerLeg.R' with no foot ",
+    ('obstacle', 'kaykit_manny'): '0 joints and 104 mesh vertices inside the box',
+    ('obstacle', 'godot_plush'): '0 joints and 6 mesh vertices inside the box',
+    ('obstacle', 'godot_robot'):
+        "Cannot map rig 'Skeleton': no left hand found (looked for hand.L/hand_l/lHand/LeftHand, or a bone at the end of the left arm; the left arm ends at 'r-forearm' with no hand below it)",
     ('walk_exit', 'quaternius_matt'):
-        "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left foot found",
-    ('walk_exit', 'godot_plush'):
-        "exit 2: --target 'Rig' cannot be mapped: Cannot map rig 'Rig': no hips (root) bone found",
+        "exit 2: no output written: fullbody_adjust retarget: error: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no right foot found (looked for foot.R/foot_r/rFoot/RightFoot, or",
+    ('walk_exit', 'godot_plush'): 'exit 1: fullbody_adjust retarget: foot.L missed within reach on frame 58: limited',
     ('walk_exit', 'godot_robot'):
-        "exit 2: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left leg found",
+        "exit 2: no output written: fullbody_adjust retarget: error: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left hand found (looked for hand.L/hand_l/lHand/LeftHand, or a bone at the end o",
     ('walk_soles', 'quaternius_matt'):
-        "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left foot found",
+        "exit 2: no output written: fullbody_adjust retarget: error: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no right foot found (looked for foot.R/foot_r/rFoot/RightFoot, or",
     ('walk_soles', 'godot_robot'):
-        "exit 2: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left leg found",
-    ('walk_slide', 'kenney'): "slide p95 14.8 mm (the source's own 21.0 mm)",
+        "exit 2: no output written: fullbody_adjust retarget: error: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left hand found (looked for hand.L/hand_l/lHand/LeftHand, or a bone at the end o",
+    ('walk_slide', 'kenney'): "slide p95 29.2 mm (the source's own 21.0 mm)",
     ('walk_slide', 'quaternius_matt'):
-        "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left foot found",
-    ('walk_slide', 'quaternius_mannequin_f'): "slide p95 9.2 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'kaykit_manny'): "slide p95 9.8 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'godot_plush'):
-        "exit 2: --target 'Rig' cannot be mapped: Cannot map rig 'Rig': no hips (root) bone found",
+        "exit 2: no output written: fullbody_adjust retarget: error: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no right foot found (looked for foot.R/foot_r/rFoot/RightFoot, or",
+    ('walk_slide', 'quaternius_mannequin_f'): "slide p95 15.6 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'kaykit_manny'): "slide p95 24.1 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'godot_plush'): "slide p95 19.9 mm (the source's own 21.0 mm)",
     ('walk_slide', 'godot_robot'):
-        "exit 2: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left leg found",
-    ('walk_slide', 'gdquest_mannequiny'): "slide p95 13.3 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'metarig'): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'metarig_tpose'): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'metarig_apose'): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'metarig_face_px'): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'metarig_face_nx'): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'metarig_face_py'): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'metarig_low_soles'): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'metarig_cm_units'): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'metarig_object_scale_0.01'): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'metarig_object_scale_100'): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'metarig_unnamed'): "slide p95 7.5 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'metarig_gltf_blender'): "slide p95 8.7 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'metarig_gltf_temperance'): "slide p95 8.7 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'metarig_gltf_fortune'): "slide p95 5.9 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'metarig_fbx'): "slide p95 13.4 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'metarig_fbx_auto_orient'): "slide p95 13.4 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'metarig_fbx_no_leaf'): "slide p95 9.9 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'metarig_fbx_auto_orient_no_leaf'): "slide p95 9.9 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'metarig_gltf_unnamed_face_px'):
-        "exit 2: --target 'metarig' cannot be mapped: Cannot map rig 'metarig': no right leg found",
-    ('walk_slide', 'mannequin_f_face_px'): "slide p95 9.2 mm (the source's own 21.0 mm)",
-    ('walk_slide', 'mannequin_f_face_py'): "slide p95 9.2 mm (the source's own 21.0 mm)",
+        "exit 2: no output written: fullbody_adjust retarget: error: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left hand found (looked for hand.L/hand_l/lHand/LeftHand, or a bone at the end o",
+    ('walk_slide', 'gdquest_mannequiny'): "slide p95 18.5 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig'): "slide p95 16.0 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_tpose'): "slide p95 16.0 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_apose'): "slide p95 16.0 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_face_px'): "slide p95 16.0 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_face_nx'): "slide p95 16.0 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_face_py'): "slide p95 16.0 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_low_soles'): "slide p95 37.4 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_cm_units'): "slide p95 16.0 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_object_scale_0.01'): "slide p95 16.0 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_object_scale_100'): "slide p95 16.0 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_unnamed'): "slide p95 16.0 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_gltf_blender'): "slide p95 16.0 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_gltf_temperance'): "slide p95 16.0 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_gltf_fortune'): "slide p95 16.0 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_fbx'): "slide p95 16.0 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_fbx_auto_orient'): "slide p95 16.0 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_fbx_no_leaf'): "slide p95 16.0 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_fbx_auto_orient_no_leaf'): "slide p95 16.0 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'metarig_gltf_unnamed_face_px'): "slide p95 16.0 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'mannequin_f_face_px'): "slide p95 15.6 mm (the source's own 21.0 mm)",
+    ('walk_slide', 'mannequin_f_face_py'): "slide p95 15.6 mm (the source's own 21.0 mm)",
     ('walk_limbs', 'quaternius_matt'):
-        "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left foot found",
+        "exit 2: no output written: fullbody_adjust retarget: error: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no right foot found (looked for foot.R/foot_r/rFoot/RightFoot, or",
     ('walk_limbs', 'godot_robot'):
-        "exit 2: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left leg found",
+        "exit 2: no output written: fullbody_adjust retarget: error: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left hand found (looked for hand.L/hand_l/lHand/LeftHand, or a bone at the end o",
     ('walk_heading', 'quaternius_matt'):
-        "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left foot found",
+        "exit 2: no output written: fullbody_adjust retarget: error: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no right foot found (looked for foot.R/foot_r/rFoot/RightFoot, or",
     ('walk_heading', 'godot_robot'):
-        "exit 2: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left leg found",
+        "exit 2: no output written: fullbody_adjust retarget: error: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left hand found (looked for hand.L/hand_l/lHand/LeftHand, or a bone at the end o",
     ('walk_pops', 'quaternius_matt'):
-        "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left foot found",
-    ('walk_pops', 'kaykit_manny'): '11 pop frames (source 0), largest step 43.6 deg',
-    ('walk_pops', 'godot_plush'):
-        "exit 2: --target 'Rig' cannot be mapped: Cannot map rig 'Rig': no hips (root) bone found",
+        "exit 2: no output written: fullbody_adjust retarget: error: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no right foot found (looked for foot.R/foot_r/rFoot/RightFoot, or",
+    ('walk_pops', 'kaykit_manny'): '10 pop frames (source 0), largest step 56.7 deg',
+    ('walk_pops', 'godot_plush'): '2 pop frames (source 0), largest step 40.3 deg',
     ('walk_pops', 'godot_robot'):
-        "exit 2: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left leg found",
+        "exit 2: no output written: fullbody_adjust retarget: error: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left hand found (looked for hand.L/hand_l/lHand/LeftHand, or a bone at the end o",
     ('walk_report', 'quaternius_matt'):
-        "exit 2: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no left foot found",
+        "exit 2: no output written: fullbody_adjust retarget: error: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no right foot found (looked for foot.R/foot_r/rFoot/RightFoot, or",
     ('walk_report', 'godot_robot'):
-        "exit 2: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left leg found",
+        "exit 2: no output written: fullbody_adjust retarget: error: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left hand found (looked for hand.L/hand_l/lHand/LeftHand, or a bone at the end o",
 }
 
 
