@@ -204,8 +204,7 @@ def skeleton_segments(obj, frames):
     importer may have left far past the next joint."""
     snapshot = pose.read_pose_frames(obj, frames)
     bones = obj.data.bones
-    tails = np.array([tuple(bone.tail_local) for bone in bones], dtype=np.float64).reshape(-1, 3)
-    ends = joint_ends(snapshot.parents, snapshot.rest_matrices, tails)
+    ends = joint_ends(snapshot.parents, snapshot.rest_matrices, pose.rest_tails(obj))
     world = snapshot.matrix_world[:, None] @ snapshot.pose_matrices
     deform = np.array([bone.use_deform for bone in bones], dtype=bool)
     keep = deform if deform.any() else np.ones(len(deform), dtype=bool)

@@ -18,10 +18,10 @@ are read again only in a new session or file (the meshes' session ids change) or
 
 from collections import OrderedDict
 
-import bpy
 import numpy as np
 
 from ..solver.joint_ends import end_points
+from .skinning import deformed_meshes
 
 # A vertex farther from its bone's segment than the median distance plus this many scaled MADs is an outlier.
 _OUTLIER = 4.0
@@ -109,13 +109,6 @@ def robust_radius(distances):
     median = float(np.median(distances))
     spread = max(_MAD_SCALE * float(np.median(np.abs(distances - median))), _LEAST_SPREAD * median)
     return float(distances[distances <= median + _OUTLIER * spread].max())
-
-
-def deformed_meshes(obj):
-    """The mesh objects an enabled Armature modifier (with vertex groups) deforms by ``obj``, sorted by name."""
-    return sorted((ob for ob in bpy.data.objects if ob.type == 'MESH' and any(
-        mod.type == 'ARMATURE' and mod.object == obj and mod.show_viewport and mod.use_vertex_groups
-        for mod in ob.modifiers)), key=lambda ob: ob.name)
 
 
 def clear():

@@ -283,6 +283,13 @@ def read_static(obj):
     }
 
 
+def rest_tails(obj):
+    """The bones' rest tails (B,3) in armature space, in ``obj.data.bones`` order (joint_ends reads where each bone
+    really ends from them)."""
+    bones = obj.data.bones
+    return _get(bones, "tail_local", len(bones), (3,))
+
+
 def rotation_modes(obj):
     """Each pose bone's rotation mode (identifiers, in pose-bone order), read in one bulk call: it is read on
     every Adjust Pose and Live update, and one attribute read per bone costs more than the rest of the read."""

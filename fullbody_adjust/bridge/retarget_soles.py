@@ -5,6 +5,7 @@ deforms (an Armature modifier on it, or an armature parent). Nothing here change
 import numpy as np
 
 from ..solver.retarget_soles import FEET
+from .skinning import deformed_meshes
 
 # A vertex belongs to a foot when at least this share of its weight is on the foot bone and the bones below it.
 # (The rest of its weight, often on the shin near the heel, moves it with the knee as skinning does: the plan
@@ -17,21 +18,6 @@ _SOLE_BAND = 0.6
 # At most this many points per sole besides those lowest for some tilt (spread over the sole: the lowest first,
 # then each time the farthest from those kept).
 _MAX_POINTS = 512
-
-
-def deformed_meshes(obj):
-    """The mesh objects ``obj`` (an armature) deforms through their vertex groups."""
-    import bpy
-    out = []
-    for ob in bpy.data.objects:
-        if ob.type != 'MESH' or ob.data is None or not len(ob.vertex_groups):
-            continue
-        by_modifier = any(m.type == 'ARMATURE' and m.object == obj and m.show_viewport and m.use_vertex_groups
-                          for m in ob.modifiers)
-        by_parent = ob.parent == obj and ob.parent_type == 'ARMATURE'
-        if by_modifier or by_parent:
-            out.append(ob)
-    return out
 
 
 def _vertex_weights(mesh_obj, bone_index):

@@ -79,7 +79,7 @@ def rig_of(obj):
     if controlled:
         fk_controls = control_rig.fk_controls(obj, [model.names[b] for limb in model.limbs.values()
                                                     for b in limb.bones])
-    ends = joint_ends(model.parents, rest["rest_matrices"], _rest_tails(obj), model.groups)
+    ends = joint_ends(model.parents, rest["rest_matrices"], pose.rest_tails(obj), model.groups)
     ends.flags.writeable = False
     rig = Rig(bone_map=bone_map, model=model, rest=rest, fk_controls=fk_controls, ends=ends,
               rest_hinges=ik_limits.rest_axes_of(model, rest["rest_matrices"]))
@@ -97,14 +97,6 @@ def body_model(names, parents, bone_map):
                                           {group: list(bones) for group, bones in bone_map.groups.items()})
     except SolverInputError as ex:
         raise AdjustError(f"Bone mapping does not fit the rig: {ex}") from None
-
-
-def _rest_tails(obj):
-    """The bones' rest tails (J,3) in armature space, in obj.data.bones order."""
-    bones = obj.data.bones
-    buffer = np.empty(len(bones) * 3, dtype=np.float32)
-    bones.foreach_get("tail_local", buffer)
-    return buffer.reshape(-1, 3).astype(np.float64)
 
 
 def clear():
