@@ -10,6 +10,7 @@ import numpy as np
 from .adjust import sub_base_point
 from .contacts import GROUND, RetargetSettings, detect_contacts, hold
 from .errors import SolverInputError
+from .foot_pivots import held_still, pivot_bone, roll
 from .geometry import all_set, norm
 from .joint_ends import end_points
 from .retarget_rig import (EFFECTOR_CHAIN, EFFECTORS, FEET, Rig, ankle_above_sole, chain_joints, effector_points,
@@ -153,6 +154,11 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
         for c in found[e]:
             contacts[c.start:c.stop, k] = True
     step = settings.blend_speed * leg_t / settings.fps
+    # The joint each foot stands on (ball, or ankle), and the frames the source holds it still near the floor.
+    rule = settings.detection
+    pivots = {e: pivot_bone(source, target, e) for e in FEET}
+    pinned = {e: held_still(s_heads[:, pivots[e][0]], settings.fps, rule.plant_speed * leg_s,
+                            rule.plant_height * leg_s) for e in FEET}
 
     def held(paths, feet=start, soles=soles):
         """Targets (F,E,3): free trajectories ``paths`` (F,E,3) with the holds blended in; feet never below
@@ -165,8 +171,10 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
                 a, b = c.start, c.stop
                 if e in FEET:
                     foot = effector_points(target, feet[a:b], e)
+                    pivot = target.to_world(feet[a:b, pivots[e][1], :3, 3])
                     path = _foot_path(c, paths[a:b, k], foot, soles[a:b, FEET.index(e)],
-                                      settings.exact or c.kind == GROUND, anchor_t[2], ratio)
+                                      settings.exact or c.kind == GROUND, anchor_t[2], ratio, pivot,
+                                      pinned[e][a:b])
                 else:  # a hand on an object: still, where the source's is (or its scaled place)
                     path = (s_points[e][a:b, 0] if settings.exact else scaled(s_points[e][a:b, 0])).mean(axis=0)
                 holds.append((a, b, path, _blend_frames(path, paths[:, k], a, b, blend, step)))
@@ -227,21 +235,16 @@ def source_floor(source, pose):
     return lowest
 
 
-def _foot_path(contact, free, target_points, soles, on_surface, floor, ratio):
+def _foot_path(contact, free, target_points, soles, on_surface, floor, ratio, pivot, pinned):
     """The ankle's path (n,3) over a foot contact: the target's own foot (points (n,P,3), ankle first, then its
-    sole, as transferred) rolls and turns as transferred, from each frame to the next about whichever point
-    of its sole is lowest (heel, ball, toes: the one on the ground; points equally low, as a flat heel's two
-    ends, by their mean: a tie broken by rounding would turn the foot about one or the other). The sole
-    point it turns about does not slide; the path is centred on ``free`` (n,3), the ankle's free trajectory.
-    The lowest point of the sole on the surface (its world height with ``on_surface``, else its height
-    scaled about the floor)."""
-    rel = target_points[:, :1, :2] - target_points[:, 1:, :2]  # (n,P,2) ankle less each sole point
+    sole, as transferred) rolls and turns as transferred, from each frame to the next about the joint it stands
+    on (``pivot`` (n,3), the target's ball or ankle, on the frames ``pinned`` (n,) where the source holds that
+    joint still) or else about whichever point of its sole is lowest (heel, ball, toes: the one on the ground):
+    foot_pivots.roll. The point it turns about does not slide; the path is centred on ``free`` (n,3), the
+    ankle's free trajectory. The lowest point of the sole on the surface (its world height with ``on_surface``,
+    else its height scaled about the floor)."""
     size = float(np.ptp(target_points[0], axis=0).max()) if len(target_points) else 0.0
-    z = target_points[:-1, 1:, 2]
-    weight = (z <= z.min(axis=1, keepdims=True) + 1e-9 * max(size, 1e-300)).astype(np.float64)
-    weight /= weight.sum(axis=1, keepdims=True)
-    travel = np.concatenate([np.zeros((1, 2)), np.cumsum(np.einsum("fp,fpi->fi", weight, rel[1:] - rel[:-1]),
-                                                         axis=0)])
+    travel = roll(target_points[:, 0], target_points[:, 1:], pivot, pinned, 1e-9 * max(size, 1e-300))
     path = np.empty_like(free)
     path[:, :2] = travel + (free[:, :2] - travel).mean(axis=0)
     surface = contact.surface if on_surface else floor + ratio * (contact.surface - floor)

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import SolverInputError
+from .foot_pivots import ball_bone
 from .joint_ends import end_points, joint_ends
 from .retarget_soles import default_soles, descendants, posed_soles, skin_soles
 from .geometry import all_set, any_set, cross, cross_components, dot, norm, normalize
@@ -255,12 +256,15 @@ def hip_centres(rig, heads):
 
 def effector_points(rig, pose, effector):
     """World points (…,P,3) of a hand or foot of armature-space pose matrices (…,J,4,4): the effector joint
-    (wrist, ankle) first; then for a foot its sole's points (Rig.soles), for a hand the hand's joint end and
-    the heads and joint ends of every bone below it (fingers)."""
+    (wrist, ankle) first; then for a foot its sole's points (Rig.soles) and the ball of the foot (the joint it
+    stands on as the heel lifts: foot_pivots.ball_bone; the ankle again on a foot without toes), for a hand the
+    hand's joint end and the heads and joint ends of every bone below it (fingers)."""
     bone = rig.groups[effector][0]
     heads, ends = rig.world_points(pose)
     if effector in FEET:
-        return np.concatenate([heads[..., [bone], :], rig.sole_points(pose, effector)], axis=-2)
+        ball = ball_bone(rig, effector)
+        return np.concatenate([heads[..., [bone], :], rig.sole_points(pose, effector),
+                               heads[..., [bone if ball is None else ball], :]], axis=-2)
     below = rig.descendants(bone)[1:]
     return np.concatenate([heads[..., [bone], :], ends[..., [bone], :], heads[..., below, :], ends[..., below, :]],
                           axis=-2)

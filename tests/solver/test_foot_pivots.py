@@ -1,0 +1,74 @@
+"""solver/foot_pivots.py: which point of a planted foot stays put from one frame to the next."""
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from fullbody_adjust.solver import foot_pivots as fp
+
+
+def _turned(points, angle, about):
+    """points (P,3) turned by ``angle`` about the horizontal X axis through ``about`` (3,)."""
+    c, s = np.cos(angle), np.sin(angle)
+    r = np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+    return (points - about) @ r.T + about
+
+
+def _rolling_foot(frames=30, seed=3):
+    """A foot (ankle, heel, ball, toe tip) pitching toes-down by up to 40 degrees about points that drift, as a
+    transferred pose does: (ankle (F,3), sole (F,3,3): heel, toe tip, ball; ball (F,3))."""
+    rng = np.random.default_rng(seed)
+    rest = np.array([[0.0, 0.0, 0.08], [0.0, -0.05, 0.0], [0.0, 0.16, 0.0], [0.0, 0.12, 0.02]])
+    angles = -np.radians(np.linspace(1.0, 40.0, frames))  # toes down
+    drift = np.cumsum(rng.normal(0.0, 0.004, (frames, 3)), axis=0)
+    posed = np.array([_turned(rest, a, rest[3]) + d for a, d in zip(angles, drift)])
+    return posed[:, 0], posed[:, 1:], posed[:, 3]
+
+
+def test_the_pinned_joint_keeps_its_place_and_elsewhere_the_lowest_point_does():
+    ankle, sole, ball = _rolling_foot()
+    pinned = np.zeros(len(ankle), dtype=bool)
+    pinned[:18] = True  # the ball held; then the foot rolls onto its toe tip
+    travel = fp.roll(ankle, sole, ball, pinned, 1e-12)
+    moved = travel - (ankle[:, :2] - ankle[0, :2])  # how far the path shifts the transferred foot
+    ball_path = ball[:, :2] + moved
+    assert np.abs(ball_path[:18] - ball_path[0]).max() < 1e-12
+    assert np.abs(ball_path[18:] - ball_path[0]).max() > 1e-3  # not pinned there: the foot turns on its toes
+    tip_path = sole[:, 1, :2] + moved  # the toe tip is the lowest point once the foot pitches
+    lowest = sole[:, :, 2].argmin(axis=1)
+    assert (lowest[17:-1] == 1).all()
+    assert np.abs(np.diff(tip_path[17:], axis=0)).max() < 1e-12
+
+
+def test_without_pins_the_lowest_point_is_the_pivot():
+    ankle, sole, ball = _rolling_foot()
+    travel = fp.roll(ankle, sole, ball, np.zeros(len(ankle), dtype=bool), 1e-12)
+    moved = travel - (ankle[:, :2] - ankle[0, :2])
+    lowest = sole[:-1, :, 2].argmin(axis=1)
+    for f, p in enumerate(lowest):
+        step = (sole[f + 1, p, :2] + moved[f + 1]) - (sole[f, p, :2] + moved[f])
+        assert np.abs(step).max() < 1e-12
+
+
+def test_held_still_is_slow_and_low():
+    fps = 24.0
+    z = np.concatenate([np.full(10, 0.02), 0.02 + 0.01 * np.arange(1, 11)])  # still, then rising 0.24 m/s
+    track = np.stack([np.zeros(20), np.zeros(20), z], axis=1)
+    held = fp.held_still(track, fps, speed=0.2, height=0.06)
+    assert held[:10].all() and not held[10:].any()
+    slow_but_high = track.copy()
+    slow_but_high[10:, 2] = 0.5
+    slow_but_high[10:, 1] = 0.001 * np.arange(10)
+    held = fp.held_still(slow_but_high, fps, speed=0.2, height=0.06)
+    assert held[:9].all() and not held[11:].any()
+
+
+def test_the_ball_is_the_farthest_bone_below_the_ankle():
+    # root, shin, foot (ankle at the origin), heel 6 cm behind, toes 12 cm ahead, a toe tip below the toes
+    heads = np.array([[0, 0, 1.0], [0, 0, 0.5], [0, 0, 0.08], [0, 0.06, 0.02], [0, -0.12, 0.02], [0, -0.16, 0.0]])
+    rest = np.tile(np.eye(4), (len(heads), 1, 1))
+    rest[:, :3, 3] = heads
+    rig = SimpleNamespace(groups={"foot.L": (2,)}, parents=np.array([-1, 0, 1, 2, 2, 4]), rest=rest)
+    assert fp.ball_bone(rig, "foot.L") == 4
+    rig.parents = np.array([-1, 0, 1, -1, -1, -1])
+    assert fp.ball_bone(rig, "foot.L") is None
