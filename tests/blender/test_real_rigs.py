@@ -67,8 +67,7 @@ KNOWN = {
         "exit 2: no output written: fullbody_adjust retarget: error: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left hand found (looked for hand.L/hand_l/lHand/LeftHand, or a bone at the end o",
     ('walk_pops', 'quaternius_matt'):
         "exit 2: no output written: fullbody_adjust retarget: error: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': no right foot found (looked for foot.R/foot_r/rFoot/RightFoot, or",
-    ('walk_pops', 'kaykit_manny'): '10 pop frames (source 0), largest step 56.7 deg',
-    ('walk_pops', 'godot_plush'): '2 pop frames (source 0), largest step 40.3 deg',
+    ('walk_pops', 'kaykit_manny'): '1 pop frame (source 0), largest step 30.9 deg',
     ('walk_pops', 'godot_robot'):
         "exit 2: no output written: fullbody_adjust retarget: error: --target 'Skeleton' cannot be mapped: Cannot map rig 'Skeleton': no left hand found (looked for hand.L/hand_l/lHand/LeftHand, or a bone at the end o",
     ('walk_report', 'quaternius_matt'):
