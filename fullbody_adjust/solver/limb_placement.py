@@ -11,20 +11,16 @@ from .body import CHAIN, ROOT
 from .chain import solve_chain_batch
 from .chain_types import ChainBatchResult, _final_status
 from .geometry import any_set, apply_matrix, norm, stack_rows
+from .limb_easing import ClearanceEasing
 from .limb_rotations import _EYE, LimbSolve, end_rotation, set_segment_rotations
 from .limits import HINGE, JointLimits, carry_axis
-from .obstacle_swivel import intrusion, swivel_starts
 from .obstacles import grown_clear_of, points_inside, segments_cross
 from .two_bone_start import two_bone_start
 
 _EYE_ROWS = _EYE.tolist()
 
-# The fractions of a limb's clearance it is solved with, in turn, where the previous one kept it from its target
-# (LimbPlacement._eased): the clearance is kept where the target allows it, then as much of it as does.
-_EASED = (1.0, 0.5, 0.0)
 
-
-class LimbPlacement:
+class LimbPlacement(ClearanceEasing):
     """The limbs' chain solves and the pass that places every bone from them."""
 
     def _solve(self, name, rows, start, targets, carry=None):
@@ -88,53 +84,6 @@ class LimbPlacement:
         if self.obstacles is not None and not retry:
             self._eased(tasks, out)
         return out
-
-    def _eased(self, tasks, results):
-        """Where a limb's clearance kept it from its target (status 'blocked'), the limb solved again with less
-        (_EASED), from two starts: its own, and the one whose middle joint swivels round to where it comes least
-        into the clearance (obstacle_swivel; on rows with a pole, whose bend plane is the user's, its own twice).
-        Of the two, the one that reaches the target coming least into the clearance is taken; the last retry
-        (none: the paper's joints and segments out of the boxes themselves) is also taken where it comes nearer.
-        Its reason says how much clearance it kept. `results` (one ChainBatchResult per task) are updated in
-        place."""
-        k = 2
-        for less in _EASED[1:]:
-            retries = []
-            for t, r in zip(tasks, results):
-                clearance = self.settings.clearance_of(t.name)
-                blocked = np.nonzero(r.status == "blocked")[0] if clearance > 0.0 else []
-                if len(blocked):
-                    retries.append((t, r, blocked, clearance))
-            if not retries:
-                return
-            again = self._solve_stacked([ChainTask(t.name, np.repeat(t.rows[b], k), self._starts(t, b, c),
-                                                   np.repeat(t.targets[b], k, axis=0),
-                                                   None if t.carry is None else np.repeat(t.carry[b], k, axis=0),
-                                                   None if t.still is None else np.repeat(t.still[b], k))
-                                         for t, _r, b, c in retries], less, retry=True)
-            for (t, r, blocked, clearance), redo in zip(retries, again):
-                redo = _clearest(redo, k, intrusion(redo.positions.reshape(len(blocked), k, -1, 3),
-                                                    self.obstacles.select(t.rows[blocked]),
-                                                    np.full(len(blocked), clearance)))
-                take = (redo.status == "reached") | ((less == 0.0) & (redo.residual < r.residual[blocked]))
-                kept = f"kept {less * clearance:.3g} of its clearance {clearance:.3g} from the obstacles" if less \
-                    else f"its clearance {clearance:.3g} from the obstacles not kept"
-                r.status, r.reason = r.status.astype(object), r.reason.astype(object)  # fixed width would cut
-                redo.reason = redo.reason.astype(object)
-                redo.reason[take] = [f"{why}; {kept}" for why in redo.reason[take]]
-                for field in ("positions", "iterations", "residual", "reachable", "status", "reason"):
-                    getattr(r, field)[blocked[take]] = getattr(redo, field)[take]
-
-    def _starts(self, task, blocked, clearance):
-        """(b*2,n,3): per row `blocked` of `task`, its start, then its clearest swivel (_eased)."""
-        start, rows = task.start[blocked], task.rows[blocked]
-        swivels = swivel_starts(start, task.targets[blocked])
-        within = intrusion(swivels, self.obstacles.select(rows), np.full(len(rows), clearance))
-        best = swivels[np.arange(len(rows)), np.argmin(within, axis=1)]
-        if task.name in self.limb_pole:
-            posed = np.isfinite(self.limb_pole[task.name][rows, 0])
-            best[posed] = start[posed]
-        return np.stack([start, best], axis=1).reshape(-1, *start.shape[1:])
 
     def _limb_boxes(self, parts, ease=1.0):
         """The obstacle boxes a chain solve of `parts` [(limb, rows (b,), bases (b,3), targets (b,3))], their rows
@@ -364,18 +313,6 @@ def _group_limbs(tasks, key):
     for t in tasks:
         groups.setdefault(key(t), []).append(t)
     return list(groups.values())
-
-
-def _clearest(res, k, within):
-    """ChainBatchResult of b rows from `res` (b*k rows, k starts per row): per row the start that reached its
-    target with the least `within` (b,k) (obstacle_swivel.intrusion), else the nearest (least residual)."""
-    b = within.shape[0]
-    reached = (res.status == "reached").reshape(b, k)
-    score = np.where(reached, within, np.inf)
-    pick = np.where(reached.any(axis=1), np.argmin(score, axis=1), np.argmin(res.residual.reshape(b, k), axis=1))
-    at = np.arange(b) * k + pick
-    return ChainBatchResult(res.positions[at], res.iterations[at], res.residual[at], res.reachable[at],
-                            res.status[at], res.reason[at])
 
 
 def _split(res, sizes):
