@@ -1,12 +1,11 @@
-"""Where a limb's clearance kept it from its target, the starts its retries begin from (LimbPlacement._eased).
+"""Where a limb's clearance kept it from its target, the start its retries begin from (limb_easing.py).
 
 A limb's last two segments (upper arm and forearm, thigh and shin) meeting a target leave one freedom: the swivel,
 the middle joint (elbow, knee) anywhere on the circle around the line from the two segments' root to the target.
 FABRIK moves that joint only as far as the boxes push it, so where the side that keeps the limb's surface out lies
 more than a quarter turn away it stops on the near side, its centre line just out of the box and its surface in
-it (kaykit_manny's chunky forearm around a box where the forearm was: 104 mesh vertices inside). The retries are
-solved from starts around that circle (swivel_starts), and the one that comes least into the clearance is kept
-(intrusion)."""
+it (kaykit_manny's chunky forearm around a box where the forearm was: 104 mesh vertices inside). The retries
+start from the sampled swivel (swivel_starts) that comes least into the clearance (intrusion)."""
 
 import numpy as np
 
