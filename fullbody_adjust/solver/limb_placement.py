@@ -11,6 +11,7 @@ from .body import CHAIN, ROOT
 from .chain import solve_chain_batch
 from .chain_types import ChainBatchResult, _final_status
 from .geometry import any_set, apply_matrix, norm, stack_rows
+from .limb_easing import ClearanceEasing
 from .limb_rotations import _EYE, LimbSolve, end_rotation, set_segment_rotations
 from .limits import HINGE, JointLimits, carry_axis
 from .obstacles import grown_clear_of, points_inside, segments_cross
@@ -18,12 +19,8 @@ from .two_bone_start import two_bone_start
 
 _EYE_ROWS = _EYE.tolist()
 
-# The fractions of a limb's clearance it is solved with, in turn, where the previous one kept it from its target
-# (LimbPlacement._eased): the clearance is kept where the target allows it, then as much of it as does.
-_EASED = (1.0, 0.5, 0.0)
 
-
-class LimbPlacement:
+class LimbPlacement(ClearanceEasing):
     """The limbs' chain solves and the pass that places every bone from them."""
 
     def _solve(self, name, rows, start, targets, carry=None):
@@ -31,7 +28,7 @@ class LimbPlacement:
         _solve_stacked on this one limb."""
         return self._solve_stacked([ChainTask(name, rows, start, targets, carry)])[0]
 
-    def _solve_stacked(self, tasks, ease=1.0):
+    def _solve_stacked(self, tasks, ease=1.0, retry=False):
         """One solve_chain_batch for `tasks` (ChainTask), their rows stacked in order, with each limb's limits
         and its frames' obstacles (grown by `ease` times its clearance: _limb_boxes, _eased); one
         ChainBatchResult per task. The tasks' limbs share a _stack_key (chain
@@ -84,37 +81,9 @@ class LimbPlacement:
         out = [res] if len(tasks) == 1 else _split(res, [len(t.rows) for t in tasks])
         for t, r in zip(tasks, out):
             self.iterations[t.rows] += r.iterations  # per task: two limbs' rows may be the same frames
-        if self.obstacles is not None and ease == _EASED[0]:
+        if self.obstacles is not None and not retry:
             self._eased(tasks, out)
         return out
-
-    def _eased(self, tasks, results):
-        """Where a limb's clearance kept it from its target (status 'blocked'), the limb solved again with less
-        (_EASED): a retry is taken where it reaches the target, the last (none: the paper's joints and segments
-        out of the boxes themselves) also where it comes nearer; its reason says how much clearance it kept.
-        `results` (one ChainBatchResult per task) are updated in place."""
-        for less in _EASED[1:]:
-            retries = []
-            for t, r in zip(tasks, results):
-                clearance = self.settings.clearance_of(t.name)
-                blocked = np.nonzero(r.status == "blocked")[0] if clearance > 0.0 else []
-                if len(blocked):
-                    retries.append((t, r, blocked, clearance))
-            if not retries:
-                return
-            again = self._solve_stacked([ChainTask(t.name, t.rows[b], t.start[b], t.targets[b],
-                                                   None if t.carry is None else t.carry[b],
-                                                   None if t.still is None else t.still[b])
-                                         for t, _r, b, _c in retries], less)
-            for (t, r, blocked, clearance), redo in zip(retries, again):
-                take = (redo.status == "reached") | ((less == 0.0) & (redo.residual < r.residual[blocked]))
-                kept = f"kept {less * clearance:.3g} of its clearance {clearance:.3g} from the obstacles" if less \
-                    else f"its clearance {clearance:.3g} from the obstacles not kept"
-                r.status, r.reason = r.status.astype(object), r.reason.astype(object)  # fixed width would cut
-                redo.reason = redo.reason.astype(object)
-                redo.reason[take] = [f"{why}; {kept}" for why in redo.reason[take]]
-                for field in ("positions", "iterations", "residual", "reachable", "status", "reason"):
-                    getattr(r, field)[blocked[take]] = getattr(redo, field)[take]
 
     def _limb_boxes(self, parts, ease=1.0):
         """The obstacle boxes a chain solve of `parts` [(limb, rows (b,), bases (b,3), targets (b,3))], their rows

@@ -12,6 +12,12 @@ from .errors import SolverInputError
 from .geometry import all_set, any_set
 
 
+# Boxes whose axes are the coordinate axes to within this (each axis's other components) are taken axis-aligned:
+# their corners' bounding box is then larger than the box by at most this fraction of its size, and the tests are
+# the fast ones. A mesh's box through a glTF armature's quarter turn (float32 matrices) is off by about 1e-7.
+_ALIGNED = 1e-6
+
+
 @dataclass(frozen=True)
 class Boxes:
     """K closed boxes: mins, maxs (K,3) shared by every problem of a batch, or (B,K,3) per problem (moving
@@ -63,7 +69,7 @@ class Boxes:
         has +x where i & 4, +y where i in 2,3,6,7, +z where i in 1,2,5,6), e.g. a mesh's bounding box through
         its object transform: oriented boxes with the edges' directions as axes (a sheared box is enclosed
         in the oriented box of its nearest orthonormal axes). Boxes whose axes are the coordinate axes
-        (up to order and sign) everywhere give axis-aligned Boxes, the faster tests."""
+        (up to order and sign, to within _ALIGNED) everywhere give axis-aligned Boxes, the faster tests."""
         corners = np.asarray(corners, dtype=np.float64)
         if corners.ndim not in (3, 4) or corners.shape[-2:] != (8, 3):
             raise SolverInputError(f"box corners must have shape (K,8,3) or (B,K,8,3), got {corners.shape}")
@@ -77,7 +83,7 @@ class Boxes:
         # a valid frame when an edge has zero length (a flat mesh).
         u, _s, vt = np.linalg.svd(edges)
         axes = u @ vt
-        if np.allclose(np.sort(np.abs(axes), axis=-1)[..., :2], 0.0, atol=1e-12):
+        if np.allclose(np.sort(np.abs(axes), axis=-1)[..., :2], 0.0, atol=_ALIGNED):
             return cls.from_corners(corners)
         local = np.einsum("...ji,...cj->...ci", axes, corners)
         return cls(local.min(axis=-2), local.max(axis=-2), axes)

@@ -6,6 +6,7 @@ import importlib
 
 import bpy
 import numpy as np
+import pytest
 
 from .scene_tools import Pose, add_box, add_rig, body_axes, chain_joints, evaluated, place, slot
 
@@ -231,3 +232,27 @@ def test_a_generated_rigs_deform_bones_count_for_the_limb_they_lie_along(extensi
     found = thickness.limb_radii(rig, rig_cache.rig_of(rig))
     assert set(found) == {"arm.L"}
     np.testing.assert_allclose(found["arm.L"], 0.06, rtol=1e-5)  # the forearm's second half, the thickest
+
+
+@pytest.mark.parametrize("margin", [0.0, 0.05])
+def test_a_box_inside_the_forearm_where_it_was_ends_outside_the_mesh(extension_module_name, margin):
+    """A box smaller than the forearm is thick, where its middle was in the pose solved without it (all of it
+    inside the mesh, no vertex in it): the paper's solve pushes the bones' centre line just out of it, through the
+    forearm's surface; with the mesh's thickness the elbow swings round so the surface comes out of it too."""
+    obj, body, owner, rest = arm_scene()
+    free = adjusted(obj, rest, 0.0, True, body)
+    wrist_free, elbow_free = (free.to_world(free.head(b)) for b in ("hand.L", "forearm.L"))
+    box = add_box(obj, 0.5 * (wrist_free + elbow_free), 0.04)
+    bpy.context.view_layer.update()
+    assert (box_distances(box, arm_vertices(body, owner)) > 0.0).all(), "the set-up: the box inside the forearm"
+    paper = adjusted(obj, rest, 0.0, False, body)
+    assert (box_distances(box, paper.to_world(chain_joints(obj, paper, "arm.L"))) > 0.0).all()
+    paper_in = int((box_distances(box, arm_vertices(body, owner)) == 0.0).sum())
+    assert paper_in > 0, "the set-up: the paper's centre line out of the box, the forearm's surface through it"
+    after = adjusted(obj, rest, margin, True, body)
+    distances = box_distances(box, arm_vertices(body, owner))
+    print(f"paper (no mesh): {paper_in} vertices inside; margin {margin}: {int((distances == 0.0).sum())}, "
+          f"nearest {distances.min():.4f} m")
+    assert (distances > 0.0).all()
+    goal = np.array(evaluated(slot(obj, "hand.L").target).matrix_world.translation)
+    assert np.linalg.norm(after.to_world(after.head("hand.L")) - goal) < 1e-4

@@ -41,7 +41,7 @@ KNOWN = {
         "Cannot map rig 'Skeleton': no left hand found (looked for hand.L/hand_l/lHand/LeftHand, or a bone at the end of the left arm; the left arm ends at 'r-forearm' with no hand below it)",
     ('obstacle', 'quaternius_matt'):
         "Cannot map rig 'CharacterArmature': no right foot found (looked for foot.R/foot_r/rFoot/RightFoot, or a bone at the end of the right leg, at the ankle; the right leg ends at 'LowerLeg.R' with no foot ",
-    ('obstacle', 'kaykit_manny'): '0 joints and 104 mesh vertices inside the box',
+    ('obstacle', 'kaykit_manny'): '0 joints and 1 mesh vertices inside the box',
     ('obstacle', 'godot_plush'): '0 joints and 6 mesh vertices inside the box',
     ('obstacle', 'godot_robot'):
         "Cannot map rig 'Skeleton': no left hand found (looked for hand.L/hand_l/lHand/LeftHand, or a bone at the end of the left arm; the left arm ends at 'r-forearm' with no hand below it)",

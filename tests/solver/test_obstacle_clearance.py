@@ -138,7 +138,12 @@ def test_a_clearance_that_keeps_the_hand_from_its_target_is_eased():
                          settings=AdjustSettings(clearance={"arm.L": 4.0 * gap}), bone_x_axes=x_axes)
     assert result.status[0] == "reached", result.reasons[0]
     assert "clearance" in result.reasons[0]
-    assert _arm_clearance(model, result, boxes) > 0.0
+    # Eased, the elbow swings round to the side clear of the box (obstacle_swivel) rather than stopping with the
+    # centre line just out of it as the paper does (measured before the swivel: 1.9 mm, the paper's 3 mm).
+    paper = adjust_pose(model, heads, tails, targets, metarig.EFFECTORS, metarig.PRIORITIES, obstacles=boxes,
+                        bone_x_axes=x_axes)
+    kept = _arm_clearance(model, result, boxes)
+    assert kept >= 0.5 * gap and kept > 10.0 * _arm_clearance(model, paper, boxes), (kept, gap)
 
 
 def test_per_frame_boxes_each_frame_keeps_its_clearance_as_solved_alone():
