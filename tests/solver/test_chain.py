@@ -6,9 +6,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fullbody_adjust.solver import (Boxes, ChainSettings, JointLimits, SolverInputError, carry_axis,
-                                    hinge_axis_from_bend, penetrations, points_inside, solve_chain,
-                                    solve_chain_batch)
+from fullbody_adjust.solver import Boxes, ChainSettings, SolverInputError, penetrations
+from fullbody_adjust.solver.chain import solve_chain, solve_chain_batch
+from fullbody_adjust.solver.limits import JointLimits, carry_axis, hinge_axis_from_bend
+from fullbody_adjust.solver.obstacles import points_inside
 from fullbody_adjust.solver.geometry import any_perpendicular
 from fullbody_adjust.solver.limits import CONE, HINGE
 
