@@ -27,7 +27,8 @@ _FEW_BOXES = 16
 
 
 def _nudge_directions(v, first, k):
-    """numpy twin of chain_plain._nudge_direction for rows v (b,3), first (b,3)."""
+    """Directions for the nudge k (0 or 1) of rows v (b,3): perpendicular to v (to `first` where v is zero),
+    the second perpendicular to the first; a stalled chain aimed straight at its target is bent along them."""
     zero = ~(norm(v) > 0.0)
     v = np.where(zero[:, None], first, v)
     v = v / norm(v)[:, None]
