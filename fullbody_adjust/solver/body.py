@@ -64,42 +64,6 @@ class Limb:
         return np.concatenate([heads[..., list(self.bones), :], end[..., None, :]], axis=-2)
 
 
-@dataclass(frozen=True)
-class Skeleton:
-    """A posed bone skeleton in world space: names, parents (J,) int (-1 for a root), heads and tails (J,3)
-    for one pose or (F,J,3) for F frames."""
-
-    names: tuple[str, ...]
-    parents: np.ndarray
-    heads: np.ndarray
-    tails: np.ndarray
-
-    def __post_init__(self):
-        names, parents = _check_hierarchy(self.names, self.parents)
-        heads = np.array(self.heads, dtype=np.float64)
-        tails = np.array(self.tails, dtype=np.float64)
-        j = len(names)
-        for label, arr in (("heads", heads), ("tails", tails)):
-            if arr.shape not in ((j, 3),) and not (arr.ndim == 3 and arr.shape[1:] == (j, 3)):
-                raise SolverInputError(f"{label} must have shape ({j},3) or (F,{j},3), got {arr.shape}")
-            if not all_set(np.isfinite(arr)):
-                raise SolverInputError(f"{label} have NaN/inf")
-        if heads.shape != tails.shape:
-            raise SolverInputError(f"heads {heads.shape} and tails {tails.shape} differ in shape")
-        object.__setattr__(self, "names", names)
-        object.__setattr__(self, "parents", parents)
-        object.__setattr__(self, "heads", heads)
-        object.__setattr__(self, "tails", tails)
-
-    @property
-    def frame_heads(self) -> np.ndarray:
-        return self.heads if self.heads.ndim == 3 else self.heads[None]
-
-    @property
-    def frame_tails(self) -> np.ndarray:
-        return self.tails if self.tails.ndim == 3 else self.tails[None]
-
-
 def _check_hierarchy(names, parents):
     names = tuple(names)
     if not names:
@@ -254,20 +218,10 @@ class BodyModel:
             arr.setflags(write=False)
         return cls(names, parents, groups, limbs, order, roles, tuple(role_limb), role_index, root)
 
-    @classmethod
-    def from_skeleton(cls, skeleton: Skeleton, groups_by_name) -> "BodyModel":
-        return cls.from_description(skeleton.names, skeleton.parents, groups_by_name)
-
     @property
     def effectors(self) -> tuple[str, ...]:
         """Effector names this model can serve (head only with a head chain)."""
         return tuple(e for e in EFFECTORS if LIMB_OF_EFFECTOR[e] in self.limbs)
-
-    def bone_index(self, name: str) -> int:
-        try:
-            return self.names.index(name)
-        except ValueError:
-            raise SolverInputError(f"no bone named {name!r}") from None
 
     def sc(self, heads: np.ndarray, tails: np.ndarray) -> np.ndarray:
         """The sterno-clavicular joint (end of the trunk chain): tail of the last trunk bone, (..., 3)."""
