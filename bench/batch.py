@@ -1,4 +1,4 @@
-"""A 1,000-frame retarget end to end against Blender's own way to the same result (issue 6, part 8).
+"""A 1,000-frame retarget end to end against Blender's own way to the same result.
 
 Scene: the CMU clip 02_06 (bend and pick up, planted feet) imported with Blender's BVH importer; the target is
 the Rigify basic human metarig (another skeleton: 29 bones, A-pose, other proportions) scaled 1.2.

@@ -1,4 +1,4 @@
-"""How retargeting keeps what the performer touched, on every clip in tests/data/mocap (issue 14's protocol).
+"""How retargeting keeps what the performer touched, on every clip in tests/data/mocap.
 
 Each clip is imported with Blender's BVH importer into a 30 fps scene (keys scaled to it, as a user's scene
 gets them) and retargeted onto the Rigify basic human metarig scaled 1.2 and 0.85. The climb (01_06) gets a

@@ -4,8 +4,8 @@ Cases (tests/helpers/metarig.py): 'near' (both hands within their arms' reach), 
 beyond any reach), 'obstacle' (a box where the left forearm would go). For each case, in the same run:
   - single_pose_us: median µs of solver.adjust.adjust_pose (one pose, what Adjust Pose and Live call) from a
     start pose prepared before (solver/prepared.py: what every Live update after the first one costs);
-  - single_pose_cold_us: the same with the prepared start poses forgotten before each call (an Adjust Pose
-    click from a pose not solved from before), and ratio_prepared_to_cold = single_pose_us / that;
+  - single_pose_cold_us: the same by a copy of the model made before each call, which has kept nothing (the
+    first Adjust Pose click on a rig), and ratio_prepared_to_cold = single_pose_us / that;
   - single_pose_new_start_us: from a start pose seen for the first time whose limbs but the right arm are as in
     the start before (a click after a click that moved the right hand: only that limb is prepared again);
   - batch_one_frame_us: median µs of solver.adjust.adjust_frames with F = 1 (the batch path);
@@ -23,6 +23,7 @@ Run: .ci/with-bpy python bench/solver_speed.py [--repeats 30] [--frames 32]   (p
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +31,6 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.command_line import whole_number_options  # noqa: E402
-from fullbody_adjust.solver import prepared  # noqa: E402
 from fullbody_adjust.solver.adjust import adjust_frames, adjust_pose  # noqa: E402
 from tests.helpers import metarig  # noqa: E402
 
@@ -68,13 +68,12 @@ def main():
         targets, boxes = metarig.case(model, heads, tails, kind)
         kwargs = dict(obstacles=boxes)
 
-        def single(t=targets):
-            return adjust_pose(model, heads, tails, t, metarig.EFFECTORS, metarig.PRIORITIES,
+        def single(t=targets, solving=model):
+            return adjust_pose(solving, heads, tails, t, metarig.EFFECTORS, metarig.PRIORITIES,
                                bone_x_axes=x_axes, **kwargs)
 
         def cold():
-            prepared.clear()
-            return single()
+            return single(solving=replace(model))
 
         wrist, starts = model.limbs["arm.R"].end_bone, [0]
 

@@ -12,19 +12,20 @@ def run(argv):
     import bpy  # noqa: F401  (the bpy module must be importable: this is for the bpy wheel)
 
     from . import cli, register
-    from .cli_clips import WORKER_FLAG
+    from .cli.clips import WORKER_FLAG
 
     register()
-    if argv[:1] == [WORKER_FLAG]:  # a worker of a clip batch, started by cli_clips
-        from . import clip_worker
+    if argv[:1] == [WORKER_FLAG]:  # a worker of a clip batch, started by cli.clips
+        from .cli import worker as clip_worker
         clip_worker.serve()
         return 0
     return cli.main(argv, prog="python -m fullbody_adjust")
 
 
 def worker():
-    """A worker of a clip batch under `blender -b --python-expr` (cli_clips.worker_command)."""
-    from . import clip_worker, register
+    """A worker of a clip batch under `blender -b --python-expr` (cli.clips.worker_command)."""
+    from . import register
+    from .cli import worker as clip_worker
 
     register()
     clip_worker.serve()

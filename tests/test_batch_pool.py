@@ -1,4 +1,4 @@
-"""The worker pool of a clip batch (fullbody_adjust.batch_pool) and the batch's report, without Blender: the
+"""The worker pool of a clip batch (fullbody_adjust.cli.pool) and the batch's report, without Blender: the
 workers here are small Python scripts speaking the same protocol."""
 
 import csv
@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from fullbody_adjust.batch_pool import WorkerPool
+from fullbody_adjust.cli.pool import WorkerPool
 from fullbody_adjust.reporting import batch_report
 
 # A worker: answers each task with a row naming its process, after some chatter and a progress message; the task

@@ -51,7 +51,6 @@ class LiveState:
     written: tuple = ()  # bones whose channels the last solve changed
     error: str = ""  # why the last solve failed, one line ("" when it went well)
     warning: str = ""  # what the last solve left out (a deleted target), one line
-    solves: int = 0  # live solves so far (for tests and the bench)
     pending: bool = False  # a setting changed: solve on the next update
     obstacle_corners: object = None  # obstacles.obstacle_boxes of the current frame, kept (None: read them again)
     pointer: int = 0  # the armature's as_pointer(): its state follows it through a rename
@@ -283,7 +282,6 @@ def _solve(obj, state, context):
             state.rig, state.stale, state.obstacle_corners = rig, False, None
         if state.obstacle_corners is None:
             state.obstacle_corners = obstacles.obstacle_boxes(obj, context)
-        state.solves += 1
         state.pending = False
         outcome = adjustment.adjust_pose(context, obj, LIVE_OPTIONS, start=state.start, rig=rig,
                                          obstacle_corners=state.obstacle_corners)

@@ -527,10 +527,6 @@ def _array(value, shape, name):
     return value
 
 
-def _apply(matrix, vectors):
-    return np.einsum("...ij,...j->...i", matrix, vectors)
-
-
 def _norm(v, what):
     n = norm(v)
     if (n < 1e-12).any():

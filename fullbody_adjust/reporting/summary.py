@@ -1,4 +1,4 @@
-"""The JSON report of a run, measured as DESIGN.md §4 says: reach error per effector (median, p99, max over all
+"""The JSON report of a run: reach error per effector (median, p99, max over all
 frames, reachable and unreachable targets apart), penetrations after the solve, and which frames missed which
 target and why.
 

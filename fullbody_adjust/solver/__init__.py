@@ -1,20 +1,18 @@
-"""The solver core: FABRIK chains and trees with the paper's priorities, obstacle response and joint limits.
+"""The solver core: the paper's full-body adjustment (Algorithm 1 over many frames at once), FABRIK chains with
+the paper's obstacle response and joint limits, and motion retargeting's pure part (`solver.retarget`).
 
-Pure Python + numpy (no bpy, no mathutils), so it runs and is tested outside Blender.
+Pure Python + numpy (no bpy, no mathutils), so it runs and is tested outside Blender. What the product calls is
+exported here; the parts (chains, limits, geometry) are imported from their modules.
 """
 
-from .chain import STATUSES, ChainBatchResult, ChainResult, ChainSettings, solve_chain, solve_chain_batch
+from .adjust import adjust_frames, adjust_pose
+from .adjust_types import UNCONSTRAINED, AdjustBatchResult, AdjustResult, AdjustSettings
+from .body import BodyModel, default_limits
+from .chain_types import ChainSettings
 from .errors import SolverInputError
-from .geometry import normalize, rotate_about_axis, swing_rotation
-from .limits import CONE, FREE, HINGE, JointLimits, carry_axis, hinge_axis_from_bend
-from .obstacles import Boxes, as_boxes, penetrations, points_inside, segments_cross
-from .tree import STRATEGIES, Effector, TreeResult, solve_tree
+from .obstacles import Boxes, penetrations
 
 __all__ = [
-    "STATUSES", "ChainBatchResult", "ChainResult", "ChainSettings", "solve_chain", "solve_chain_batch",
-    "SolverInputError",
-    "normalize", "rotate_about_axis", "swing_rotation",
-    "CONE", "FREE", "HINGE", "JointLimits", "carry_axis", "hinge_axis_from_bend",
-    "Boxes", "as_boxes", "penetrations", "points_inside", "segments_cross",
-    "STRATEGIES", "Effector", "TreeResult", "solve_tree",
+    "adjust_frames", "adjust_pose", "UNCONSTRAINED", "AdjustBatchResult", "AdjustResult", "AdjustSettings",
+    "BodyModel", "default_limits", "ChainSettings", "SolverInputError", "Boxes", "penetrations",
 ]

@@ -14,7 +14,7 @@
 Obstacles and joint limits apply to every chain solve (solve_chain_batch). Bones outside the solved chains keep
 their local transforms (rigid children), so head and neck ride on the chest, fingers on the hands. A limb whose
 target its start pose already meets, on a parent that did not move, is left exactly as it was.
-Bone rotations (DESIGN §2.6): each chain bone turns by the minimal swing from its old direction to its new one,
+Bone rotations: each chain bone turns by the minimal swing from its old direction to its new one,
 except that an upper arm / thigh also turns about its length by the twist the solver gave its elbow's / knee's
 bend plane, and the forearm / shin then turns relative to it about the hinge axis only (_segment_rotations).
 

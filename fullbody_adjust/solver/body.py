@@ -20,7 +20,7 @@ Every other bone keeps its local transform and follows its parent.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -28,6 +28,7 @@ from . import hinge_axis_plain
 from .errors import SolverInputError
 from .geometry import all_set, any_perpendicular, apply_matrix, cross, dot, norm, normalize
 from .limits import CONE, HINGE, JointLimits
+from .memory import SolveMemory
 from .start_range import widened_ranges
 from .vocabulary import EFFECTORS, GROUPS, REQUIRED_GROUPS, SINGLE_BONE_GROUPS
 
@@ -62,42 +63,6 @@ class Limb:
         """Chain joint positions (..., n, 3) from bone heads/tails (..., J, 3)."""
         end = tails[..., self.bones[-1], :] if self.end_bone is None else heads[..., self.end_bone, :]
         return np.concatenate([heads[..., list(self.bones), :], end[..., None, :]], axis=-2)
-
-
-@dataclass(frozen=True)
-class Skeleton:
-    """A posed bone skeleton in world space: names, parents (J,) int (-1 for a root), heads and tails (J,3)
-    for one pose or (F,J,3) for F frames."""
-
-    names: tuple[str, ...]
-    parents: np.ndarray
-    heads: np.ndarray
-    tails: np.ndarray
-
-    def __post_init__(self):
-        names, parents = _check_hierarchy(self.names, self.parents)
-        heads = np.array(self.heads, dtype=np.float64)
-        tails = np.array(self.tails, dtype=np.float64)
-        j = len(names)
-        for label, arr in (("heads", heads), ("tails", tails)):
-            if arr.shape not in ((j, 3),) and not (arr.ndim == 3 and arr.shape[1:] == (j, 3)):
-                raise SolverInputError(f"{label} must have shape ({j},3) or (F,{j},3), got {arr.shape}")
-            if not all_set(np.isfinite(arr)):
-                raise SolverInputError(f"{label} have NaN/inf")
-        if heads.shape != tails.shape:
-            raise SolverInputError(f"heads {heads.shape} and tails {tails.shape} differ in shape")
-        object.__setattr__(self, "names", names)
-        object.__setattr__(self, "parents", parents)
-        object.__setattr__(self, "heads", heads)
-        object.__setattr__(self, "tails", tails)
-
-    @property
-    def frame_heads(self) -> np.ndarray:
-        return self.heads if self.heads.ndim == 3 else self.heads[None]
-
-    @property
-    def frame_tails(self) -> np.ndarray:
-        return self.tails if self.tails.ndim == 3 else self.tails[None]
 
 
 def _check_hierarchy(names, parents):
@@ -149,6 +114,8 @@ class BodyModel:
     role_limb: tuple  # (J,) limb name for CHAIN/END bones, else None
     role_index: np.ndarray  # (J,) index within the limb's bones for CHAIN bones, else -1
     root: int = 0
+    # What its solves keep for the next ones (a copy made with dataclasses.replace starts with nothing kept).
+    memory: SolveMemory = field(default_factory=SolveMemory, init=False, repr=False, compare=False)
 
     @classmethod
     def from_description(cls, names, parents, groups_by_name) -> "BodyModel":
@@ -254,20 +221,10 @@ class BodyModel:
             arr.setflags(write=False)
         return cls(names, parents, groups, limbs, order, roles, tuple(role_limb), role_index, root)
 
-    @classmethod
-    def from_skeleton(cls, skeleton: Skeleton, groups_by_name) -> "BodyModel":
-        return cls.from_description(skeleton.names, skeleton.parents, groups_by_name)
-
     @property
     def effectors(self) -> tuple[str, ...]:
         """Effector names this model can serve (head only with a head chain)."""
         return tuple(e for e in EFFECTORS if LIMB_OF_EFFECTOR[e] in self.limbs)
-
-    def bone_index(self, name: str) -> int:
-        try:
-            return self.names.index(name)
-        except ValueError:
-            raise SolverInputError(f"no bone named {name!r}") from None
 
     def sc(self, heads: np.ndarray, tails: np.ndarray) -> np.ndarray:
         """The sterno-clavicular joint (end of the trunk chain): tail of the last trunk bone, (..., 3)."""
@@ -378,6 +335,7 @@ class LimitStart:
         heads = np.asarray(heads, dtype=np.float64)
         tails = np.asarray(tails, dtype=np.float64)
         self.heads, self.tails = heads, tails
+        self.checked_ranges = model.memory.checked_ranges
         self.x_axes = None
         if bone_x_axes is not None:
             x_axes = np.asarray(bone_x_axes, dtype=np.float64)
@@ -459,30 +417,32 @@ class LimitStart:
                 set_cone(i, human.neck)
         parent_dir = None if parent_dir is None else normalize(parent_dir)
         # A start pose outside these ranges is the rig's own range there (start_range): widened to hold it.
-        limits = _checked_ranges(kind, cone, lo, hi, twist)  # the HumanLimits as given must be valid
+        # the HumanLimits as given must be valid
+        limits = _checked_ranges(self.checked_ranges, kind, cone, lo, hi, twist)
         wide = widened_ranges(kind, cone, lo, hi, axes, parent_dir, segs)
         if any(w is not given for w, given in zip(wide, (cone, lo, hi))):
-            limits = _checked_ranges(kind, *wide, twist)
+            limits = _checked_ranges(self.checked_ranges, kind, *wide, twist)
         limits = limits.derived(hinge_axis=axes)
         return LimbLimits(limits, parent_dir)
 
 
 # JointLimits' checks of a limb's kinds and ranges (cone angles, hinge ranges and twists: the HumanLimits it was
-# given), done once per such set: Adjust Pose builds every moved limb's limits again on every click, and the checks
-# cost as much as the rest of limb_limits. The hinge axes need none: _hinge_axis returns unit vectors.
-_CHECKED_RANGES = {}
+# given), done once per such set and model (SolveMemory.checked_ranges): Adjust Pose builds every moved limb's
+# limits again on every click, and the checks cost as much as the rest of limb_limits. The hinge axes need none:
+# _hinge_axis returns unit vectors.
 _CHECKED_CAPACITY = 64
 
 
-def _checked_ranges(kind, cone, lo, hi, twist):
-    """A validated JointLimits with these per-joint arrays (hinge axes: placeholders for derived())."""
+def _checked_ranges(checked_ranges, kind, cone, lo, hi, twist):
+    """A validated JointLimits with these per-joint arrays (hinge axes: placeholders for derived()), kept in
+    the dict ``checked_ranges``."""
     key = tuple(a.tobytes() for a in (kind, cone, lo, hi, twist))
-    checked = _CHECKED_RANGES.get(key)
+    checked = checked_ranges.get(key)
     if checked is None:
         checked = JointLimits(kind, cone, np.tile([0.0, 0.0, 1.0], (kind.shape[0], 1)), lo, hi, twist)
-        if len(_CHECKED_RANGES) >= _CHECKED_CAPACITY:
-            _CHECKED_RANGES.clear()
-        _CHECKED_RANGES[key] = checked
+        if len(checked_ranges) >= _CHECKED_CAPACITY:
+            checked_ranges.clear()
+        checked_ranges[key] = checked
     return checked
 
 

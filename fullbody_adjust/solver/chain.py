@@ -1,12 +1,8 @@
 """FABRIK on one chain (Aristidou & Lasenby 2011) with the paper's obstacle response (§4.1) and joint limits.
 
-Two implementations of the same iteration:
-- a lean plain-float path (Python floats, math.sqrt) for the common single problem without limits or
-  obstacles: numpy's per-call overhead dominates on a 4-joint arm, so plain floats are several times faster;
-- a batch-first numpy path (B, n, 3) for limits, obstacles and many problems at once (e.g. every frame of a
-  clip). Each problem stops iterating when it converges (its row leaves the active set), so a problem's
-  result does not depend on what else is in the batch.
-Both do the same floating-point operations in the same order, so they agree to rounding.
+Batch-first: B problems of n joints at once (B, n, 3), e.g. every frame of a clip; one problem is a batch of
+one. Each problem stops iterating when it converges (its row leaves the active set), so a problem's result does
+not depend on what else is in the batch.
 
 One iteration = a forward pass (effector pinned to the target, joints placed toward the base) then a
 backward pass (base pinned, joints placed toward the effector). A solve always ends on a backward pass, which
@@ -27,14 +23,13 @@ Statuses: 'reached'; 'unreachable' (beyond the reach, or closer to the base than
 'blocked' (penetrations left, target or base inside a box, or an obstacle held the chain); 'limited' (joint
 limits held it); 'max_iterations' (iteration cap, or an unconstrained stall).
 
-Modules: chain_types.py (settings, results, statuses), chain_plain.py (the plain-float path), chain_model.py
-(the batch path), chain_obstacles.py (obstacle response), chain_finish.py (two-segment finish).
+Modules: chain_types.py (settings, results, statuses), chain_model.py
+(the iteration), chain_obstacles.py (obstacle response), chain_finish.py (two-segment finish).
 """
 
 import numpy as np
 
 from .chain_model import ChainModel
-from .chain_plain import _solve_plain
 from .chain_types import STATUSES, ChainBatchResult, ChainResult, ChainSettings
 from .errors import SolverInputError
 from .geometry import all_set
@@ -56,9 +51,6 @@ def solve_chain(positions, target, *, settings=ChainSettings(), limits=None, obs
     obstacles = as_boxes(obstacles)
     if limits is not None and not isinstance(limits, JointLimits):
         raise SolverInputError("limits must be a JointLimits")
-    limited = limits is not None and limits.any_active
-    if not limited and (obstacles is None or len(obstacles) == 0):
-        return _solve_plain(positions, target, settings)
     p = _as_chains(positions, batched=False)
     t = _as_vector(target, "target")
     pd = None if parent_direction is None else _as_vector(parent_direction, "parent_direction")[None]

@@ -27,7 +27,8 @@ _FEW_BOXES = 16
 
 
 def _nudge_directions(v, first, k):
-    """numpy twin of chain_plain._nudge_direction for rows v (b,3), first (b,3)."""
+    """Directions for the nudge k (0 or 1) of rows v (b,3): perpendicular to v (to `first` where v is zero),
+    the second perpendicular to the first; a stalled chain aimed straight at its target is bent along them."""
     zero = ~(norm(v) > 0.0)
     v = np.where(zero[:, None], first, v)
     v = v / norm(v)[:, None]
@@ -51,10 +52,7 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
     boxes each problem ignores (those containing its target for the end joint and last segment, those
     containing its base for segment 0 — unavoidable, reported in the reason)."""
 
-    def __init__(self, start, targets, settings, limits, obstacles, parent_directions, *,
-                 end_is_target=True, base_is_fixed=True):
-        """end_is_target / base_is_fixed False (a tree's inner chains, whose ends are sub-bases): no box is
-        ignored for the end joint / the base."""
+    def __init__(self, start, targets, settings, limits, obstacles, parent_directions):
         self.B, self.n = start.shape[0], start.shape[1]
         self.settings = settings
         self.targets = targets
@@ -109,10 +107,6 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
                     f"per-problem boxes have batch size {self.boxes.mins.shape[0]}, expected {self.B}")
             self.ignore_end = points_inside(targets, self.boxes)  # (B,K)
             self.ignore_base = points_inside(self.base, self.boxes)
-            if not end_is_target:
-                self.ignore_end[:] = False
-            if not base_is_fixed:
-                self.ignore_base[:] = False
             self.corners = self.boxes.corners()
 
     # -- limits -----------------------------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""Settings, results, statuses and iteration constants shared by the chain solvers (chain_plain.py, chain_model.py)."""
+"""Settings, results, statuses and iteration constants shared by the chain solver (chain.py, chain_model.py and its parts)."""
 
 import math
 from dataclasses import dataclass

@@ -1,4 +1,4 @@
-"""Bone rotations of solved limbs (DESIGN §2.6): each segment's world rotation delta from its start direction to
+"""Bone rotations of solved limbs: each segment's world rotation delta from its start direction to
 its solved one, a hinge's twist carried on its parent bone, and the chest's rotation."""
 
 from __future__ import annotations
@@ -72,8 +72,8 @@ def _frame_axes(axes, frames):
 
 
 def _segment_rotations(start, joints, kind, axes):
-    """World rotation deltas (b,n-1,3,3) of chain segments from `start` (b,n,3) to `joints` (b,n,3), DESIGN
-    §2.6: each segment turns by the minimal swing from its old direction to its new one (its twist kept),
+    """World rotation deltas (b,n-1,3,3) of chain segments from `start` (b,n,3) to `joints` (b,n,3):
+    each segment turns by the minimal swing from its old direction to its new one (its twist kept),
     except around a hinge (`kind` the per-joint limit kinds or None, `axes` (b,n-1,3) the start-pose hinge
     axes) with joint i > 0:
       - the parent segment i-1 also turns about its new direction by the hinge's twist (the angle by which the

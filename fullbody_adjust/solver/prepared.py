@@ -10,17 +10,16 @@ is a different key.
   - the model's hierarchy levels (the order the top-down pass visits the bones in) and its groups' bones (which
     groups a result moved), once per model.
 
-The cache holds the last few start poses of up to _MAX_CACHED_FRAMES frames (a bounded, least recently used
-dict); a longer frame range is prepared for its one solve only.
+The model holds what is kept (BodyModel.memory, memory.SolveMemory), so it lives as long as the caller keeps the
+model: the last few start poses of up to _MAX_CACHED_FRAMES frames (a bounded, least recently used dict); a
+longer frame range is prepared for its one solve only.
 
 A start pose that is new may still share limbs with a recent one: Adjust Pose solves from the pose the click
 before it keyed, in which only the limbs that moved differ. A limb's default limits and its start check are
-therefore also kept per limb (_limb_records), keyed on everything they are computed from (body.LimitStart.inputs
+therefore also kept per limb (SolveMemory.limb_records), keyed on everything they are computed from (body.LimitStart.inputs
 and the settings), so a limb whose inputs are the same bit for bit gets the very same limits without
 computing them.
 """
-
-from collections import OrderedDict
 
 import numpy as np
 
@@ -33,9 +32,7 @@ from .vocabulary import GROUPS
 
 _CAPACITY = 4
 _MAX_CACHED_FRAMES = 16
-_cache = OrderedDict()
 _LIMB_CAPACITY = 32  # limb records: several start poses of a body's six limbs
-_limb_records = OrderedDict()
 
 
 class PreparedStart:
@@ -90,14 +87,14 @@ class PreparedStart:
         return self._records_by_limb
 
     def _new_records(self):
-        """The limbs' records, taken from _limb_records where a limb's inputs are the same."""
+        """The limbs' records, taken from the model's limb records where a limb's inputs are the same."""
         start = LimitStart(self.model, self._heads, self._tails, self._x_axes)
         human = self._settings.human_limits
         remember = self._heads.shape[0] <= _MAX_CACHED_FRAMES  # as prepare(): a long range is solved once
         out = {}
         for limb in self.model.limbs.values():
             make = (lambda limb=limb: _LimbRecord(start.limb_limits(limb, human)))
-            out[limb.name] = _kept(_limb_records, _LIMB_CAPACITY, (start.inputs(limb), human), make) \
+            out[limb.name] = _kept(self.model.memory.limb_records, _LIMB_CAPACITY, (start.inputs(limb), human), make) \
                 if remember else make()
         return out
 
@@ -110,23 +107,21 @@ class _LimbRecord:
 
 
 def prepare(model, heads, tails, settings, bone_x_axes=None) -> PreparedStart:
-    """The PreparedStart of these start poses, from the cache when the same poses were prepared lately.
+    """The PreparedStart of these start poses, from the model's memory when the same poses were prepared lately.
     heads, tails (F,J,3) float64; bone_x_axes None, (J,3) or (F,J,3)."""
     x = None if bone_x_axes is None else np.asarray(bone_x_axes, dtype=np.float64)
     if heads.shape[0] > _MAX_CACHED_FRAMES:
         return PreparedStart(model, heads, tails, settings, x)  # a long range is solved once: not remembered
-    key = (id(model), heads.shape, heads.tobytes(), tails.tobytes(),
+    key = (heads.shape, heads.tobytes(), tails.tobytes(),
            None if x is None else (x.shape, x.tobytes()), settings.use_limits, settings.human_limits)
-    return _kept(_cache, _CAPACITY, key, lambda: PreparedStart(model, heads, tails, settings, x),
-                 valid=lambda entry: entry.model is model)
+    return _kept(model.memory.starts, _CAPACITY, key, lambda: PreparedStart(model, heads, tails, settings, x))
 
 
-def _kept(cache, capacity, key, make, valid=None):
-    """``cache[key]`` (an OrderedDict) when it is there and ``valid`` (a keyed id() may belong to a new object),
-    now the most recently used; else ``make()``, kept under ``key``, the least recently used entries beyond
-    ``capacity`` forgotten."""
+def _kept(cache, capacity, key, make):
+    """``cache[key]`` (an OrderedDict) when it is there, now the most recently used; else ``make()``, kept under
+    ``key``, the least recently used entries beyond ``capacity`` forgotten."""
     value = cache.get(key)
-    if value is not None and (valid is None or valid(value)):
+    if value is not None:
         cache.move_to_end(key)
         return value
     value = make()
@@ -136,12 +131,6 @@ def _kept(cache, capacity, key, make, valid=None):
     return value
 
 
-def clear():
-    """Forget every prepared start pose and limb record (timings of a first solve; tests)."""
-    _cache.clear()
-    _limb_records.clear()
-
-
 def _read_only(a):
     a.flags.writeable = False
     return a
@@ -149,22 +138,20 @@ def _read_only(a):
 
 def levels_of(model):
     """The model's (levels, leaves) (_levels), computed once per model."""
-    return _kept(_levels_cache, _CAPACITY, id(model), lambda: (model, _levels(model)),
-                 valid=lambda entry: entry[0] is model)[1]
-
-
-_levels_cache = OrderedDict()
+    memory = model.memory
+    if memory.levels is None:
+        memory.levels = _levels(model)
+    return memory.levels
 
 
 def group_bones(model):
     """(columns, bones, starts) of the model's GROUPS that have bones: their columns in GROUPS, their bones
     concatenated in that order and where each group's run starts, for one np.logical_or.reduceat over a (F,J)
     mask per frame and group; computed once per model."""
-    return _kept(_groups_cache, _CAPACITY, id(model), lambda: (model, _group_bones(model)),
-                 valid=lambda entry: entry[0] is model)[1]
-
-
-_groups_cache = OrderedDict()
+    memory = model.memory
+    if memory.group_bones is None:
+        memory.group_bones = _group_bones(model)
+    return memory.group_bones
 
 
 def _group_bones(model):

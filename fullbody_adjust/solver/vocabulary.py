@@ -2,7 +2,7 @@
 priorities, the sub-base variants, and Blender's rotation modes. Pure data: the solver, the bridge, the settings
 and the command line all import them from here."""
 
-# Body-model groups (DESIGN: five IK groups joined at the chest and the pelvis, plus hands, feet and head).
+# Body-model groups (the paper's five IK groups joined at the chest and the pelvis, plus hands, feet and head).
 GROUPS = ("root", "trunk", "arm.L", "arm.R", "hand.L", "hand.R", "leg.L", "leg.R", "foot.L", "foot.R", "head")
 REQUIRED_GROUPS = GROUPS[:-1]
 CHAIN_GROUPS = ("trunk", "arm.L", "arm.R", "leg.L", "leg.R", "head")

@@ -124,7 +124,7 @@ def effector_bone(obj, effector):
 
 
 def chain_joints(obj, pose, group):
-    """Armature-space joints of a chain group (DESIGN.md): the heads of its bones plus the wrist or ankle (head
+    """Armature-space joints of a chain group (as solver/body.py builds them): the heads of its bones plus the wrist or ankle (head
     of the hand/foot bone) for a limb, the tail of the last bone (the SC) for the trunk."""
     groups = bone_map(obj)
     bones = groups[group]

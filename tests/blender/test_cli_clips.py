@@ -182,8 +182,8 @@ def test_an_fbx_with_several_takes_carries_the_motion_not_the_pose(cli, capsys, 
 def test_the_blender_worker_command_runs_the_worker_loop(tmp_path, clips, character, extension_module_name):
     # Under Blender a worker is `blender -b --factory-startup --python-expr CODE`; no Blender binary here, so CODE
     # runs in this Python (with the bpy module) and serves one clip through the pool.
-    cli_clips = importlib.import_module(f"{extension_module_name}.cli_clips")
-    pool_module = importlib.import_module(f"{extension_module_name}.batch_pool")
+    cli_clips = importlib.import_module(f"{extension_module_name}.cli.clips")
+    pool_module = importlib.import_module(f"{extension_module_name}.cli.pool")
     command = cli_clips.worker_command("/opt/blender/blender")
     assert command[:4] == ["/opt/blender/blender", "-b", "--factory-startup", "--python-expr"]
     job = {"file": str(character), "target": "Hero", "import": {}, "floor": 0.0}
@@ -195,7 +195,7 @@ def test_the_blender_worker_command_runs_the_worker_loop(tmp_path, clips, charac
 
 
 def test_workers_run_openblas_on_one_thread_unless_the_user_chose(monkeypatch, extension_module_name):
-    cli_clips = importlib.import_module(f"{extension_module_name}.cli_clips")
+    cli_clips = importlib.import_module(f"{extension_module_name}.cli.clips")
     monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
     assert cli_clips.worker_env()["OPENBLAS_NUM_THREADS"] == "1"
     monkeypatch.setenv("OPENBLAS_NUM_THREADS", "3")

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from fullbody_adjust.solver.body import BodyModel, HumanLimits, Skeleton, default_limits
+from fullbody_adjust.solver.body import BodyModel, HumanLimits, default_limits
 from fullbody_adjust.solver.errors import SolverInputError
 from fullbody_adjust.solver.geometry import swing_rotation
 from fullbody_adjust.solver.limits import CONE, HINGE, JointLimits, hinge_twist_angle
@@ -160,18 +160,6 @@ def test_legs_must_not_hang_from_the_trunk():
 def test_bad_hierarchies_are_rejected(names, parents, message):
     with pytest.raises(SolverInputError, match=message):
         BodyModel.from_description(names, parents, CMU_GROUPS)
-
-
-def test_skeleton_validates_shapes_and_values(walk):
-    heads, tails = walk.bones([3])
-    sk = Skeleton(walk.names, walk.parents, heads[0], tails[0])
-    assert sk.frame_heads.shape == (1, len(walk.names), 3)
-    with pytest.raises(SolverInputError, match="tails have NaN/inf"):
-        Skeleton(walk.names, walk.parents, heads[0], np.full_like(tails[0], np.nan))
-    with pytest.raises(SolverInputError, match="heads must have shape"):
-        Skeleton(walk.names, walk.parents, heads[0, :-1], tails[0, :-1])
-    with pytest.raises(SolverInputError, match="differ in shape"):
-        Skeleton(walk.names, walk.parents, heads, tails[0])
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -6,7 +6,7 @@ candidate."""
 import numpy as np
 import pytest
 
-from fullbody_adjust.solver import solve_chain_batch
+from fullbody_adjust.solver.chain import solve_chain_batch
 from fullbody_adjust.solver import chain_finish
 
 from .test_obstacle_response import _problems

@@ -4,7 +4,7 @@ whole-body solves give the very same positions, iterations, residuals and status
 import numpy as np
 import pytest
 
-from fullbody_adjust.solver import solve_chain_batch
+from fullbody_adjust.solver.chain import solve_chain_batch
 from fullbody_adjust.solver.adjust import adjust_frames
 from fullbody_adjust.solver.body import default_limits
 from fullbody_adjust.solver.chain_iterate_plain import PlainIterations

@@ -5,7 +5,9 @@ and without joint limits, give the very same results as when every candidate is 
 import numpy as np
 import pytest
 
-from fullbody_adjust.solver import Boxes, JointLimits, solve_chain_batch
+from fullbody_adjust.solver import Boxes
+from fullbody_adjust.solver.chain import solve_chain_batch
+from fullbody_adjust.solver.limits import JointLimits
 from fullbody_adjust.solver import chain_obstacles
 from fullbody_adjust.solver.chain_iterate_plain import PlainIterations
 from fullbody_adjust.solver.geometry import any_perpendicular

@@ -7,7 +7,8 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from fullbody_adjust.solver import Boxes, SolverInputError, penetrations, points_inside, segments_cross
+from fullbody_adjust.solver import Boxes, SolverInputError, penetrations
+from fullbody_adjust.solver.obstacles import points_inside, segments_cross
 from fullbody_adjust.solver.chain import solve_chain
 from tests.helpers.rotations import about_axis
 

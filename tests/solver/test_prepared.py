@@ -1,8 +1,8 @@
 """The prepared start pose (solver/prepared.py): the target-independent work kept per start pose changes no
 result, is never stale, and its default limits hold the start chains.
 
-Expectations come from solves that bypass the cache (an emptied cache, or the same limits given explicitly,
-which makes every limb run its chain solve)."""
+Expectations come from solves that keep nothing from before (a fresh copy of the model, which holds what is kept,
+or the same limits given explicitly, which makes every limb run its chain solve)."""
 
 from dataclasses import replace
 
@@ -25,6 +25,12 @@ FIELDS = ("heads", "tails", "rotations", "residuals", "status", "reasons", "iter
 @pytest.fixture(scope="module")
 def rig():
     return metarig.load()
+
+
+def _fresh(rig):
+    """The rig with a copy of its model: the same body, nothing kept from earlier solves."""
+    model, h, t, x = rig
+    return replace(model), h, t, x
 
 
 def _assert_same(a, b):
@@ -100,16 +106,15 @@ def test_a_start_pose_changed_in_place_is_a_new_start(rig):
     first = _solve(rig, targets, heads=heads)
     heads[model.limbs["arm.L"].bones[-1]] += np.array([0.0, -0.02, 0.0])  # the left elbow moved in place
     moved = _solve(rig, targets, heads=heads)
-    prepared.clear()
-    _assert_same(moved, _solve(rig, targets, heads=heads.copy()))
+    _assert_same(moved, _solve(_fresh(rig), targets, heads=heads.copy()))
     assert not np.array_equal(moved.heads, first.heads)
     heads[:] = h  # back to the first start: the same answer as the first time
     _assert_same(first, _solve(rig, targets, heads=heads))
 
 
 def test_frames_sharing_a_start_pose_equal_their_solves_alone(rig):
-    """A frame range whose start poses are prepared once; each frame equals a solve of that frame alone after
-    the cache was emptied."""
+    """A frame range whose start poses are prepared once; each frame equals a solve of that frame alone by a
+    model that kept nothing."""
     model, h, t, x = rig
     base, boxes = metarig.case(model, h, t, "near")
     rng = np.random.default_rng(5)
@@ -123,8 +128,7 @@ def test_frames_sharing_a_start_pose_equal_their_solves_alone(rig):
     batch = adjust_frames(model, heads, tails, targets, metarig.EFFECTORS, metarig.PRIORITIES,
                           bone_x_axes=np.repeat(x[None], n, 0))
     for f in range(n):
-        prepared.clear()
-        one = adjust_pose(model, heads[f], tails[f], targets[f], metarig.EFFECTORS, metarig.PRIORITIES,
+        one = adjust_pose(replace(model), heads[f], tails[f], targets[f], metarig.EFFECTORS, metarig.PRIORITIES,
                           bone_x_axes=x)
         np.testing.assert_allclose(one.heads, batch.heads[f], atol=1e-9, rtol=0)
         np.testing.assert_allclose(one.rotations, batch.rotations[f], atol=1e-9, rtol=0)
@@ -164,19 +168,16 @@ def test_limbs_kept_from_a_recent_start_give_each_start_its_own_limits(rig, monk
                         lambda self, limb, human: computed.append(limb.name) or limb_limits(self, limb, human))
     adjust = AdjustSettings()
 
-    def prepared_limits(hh, tt, xx):
+    def prepared_limits(solving, hh, tt, xx):
         computed.clear()
-        prep = prepared.prepare(model, hh[None], tt[None], adjust, None if xx is None else xx[None])
+        prep = prepared.prepare(solving, hh[None], tt[None], adjust, None if xx is None else xx[None])
         out = {name: _limit_arrays(ll) for name, ll in prep.limits.items()}
         out["computed"] = set(computed)
         return out
 
-    prepared.clear()
-    kept = [prepared_limits(*start) for start in starts]  # one after the other, as clicks come
-    fresh = []
-    for start in starts:
-        prepared.clear()
-        fresh.append(prepared_limits(*start))
+    clicking = replace(model)  # nothing kept from the other tests
+    kept = [prepared_limits(clicking, *start) for start in starts]  # one after the other, as clicks come
+    fresh = [prepared_limits(replace(model), *start) for start in starts]
     for k, (a, b) in enumerate(zip(kept, fresh)):
         for name in model.limbs:
             for u, v in zip(a[name], b[name]):

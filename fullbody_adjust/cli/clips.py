@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """``retarget --source-file CLIP ...``: many clip files onto one target character, in parallel worker
-processes (``batch_pool``; each runs ``clip_worker``). Everything the batch can check is checked before a worker
+processes (``pool``; each runs ``worker``). Everything the batch can check is checked before a worker
 starts (one line, exit 2, nothing written); afterwards a clip that fails is a row of the report with its reason,
 the others go on, and the exit code is 1.
 
@@ -18,24 +18,25 @@ import time
 
 import bpy
 
-from . import cli
-from .batch_pool import WorkerPool
-from .bridge import batch, clip_import
-from .cli import CommandError
-from .reporting import batch_report
-from .reporting.progress import ConsoleProgress, NoProgress
+from ..bridge import batch, clip_import
+from ..reporting import batch_report
+from ..reporting.progress import ConsoleProgress, NoProgress
+from .files import CommandError, check_writable, checked_outputs, input_path, same_file, write_text
+from .parser import COMMAND, EXIT_OK, EXIT_TARGETS_MISSED
+from .pool import WorkerPool
+from .retarget import retarget_target
 
 WORKER_FLAG = "--clip-worker"
 SAVE_EVERY = 10.0  # seconds: while a batch runs, the merged file is saved as clips end, at most this often
 
 
 def run(args):
-    blend_in = cli.input_path(args)
+    blend_in = input_path(args)
     clips = clip_paths(args.source_file)
     saved, csv_path = _checked_outputs(args, blend_in, clips)
-    if not cli.same_file(blend_in, batch.current_file()):
+    if not same_file(blend_in, batch.current_file()):
         batch.open_blend(blend_in)
-    target, _contacts = cli.retarget_target(args, bpy.context)
+    target, _contacts = retarget_target(args, bpy.context)
     rows, tasks = _tasks(args, clips)
     if args.output_dir:
         os.makedirs(args.output_dir, exist_ok=True)
@@ -51,8 +52,8 @@ def run(args):
                                        file=os.path.abspath(blend_in), target=target.name, jobs=jobs,
                                        blender=bpy.app.version_string)
     if args.report:
-        cli.write_text(args.report, batch_report.to_json(report))
-        cli.write_text(csv_path, batch_report.to_csv(report))
+        write_text(args.report, batch_report.to_json(report))
+        write_text(csv_path, batch_report.to_csv(report))
 
     line = f"retarget onto '{target.name}': {batch_report.one_line(report)}"
     if args.output_dir:
@@ -62,9 +63,9 @@ def run(args):
     print(line)
     failed = [row for row in rows if row["status"] == batch_report.FAILED]
     for row in failed:
-        print(f"{cli.COMMAND} retarget: {os.path.basename(row['clip'])} failed: {row['reason']}", file=sys.stderr)
+        print(f"{COMMAND} retarget: {os.path.basename(row['clip'])} failed: {row['reason']}", file=sys.stderr)
     missed = report["missed_within_reach"] or report["contacts_not_held"]  # as the single retarget's exit code
-    return cli.EXIT_TARGETS_MISSED if failed or missed else cli.EXIT_OK
+    return EXIT_TARGETS_MISSED if failed or missed else EXIT_OK
 
 
 def _checked_outputs(args, input_path, clips):
@@ -78,12 +79,12 @@ def _checked_outputs(args, input_path, clips):
         raise CommandError("--output-dir writes one .blend per clip: leave out --output and --overwrite")
     if args.clip_fps == "clip" and not args.output_dir:
         raise CommandError("--clip-fps clip changes the scene's frame rate per clip: use it with --output-dir")
-    saved = None if args.output_dir else cli.checked_outputs(args, input_path)
+    saved = None if args.output_dir else checked_outputs(args, input_path)
     if args.output_dir:
         _check_output_dir(args.output_dir)
     csv_path = os.path.splitext(args.report)[0] + ".csv" if args.report else None
     if csv_path:
-        cli.check_writable(csv_path, "--report")
+        check_writable(csv_path, "--report")
     return saved, csv_path
 
 
@@ -149,7 +150,7 @@ def _run_tasks(args, tasks, jobs, blend_in, target_name, saved):
         try:
             pool.run(tasks, on_row=merge)
         except KeyboardInterrupt:
-            print(f"{cli.COMMAND} retarget: interrupted; what was done is kept: run again with --skip-existing "
+            print(f"{COMMAND} retarget: interrupted; what was done is kept: run again with --skip-existing "
                   f"to finish", file=sys.stderr)
         progress.finish()
     return [ended.get(index) or {"clip": task["clip"], "name": task["name"], "status": batch_report.FAILED,
@@ -217,8 +218,9 @@ def _floor(floor, contacts):
 # --- the worker processes ---------------------------------------------------------------------------------------
 
 def _package():
-    """(folder holding the package, the package's name): what a fresh process imports it as."""
-    real = os.path.realpath(os.path.dirname(os.path.abspath(__file__)))
+    """(folder holding the package, the package's name): what a fresh process imports it as (this file is in
+    the package's cli/)."""
+    real = os.path.realpath(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     return os.path.dirname(real), os.path.basename(real)
 
 

@@ -18,7 +18,7 @@ import subprocess
 import tempfile
 import threading
 
-from .reporting.batch_report import FAILED
+from ..reporting.batch_report import FAILED
 
 
 class WorkerPool:

@@ -1,6 +1,6 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """The command line's arguments: the parser of ``adjust`` and ``retarget``, their options, help and exit codes.
-Parsing only: running a subcommand is ``cli``'s; a bad argument raises instead of exiting, so Blender keeps
+Parsing only: running a subcommand is ``command``'s; a bad argument raises instead of exiting, so Blender keeps
 control and the run ends with one line."""
 
 import argparse
@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 
-from .solver.vocabulary import VARIANTS
+from ..solver.vocabulary import VARIANTS
 
 COMMAND = "fullbody_adjust"
 
@@ -31,14 +31,14 @@ exit codes:
 
 AXES = ("X", "Y", "Z", "-X", "-Y", "-Z")
 
-_VARIANTS = {variant: variant.upper() for variant in VARIANTS}
+VARIANT_ENUMS = {variant: variant.upper() for variant in VARIANTS}
 
 
-class _UsageError(Exception):
+class UsageError(Exception):
     pass
 
 
-class _ParserExit(Exception):
+class ParserExit(Exception):
     def __init__(self, status):
         super().__init__(status)
         self.status = status
@@ -48,12 +48,12 @@ class _Parser(argparse.ArgumentParser):
     """argparse that raises instead of exiting, so a bad argument is one line and Blender keeps control."""
 
     def error(self, message):
-        raise _UsageError(f"{self.prog}: error: {message} (see --help)")
+        raise UsageError(f"{self.prog}: error: {message} (see --help)")
 
     def exit(self, status=0, message=None):
         if message:
             sys.stderr.write(message)
-        raise _ParserExit(status)
+        raise ParserExit(status)
 
 
 
@@ -87,7 +87,7 @@ def build_parser(prog=f"blender -b FILE.blend -c {COMMAND}"):
     _add_frame_arguments(adjust, "the armature's action (its manual frame range when set), or the scene's when "
                                  "it has no action")
     solver = adjust.add_argument_group("solver settings (default: those stored on the armature)")
-    solver.add_argument("--variant", type=str.lower, choices=tuple(_VARIANTS),
+    solver.add_argument("--variant", type=str.lower, choices=tuple(VARIANT_ENUMS),
                         help="how conflicting targets are settled: priority (the highest-priority reachable "
                              "target is always met), weighted (priority-weighted compromise) or fabrik (plain "
                              "FABRIK centroid, the baseline)")

@@ -1,5 +1,5 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
-"""One worker process of a clip batch (``retarget --source-file``; the pool is ``batch_pool``): for each task,
+"""One worker process of a clip batch (``retarget --source-file``; the pool is ``pool``): for each task,
 open the target's .blend, import the clip, retarget it onto the target, and write the result, then answer with
 the clip's row. A clip that fails is a row with its reason; the worker goes on with the next one.
 
@@ -17,11 +17,11 @@ import traceback
 import bpy
 import numpy as np
 
-from .bridge import batch, clip_import
-from .bridge.errors import AdjustError
-from .bridge.retarget import retarget
-from .reporting import summary
-from .reporting.batch_report import DONE, FAILED
+from ..bridge import batch, clip_import
+from ..bridge.errors import AdjustError
+from ..bridge.retarget import retarget
+from ..reporting import summary
+from ..reporting.batch_report import DONE, FAILED
 
 
 def serve():

@@ -1,0 +1,58 @@
+# SPDX-License-Identifier: GPL-3.0-or-later
+"""``retarget --source ARMATURE``: one armature's motion onto another (``bridge.retarget.retarget``); the
+--target and --contacts checks are shared with a batch of clip files (``clips``)."""
+
+import time
+
+import numpy as np
+
+from ..bridge import batch, start_checks
+from ..bridge.retarget import retarget as retarget_motion
+from ..reporting import preview
+from .files import CommandError, WorkResult, progress_line
+
+
+def retarget_target(args, context):
+    """A retarget's --target armature, checked as retargeting onto it needs (one line otherwise), and its
+    --contacts as the bridge takes them ('ground', or ('object', Object))."""
+    target = batch.armature_named(context, args.target, "--target")
+    start_checks.check_armature(target)
+    batch.check_mappable(target, "--target")
+    contacts = [kind if name is None else (kind, batch.object_named(context, name, "--contacts object"))
+                for kind, name in args.contacts or [("ground", None)]]
+    return target, contacts
+
+
+def retarget(args, context):
+    source = batch.armature_named(context, args.source, "--source")
+    batch.check_mappable(source, "--source")
+    target, contacts = retarget_target(args, context)
+    if source == target:
+        raise CommandError("--source and --target are the same armature")
+    start, end = batch.frame_range(source, context.scene, args.frame_start, args.frame_end, within_scene=True)
+    batch.check_frame_budget(context, target, start, end)
+
+    frames = np.arange(start, end + 1, dtype=np.float64)
+    shown = frames[preview.pick_snapshots(len(frames), args.preview_frames)]
+    progress = progress_line(args, len(frames), f"retarget '{source.name}' -> '{target.name}'")
+    started = time.perf_counter()
+    outcome = retarget_motion(context, source, target, start, end, contacts=contacts, new_action=args.new_action,
+                              floor=args.floor, progress=progress)
+    seconds = time.perf_counter() - started
+    progress.finish()
+
+    figure = None
+    if args.preview:  # the source's motion in grey, the target's in blue, with the targets the retarget set
+        planned = getattr(outcome, "targets", None)  # (F,E,3) world
+        figure = preview.FigureData(
+            title=f"RETARGET '{source.name}' TO '{target.name}'  FRAMES {start}-{end}",
+            frames=outcome.frames, effectors=outcome.effectors, error_after=outcome.contact_error,
+            error_before=outcome.contact_error_before, plot_title="CONTACT ERROR (SCENE UNITS) OVER FRAMES",
+            snapshot_frames=shown, before_segments=batch.skeleton_segments(source, shown),
+            after_segments=batch.skeleton_segments(target, shown),
+            targets=None if planned is None else planned[np.searchsorted(outcome.frames, shown)])
+    action = getattr(outcome, "action", None)
+    details = {"source": source.name, "target": target.name, "armature": target.name,
+               "contacts": outcome.contact_report, "floor": args.floor,
+               "action": action.name if action is not None else batch.action_name(target)}
+    return WorkResult(outcome=outcome, seconds=seconds, figure=figure, details=details)

@@ -1,0 +1,19 @@
+"""What solves of one body model keep for the solves after them, held by the model (BodyModel.memory): the caller
+that holds the model (the bridge keeps one per armature) holds this too, and a new model starts with nothing kept.
+
+Nothing here can be stale: every entry is keyed on all it was computed from (prepared.py, body.py), or depends
+on the model alone.
+"""
+
+from collections import OrderedDict
+
+
+class SolveMemory:
+    """The work a model's solves share (see prepared.py for what each holds and how long)."""
+
+    def __init__(self):
+        self.starts = OrderedDict()  # prepared start poses (prepared.prepare), least recently used first
+        self.limb_records = OrderedDict()  # a limb's default limits, by everything they are computed from
+        self.levels = None  # the model's (levels, leaves): the order the top-down pass places bones in
+        self.group_bones = None  # the model's groups' bones for one reduceat per frame and group
+        self.checked_ranges = {}  # validated JointLimits per set of default ranges (body._checked_ranges)
