@@ -30,7 +30,7 @@ which the solve moves and its controls follow. A rig with only DEF- bones (a gam
 
 import numpy as np
 
-from ..solver.vocabulary import REQUIRED_GROUPS
+from ..solver.vocabulary import GROUPS, REQUIRED_GROUPS
 from . import body_sides
 from .body_sides import Limb
 from .bone_map import GROUP_LABELS, BoneMap, MappingError
@@ -70,7 +70,7 @@ def map_rig(desc):
             if group:
                 raise MappingError(missing_message(desc, group, matched=f"other bones have {label} names"))
             raise MappingError(f"Cannot map rig '{desc.name}': it has {label} names but {problems[0]}")
-    raise MappingError(missing_message(desc, detected.group, detected.detail))
+    raise MappingError(missing_message(desc, detected.group, detected.detail, line=detected.line))
 
 
 def with_body_sides(desc, bone_map):
@@ -79,12 +79,13 @@ def with_body_sides(desc, bone_map):
     sk = desc._skeleton
     idx = {g: [desc.index(b) for b in bones] for g, bones in bone_map.groups.items()}
     legs = [Limb(tuple(idx[f"leg.{s}"]), idx[f"foot.{s}"][0]) for s in "LR"]
-    arms = [Limb(tuple(idx[f"arm.{s}"]), idx[f"hand.{s}"][0]) for s in "LR"]
+    arms = [Limb(tuple(idx[f"arm.{s}"]), idx.get(f"hand.{s}", [None])[0]) for s in "LR"]
     lat = body_sides.lateral(sk, *legs)
     if lat is None:
         return bone_map
     # Only a map whose left arm is on its left leg's side can be mirrored as a whole.
-    if float((sk.heads[arms[0].end] - sk.heads[arms[1].end]) @ lat) <= 0:
+    wrists = [body_sides.end_point(sk, arm) for arm in arms]
+    if float((wrists[0] - wrists[1]) @ lat) <= 0:
         return bone_map
     if body_sides.left_pair(sk, legs, arms).left == 0:
         return bone_map
@@ -125,7 +126,9 @@ def store_map(obj, bone_map, typed=False):
     settings = obj.fullbody_adjust
     items = settings.bone_map
     items.clear()
-    for group, bone in bone_map.items():
+    handless = bone_map.handless()  # shown as a hand row with no bone: the wrist is the arm's end
+    rows = [(g, b) for g in GROUPS for b in (bone_map.bones(g) or (("",) if g in handless else ()))]
+    for group, bone in rows + [(g, b) for g, b in bone_map.items() if g not in GROUPS]:
         item = items.add()
         item.group = group
         item.bone = bone
@@ -140,7 +143,8 @@ def _as_text(items):
 
 
 def load_map(obj):
-    """The map stored on ``obj`` (items with an empty bone name are skipped), or None when nothing is stored."""
+    """The map stored on ``obj`` (items with an empty bone name are skipped: a hand without a bone is an arm that
+    ends at its last bone, ``BoneMap.handless``), or None when nothing is stored."""
     pairs = [(item.group, item.bone) for item in obj.fullbody_adjust.bone_map if item.bone]
     return BoneMap.from_items(pairs, source="stored") if pairs else None
 
