@@ -15,6 +15,12 @@ tails (``rig_description``). The .L groups are the limbs on the character's own 
 faces (``body_sides``: feet and knees, whatever the object's axes), side markers in names deciding when the
 skeleton does not say clearly (``rig_description.side_of_name``).
 
+Arms without a hand bone (a robot's forearm ending in a fist, fingers fanning straight out of the forearm as on
+Quaternius' characters): the arm is mapped and its hand group left empty; the wrist, the hand's effector, is then
+where the arm's last bone ends as a joint (solver.joint_ends), whatever hangs there rides on the forearm, and the
+map's source says so ("no hand bones: the left wrist is the end of ..."). Stored, such a hand is a row with no
+bone; a hand row emptied by the user means the same.
+
 Rigify: a generated rig (``control_rig``) is described in its metarig's hierarchy and mapped to its ORG- bones,
 which the solve moves and its controls follow. A rig with only DEF- bones (a game export) maps to those:
 

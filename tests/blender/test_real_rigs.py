@@ -73,7 +73,8 @@ KNOWN = {
     ('walk_slide', 'metarig_gltf_unnamed_face_px'): "slide p95 16.0 mm (the source's own 21.0 mm)",
     ('walk_slide', 'mannequin_f_face_px'): "slide p95 15.6 mm (the source's own 21.0 mm)",
     ('walk_slide', 'mannequin_f_face_py'): "slide p95 15.6 mm (the source's own 21.0 mm)",
-    ('walk_limbs', 'godot_robot'): 'limb directions 5.02 deg from the source (median)',
+    ('walk_limbs', 'godot_robot'):
+        'limb directions 5.02 deg from the source (median; upper arms 0.01 and 0.00, thighs 14.3 and 11.6, shins 6.4 and 6.1)',
     ('walk_limbs', 'quaternius_matt'):
         "exit 2: no output written: fullbody_adjust retarget: error: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': its right foot 'Foot.R' hangs from 'Root', not below the leg's last",
     ('walk_heading', 'quaternius_matt'):
