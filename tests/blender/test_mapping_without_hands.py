@@ -12,6 +12,7 @@ measured on the pose Blender evaluates, the wrist as the deleted hand's head car
 """
 
 import contextlib
+import importlib
 import io
 
 import bpy
@@ -77,13 +78,18 @@ def test_map_bones_maps_the_arms_with_no_hand_bone(rig):
     assert not any(b.startswith("finger") for bones in groups.values() for b in bones)
 
 
-def test_create_targets_puts_the_hand_target_on_the_wrist(rig):
+def test_create_targets_puts_the_hand_target_on_the_wrist(rig, extension_module_name):
     _kind, obj, local = rig
+    obj.pose.bones["forearm.L"].rotation_mode = 'XYZ'
+    obj.pose.bones["forearm.L"].rotation_euler = (0.4, 0.0, 0.3)  # the wrist is carried by the posed forearm
     bpy.ops.fullbody_adjust.create_targets()
-    for s in SIDES:
+    batch = importlib.import_module(f"{extension_module_name}.bridge.batch")
+    effectors = batch.effector_positions(obj, [bpy.context.scene.frame_current])[0]  # the command line's preview
+    for k, s in enumerate(SIDES):
         slot = next(t for t in obj.fullbody_adjust.targets if t.effector == f"hand.{s}")
         assert slot.enabled
         assert np.linalg.norm(np.array(slot.target.matrix_world.translation) - wrist(obj, local, s)) < 1e-5
+        assert np.linalg.norm(effectors[k] - wrist(obj, local, s)) < 1e-5
 
 
 def test_a_near_target_moves_the_wrist_onto_it_and_keys_only_that_arm(rig):
@@ -126,9 +132,7 @@ def test_a_hand_target_that_asks_for_its_rotation_is_refused_in_one_line(rig):
 
 
 def test_a_walk_retargets_with_the_forearms_along_the_sources(rig, tmp_path, extension_module_name):
-    kind, obj, local = rig
-    import importlib
-
+    _kind, obj, local = rig
     cli = importlib.import_module(f"{extension_module_name}.cli")
     if "io_anim_bvh" not in bpy.context.preferences.addons:
         bpy.ops.preferences.addon_enable(module="io_anim_bvh")
