@@ -67,10 +67,14 @@ def map_rig(desc):
     # Report what a preset nearly found when it got at least half the groups, unless detection got further
     # through the body (REPORT_ORDER stages: a missing root or trunk comes before a missing foot or hand),
     # else detection's failure, which names the bone where it stopped.
-    nearest = max(attempts, key=lambda a: len(REQUIRED_GROUPS) - len(a[1].missing()), default=None)
-    if nearest is not None and len(REQUIRED_GROUPS) - len(nearest[1].missing()) >= len(REQUIRED_GROUPS) / 2:
+    # A preset's hands count as missing when it did not find them (only detection maps arms without hands).
+    def unmatched(bone_map):
+        return [g for g in REQUIRED_GROUPS if not bone_map.bones(g)]
+
+    nearest = max(attempts, key=lambda a: len(REQUIRED_GROUPS) - len(unmatched(a[1])), default=None)
+    if nearest is not None and len(REQUIRED_GROUPS) - len(unmatched(nearest[1])) >= len(REQUIRED_GROUPS) / 2:
         label, bone_map, problems = nearest
-        missing = bone_map.missing()
+        missing = unmatched(bone_map)
         group = min(missing, key=REPORT_ORDER.index) if missing else None
         if group is None or STAGE[group] >= STAGE[detected.group]:
             if group:
