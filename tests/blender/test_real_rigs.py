@@ -88,8 +88,14 @@ KNOWN = {
 }
 
 
+# Known failures within a hair of the goal, on one side of it on some Blender versions and on the other on others: not
+# strict (the robot's walk: limb directions 5.018 deg from the source on bpy 5.0.1 and 5.2, 4.997 deg on 4.2).
+BORDERLINE = {('walk_limbs', 'godot_robot')}
+
+
 def cases(test, rigs=RIGS):
-    return [pytest.param(rig, marks=pytest.mark.xfail(strict=True, reason=KNOWN[(test, rig)]))
+    return [pytest.param(rig, marks=pytest.mark.xfail(strict=(test, rig) not in BORDERLINE,
+                                                      reason=KNOWN[(test, rig)]))
             if (test, rig) in KNOWN else rig for rig in rigs]
 
 
