@@ -356,15 +356,10 @@ def _effector_positions(model, heads, tails, matrix_world):
 
 
 def _evaluated_ends(obj, rig, bones):
-    """World joint ends (k,3) of ``bones`` (indices) in the evaluated pose."""
+    """World joint ends (k,3) (rig_cache.Rig.ends) of ``bones`` (indices) in the evaluated pose."""
     evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
     matrices = np.array([evaluated.pose.bones[rig.model.names[j]].matrix for j in bones], dtype=np.float64)
-    return _world_ends(np.array(evaluated.matrix_world, dtype=np.float64), matrices, rig, bones)
-
-
-def _world_ends(matrix_world, pose_matrices, rig, bones):
-    """World joint ends (k,3) (rig_cache.Rig.ends) of ``bones`` (k indices) at pose matrices (k,4,4)."""
-    return solve_space.transform(matrix_world[None], end_points(pose_matrices, rig.ends[bones])[None])[0]
+    return end_points(np.array(evaluated.matrix_world, dtype=np.float64) @ matrices, rig.ends[bones])
 
 
 def _penetrations(model, heads, tails, boxes):
@@ -395,7 +390,7 @@ def create_targets(context, obj, *, reset=False):
             positions[effector] = snapshot.heads[snapshot.index(bones[-1])]
         elif effector in rig.model.effectors:  # a hand-less arm: its wrist is its last bone's end
             last = rig.model.limbs[LIMB_OF_EFFECTOR[effector]].bones[-1]
-            positions[effector] = _world_ends(snapshot.matrix_world, snapshot.pose_matrices[[last]], rig, [last])[0]
+            positions[effector] = end_points(snapshot.matrices[last], rig.ends[last])
     size = 0.04 * max(float(np.ptp(snapshot.heads, axis=0).max()), 1e-3)
     targets.ensure_slots(obj)
     return targets.create_targets(context, obj, positions, size, reset=reset)
