@@ -219,17 +219,27 @@ def test_a_plush_toy_without_spine_maps_its_head_as_the_trunk():
     assert bone_map == BoneMap(groups)
 
 
-def test_a_rig_without_hand_bones_gets_one_line_naming_the_forearm():
+def test_a_rig_without_hand_bones_maps_its_wrists_at_the_forearms_ends():
+    """A robot's arms: upper arm and forearm, nothing below. The arms are mapped with no hand bone, the wrist
+    being where the forearm ends (its tail here: a leaf no longer than the upper arm), said in the map's source."""
     desc = plush()
     keep = [i for i, n in enumerate(desc.names) if not n.startswith("hand")]
     handless = RigDescription([desc.names[i] for i in keep], [keep.index(p) if p >= 0 else -1
                                                              for p in desc.parents[keep]],
                               desc.heads[keep], desc.tails[keep], name="Robot")
-    with pytest.raises(MappingError) as caught:
-        map_rig(handless)
-    message = str(caught.value)
-    assert "\n" not in message and message.startswith("Cannot map rig 'Robot': no ")
-    assert "arm ends at 'forearm." in message and "with no hand below it" in message
+    bone_map = map_rig(handless)
+    groups = {"root": ["hips"], "trunk": ["head"]}
+    for s in "LR":
+        groups.update({f"arm.{s}": [f"upper_arm.{s}", f"forearm.{s}"], f"leg.{s}": [f"thigh.{s}", f"shin.{s}"],
+                       f"foot.{s}": [f"foot.{s}"]})
+    assert bone_map == BoneMap(groups)
+    assert bone_map.missing() == [] and bone_map.handless() == {"hand.L": "forearm.L", "hand.R": "forearm.R"}
+    assert bone_map.source.endswith("; no hand bones: the left wrist is the end of 'forearm.L' and the right wrist "
+                                    "is the end of 'forearm.R'")
+    sk = handless._skeleton
+    for s in "LR":  # the wrist: the forearm's tail, where the hand's head was
+        forearm = handless.index(f"forearm.{s}")
+        assert np.allclose(sk.ends[forearm], desc.heads[desc.index(f"hand.{s}")])
 
 
 def test_ik_style_feet_outside_the_legs_are_named():
@@ -243,9 +253,10 @@ def test_ik_style_feet_outside_the_legs_are_named():
     with pytest.raises(MappingError) as caught:
         map_rig(loose)
     message = str(caught.value)
-    assert "\n" not in message and message.startswith("Cannot map rig 'Loose feet': no ")
-    assert "leg ends at 'shin." in message
-    assert "hangs from 'Root' instead: the body model needs the foot below the shin" in message
+    assert "\n" not in message
+    assert message == ("Cannot map rig 'Loose feet': its left foot 'foot.L' hangs from 'Root', not below the leg's "
+                       "last bone 'shin.L' (an IK-style foot), so a moved leg would leave the mesh's foot behind; "
+                       "parent 'foot.L' to 'shin.L' (Keep Offset) to use this rig")
 
 
 def bent(desc, bone, axis, degrees):

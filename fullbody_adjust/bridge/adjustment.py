@@ -11,15 +11,18 @@ outcome.py's.
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 
+import bpy
 import numpy as np
 
 from ..solver import ChainSettings, SolverInputError
 from ..solver.adjust import AdjustSettings, adjust_frames as solve_frames
 from ..solver.adjust_types import UNCONSTRAINED
+from ..solver.body import LIMB_OF_EFFECTOR
 from ..solver.geometry import norm
+from ..solver.joint_ends import end_points
 from ..solver.obstacle_reach import body_reach, skeleton_reach
 from ..solver.obstacles import penetrations
-from . import (control_rig, frames as frames_module, ik_limits, keyframes, limb_thickness, mapping, obstacles, pose,
+from . import (control_rig, frames as frames_module, ik_limits, keyframes, limb_thickness, obstacles, pose,
                rig_cache, solve_space, start_checks, targets)
 from .control_match import control_channels
 from .errors import AdjustError
@@ -125,7 +128,7 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
     to_solve, heads, tails, unit = snapshot.derived("solve space", lambda: solve_space.solve_space(snapshot, rig.ends),
                                                     of=rig)
     arm_targets = solve_space.transform(to_solve, world_targets)
-    end_turns, poles = _end_goals(model, snapshot, goals, to_solve)
+    end_turns, poles = _end_goals(obj, model, snapshot, goals, to_solve)
     scales = snapshot.derived("object scales", lambda: solve_space.object_scales(snapshot))
     solve_settings = solve_space.in_solve_units(settings, scales, unit)
     boxes = None
@@ -181,12 +184,17 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
         # What the user sees is the pose Blender evaluates from the written channels (float32, constraints):
         # report the residuals of that pose rather than the solver's.
         heads = np.full((1, len(model.names), 3), np.nan)  # only the effectors' are read
-        ends = [limb.end_bone for limb in model.limbs.values() if limb.effector in targets.EFFECTORS]
+        tails = heads.copy()  # ... and a hand-less arm's last bone's end (its wrist)
+        limbs = [limb for limb in model.limbs.values() if limb.effector in targets.EFFECTORS]
+        ends = [limb.end_bone for limb in limbs if limb.end_bone is not None]
         heads[0, ends] = pose.evaluated_heads(obj, [model.names[j] for j in ends])
-        world_effectors = _effector_positions(model, heads, np.eye(4)[None])
+        wrists = [limb.bones[-1] for limb in limbs if limb.end_bone is None]
+        if wrists:
+            tails[0, wrists] = _evaluated_ends(obj, rig, wrists)
+        world_effectors = _effector_positions(model, heads, tails, np.eye(4)[None])
     else:
         world_effectors = _effector_positions(model, solve_space.armature_units(result.heads, unit),
-                                              snapshot.matrix_world)
+                                              solve_space.armature_units(result.tails, unit), snapshot.matrix_world)
     residuals = norm(world_effectors - world_targets)
     return Outcome(frames=np.asarray(frames, dtype=np.float64), effectors=tuple(targets.EFFECTORS),
                    residuals=residuals, status=status, reasons=reasons, moved_bones=names,
@@ -216,8 +224,8 @@ def _control_channels(context, obj, frames, snapshot, result, unit, bone_map, ke
         old = snapshot.pose_matrices[:, mapped]
         position = {name: k for k, name in enumerate(names)}
         for end, limb in (("hand.L", "arm.L"), ("hand.R", "arm.R"), ("foot.L", "leg.L"), ("foot.R", "leg.R")):
-            if oriented[targets.EFFECTORS.index(end)]:
-                continue  # ... but one that takes its target's orientation
+            if oriented[targets.EFFECTORS.index(end)] or not bone_map.bones(end):
+                continue  # ... but one that takes its target's orientation (or is not mapped: no hand bone)
             k, p = position[bone_map.bones(end)[0]], position[bone_map.bones(limb)[-1]]
             desired[:, k] = desired[:, p] @ pose.affine_inverse(old[:, p]) @ old[:, k]
     pairs = control_rig.control_pairs(obj, bone_map)
@@ -255,7 +263,7 @@ def _current_targets(obj, context, skip_missing=False):
     return targets.FrameTargets(*(field[None] for field in targets.frame_targets(specs)))
 
 
-def _end_goals(model, snapshot, goals, to_arm):
+def _end_goals(obj, model, snapshot, goals, to_arm):
     """The solver's end_turns (F,E,3,3) and poles (F,E,3) in armature space from the FrameTargets (None where
     no slot asks for them): a hand or foot with use_rotation turns from its pose orientation to its target's."""
     end_turns = None
@@ -266,6 +274,10 @@ def _end_goals(model, snapshot, goals, to_arm):
                 continue
             column = targets.EFFECTORS.index(limb.effector)
             rows = goals.oriented[:, column] & np.isfinite(goals.positions[:, column, 0])
+            if rows.any() and limb.end_bone is None:
+                raise AdjustError(f"The {limb.effector} target of '{obj.name}' asks for its rotation, but the arm has "
+                                  f"no hand bone to turn (the wrist is the end of '{model.names[limb.bones[-1]]}'): "
+                                  f"switch Rotation off in that slot")
             if rows.any():
                 wanted = _orthonormal(to_arm[rows, :3, :3] @ goals.rotations[rows, column])
                 now = _orthonormal(snapshot.pose_matrices[rows, limb.end_bone, :3, :3])
@@ -315,7 +327,8 @@ def _bones_to_write(model, snapshot, result, unit, keep_hands, oriented):
     ``keep_hands``."""
     driven = start_checks.driven_bones(model.roles, with_ends=keep_hands)
     for limb in model.limbs.values():
-        if limb.effector in targets.EFFECTORS and oriented[targets.EFFECTORS.index(limb.effector)]:
+        if limb.effector in targets.EFFECTORS and oriented[targets.EFFECTORS.index(limb.effector)] \
+                and limb.end_bone is not None:
             driven[limb.end_bone] = True
     driven = np.nonzero(driven)[0]  # only these are measured (a fraction of a full rig's bones)
     turn = np.abs(result.rotations[:, driven] - np.eye(3)).max(axis=(-1, -2))  # (F,k)
@@ -332,13 +345,21 @@ def _bones_to_write(model, snapshot, result, unit, keep_hands, oriented):
     return np.array([bone for bone in driven.tolist() if bone in changed or bone in below], dtype=driven.dtype)
 
 
-def _effector_positions(model, heads, matrix_world):
-    """World positions (F,E,3) of the effector joints (the heads of the hand, foot and head bones)."""
+def _effector_positions(model, heads, tails, matrix_world):
+    """World positions (F,E,3) of the effector joints (the heads of the hand, foot and head bones; a hand-less
+    arm's wrist: its last bone's end, from ``tails``, the joint ends)."""
     out = np.full(heads.shape[:1] + (len(targets.EFFECTORS), 3), np.nan)
     for limb in model.limbs.values():
         if limb.effector in targets.EFFECTORS:
-            out[:, targets.EFFECTORS.index(limb.effector)] = heads[:, limb.end_bone]
+            out[:, targets.EFFECTORS.index(limb.effector)] = limb.end_point(heads, tails)
     return solve_space.transform(matrix_world, out)
+
+
+def _evaluated_ends(obj, rig, bones):
+    """World joint ends (k,3) (rig_cache.Rig.ends) of ``bones`` (indices) in the evaluated pose."""
+    evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    matrices = np.array([evaluated.pose.bones[rig.model.names[j]].matrix for j in bones], dtype=np.float64)
+    return end_points(np.array(evaluated.matrix_world, dtype=np.float64) @ matrices, rig.ends[bones])
 
 
 def _penetrations(model, heads, tails, boxes):
@@ -360,13 +381,16 @@ def create_targets(context, obj, *, reset=False):
     """Empties at the current wrists and ankles (and head, when mapped), linked in the armature's target slots.
     Returns {effector: empty}."""
     start_checks.check_armature(obj)
-    bone_map = mapping.ensure_map(obj)
-    snapshot = pose.read_pose(obj)
+    rig = rig_cache.rig_of(obj)
+    snapshot = pose.read_pose(obj, rig.static(obj))
     positions = {}
     for effector in targets.EFFECTORS:
-        bones = bone_map.bones(effector)  # the hand, foot and head groups are named after their effectors
+        bones = rig.bone_map.bones(effector)  # the hand, foot and head groups are named after their effectors
         if bones:
             positions[effector] = snapshot.heads[snapshot.index(bones[-1])]
+        elif effector in rig.model.effectors:  # a hand-less arm: its wrist is its last bone's end
+            last = rig.model.limbs[LIMB_OF_EFFECTOR[effector]].bones[-1]
+            positions[effector] = end_points(snapshot.matrices[last], rig.ends[last])
     size = 0.04 * max(float(np.ptp(snapshot.heads, axis=0).max()), 1e-3)
     targets.ensure_slots(obj)
     return targets.create_targets(context, obj, positions, size, reset=reset)

@@ -213,14 +213,20 @@ def skeleton_segments(obj, frames):
 
 def effector_positions(obj, frames):
     """World positions (F, len(EFFECTORS), 3) of the effector joints (heads of the mapped hand, foot and head
-    bones) at each frame; NaN for an effector the map does not have."""
+    bones; an arm without a hand bone: where its last bone ends, solver.joint_ends) at each frame; NaN for an
+    effector the map does not have."""
     bone_map = mapping.ensure_map(obj)
     snapshot = pose.read_pose_frames(obj, frames)
     out = np.full((len(snapshot.frame), len(targets.EFFECTORS), 3), np.nan)
+    handless = bone_map.handless()
+    ends = joint_ends(snapshot.parents, snapshot.rest_matrices, pose.rest_tails(obj)) if handless else None
     for column, effector in enumerate(targets.EFFECTORS):
         bones = bone_map.bones(effector)  # the hand, foot and head groups are named after their effectors
         if bones:
             out[:, column] = snapshot.heads[:, snapshot.index(bones[-1])]
+        elif effector in handless:
+            j = snapshot.index(handless[effector])
+            out[:, column] = end_points(snapshot.matrices[:, j], ends[j])
     return out
 
 

@@ -29,10 +29,16 @@ _FOOT_FLAT = 0.3  # a foot bone's horizontal part is at least this fraction of i
 
 @dataclass(frozen=True)
 class Limb:
-    """One limb's joints as bone indices: ``chain`` base first, ``end`` the hand or foot bone."""
+    """One limb's joints as bone indices: ``chain`` base first, ``end`` the hand or foot bone (None: an arm
+    without a hand bone, whose wrist is the end of its last bone, ``end_point``)."""
 
     chain: tuple
-    end: int
+    end: int | None
+
+
+def end_point(sk, limb):
+    """The limb's last joint (the wrist, the ankle): its end bone's head, else its last bone's end."""
+    return sk.heads[limb.end] if limb.end is not None else sk.ends[limb.chain[-1]]
 
 
 @dataclass(frozen=True)
@@ -118,7 +124,7 @@ def facing(sk, legs, lat):
 
 def _names(sk, limbs):
     """The one side marker all the limbs' bones carry ('L'/'R'), else None."""
-    marks = {sk.name_sides[b] for limb in limbs for b in (*limb.chain, limb.end)} - {None}
+    marks = {sk.name_sides[b] for limb in limbs for b in (*limb.chain, limb.end) if b is not None} - {None}
     return marks.pop() if len(marks) == 1 else None
 
 

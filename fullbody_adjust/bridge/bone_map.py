@@ -57,8 +57,20 @@ class BoneMap:
         return self.groups.get(group, ())
 
     def missing(self):
-        """Required groups without bones, in GROUPS order."""
-        return [g for g in REQUIRED_GROUPS if not self.groups.get(g)]
+        """Required groups without bones, in GROUPS order. A hand is not missing when its arm is mapped: that arm
+        has no hand bone and its wrist is the end of its last bone (``handless``)."""
+        return [g for g in REQUIRED_GROUPS if not self.groups.get(g) and g not in self.handless()]
+
+    def handless(self):
+        """{hand group: the bone whose end is its wrist} of the mapped arms without a hand bone."""
+        return {f"hand.{s}": self.groups[f"arm.{s}"][-1] for s in "LR"
+                if self.groups.get(f"arm.{s}") and not self.groups.get(f"hand.{s}")}
+
+    def wrists_note(self):
+        """'; no hand bones: the left wrist is the end of 'X', ...' for hand-less arms, else ''."""
+        ends = [f"the {'left' if h.endswith('L') else 'right'} wrist is the end of '{bone}'"
+                for h, bone in self.handless().items()]
+        return f"; no hand bone{'s' if len(ends) > 1 else ''}: {' and '.join(ends)}" if ends else ""
 
     def problems(self, desc):
         """Everything that keeps this map from fitting ``desc``, one short sentence each (empty: it fits)."""
@@ -101,14 +113,17 @@ class BoneMap:
             if group not in CHAIN_GROUPS:
                 continue
             end = idx.get({"arm.L": "hand.L", "arm.R": "hand.R", "leg.L": "foot.L", "leg.R": "foot.R"}.get(group))
-            # Chain joints are heads: of the chain bones, then of the hand or foot (limbs). Where the trunk and
-            # the head end is not a joint of the map, so their last bone's segment is not checked.
-            joints = [desc.heads[b] for b in chain] + ([desc.heads[end[0]]] if end else [])
+            # Chain joints are heads: of the chain bones, then of the hand or foot (limbs), or the end of a hand-less
+            # arm's last bone (its wrist). Where the trunk and the head end is not a joint of the map, so their last
+            # bone's segment is not checked.
+            wrist = [sk.ends[chain[-1]] @ desc.orientation] if not end and group.startswith("arm") else []
+            joints = [desc.heads[b] for b in chain] + ([desc.heads[end[0]]] if end else wrist)
             for k, b in enumerate(chain[:len(joints) - 1]):
                 segment = joints[k + 1] - joints[k]
                 if np.linalg.norm(segment) <= sk.tiny:
-                    out.append(f"{group}: '{desc.names[b]}' has no length (its head is where "
-                               f"'{desc.names[(chain + (end or []))[k + 1]]}' starts)")
+                    nxt = (chain + (end or []))[k + 1:k + 2]
+                    out.append(f"{group}: '{desc.names[b]}' has no length" + (
+                        f" (its head is where '{desc.names[nxt[0]]}' starts)" if nxt else ""))
                 elif self._is_split(desc, b) and angle_between(segment, desc.tails[b] - desc.heads[b]) > SPLIT_SEGMENT:
                     out.append(f"{group}: '{desc.names[b]}' is split ('{desc.names[b]}.001' follows) but the "
                                f"next joint is not along it")

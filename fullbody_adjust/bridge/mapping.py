@@ -15,6 +15,12 @@ tails (``rig_description``). The .L groups are the limbs on the character's own 
 faces (``body_sides``: feet and knees, whatever the object's axes), side markers in names deciding when the
 skeleton does not say clearly (``rig_description.side_of_name``).
 
+Arms without a hand bone (a robot's forearm ending in a fist, fingers fanning straight out of the forearm as on
+Quaternius' characters): the arm is mapped and its hand group left empty; the wrist, the hand's effector, is then
+where the arm's last bone ends as a joint (solver.joint_ends), whatever hangs there rides on the forearm, and the
+map's source says so ("no hand bones: the left wrist is the end of ..."). Stored, such a hand is a row with no
+bone; a hand row emptied by the user means the same.
+
 Rigify: a generated rig (``control_rig``) is described in its metarig's hierarchy and mapped to its ORG- bones,
 which the solve moves and its controls follow. A rig with only DEF- bones (a game export) maps to those:
 
@@ -30,7 +36,7 @@ which the solve moves and its controls follow. A rig with only DEF- bones (a gam
 
 import numpy as np
 
-from ..solver.vocabulary import REQUIRED_GROUPS
+from ..solver.vocabulary import GROUPS, REQUIRED_GROUPS
 from . import body_sides
 from .body_sides import Limb
 from .bone_map import GROUP_LABELS, BoneMap, MappingError
@@ -61,16 +67,20 @@ def map_rig(desc):
     # Report what a preset nearly found when it got at least half the groups, unless detection got further
     # through the body (REPORT_ORDER stages: a missing root or trunk comes before a missing foot or hand),
     # else detection's failure, which names the bone where it stopped.
-    nearest = max(attempts, key=lambda a: len(REQUIRED_GROUPS) - len(a[1].missing()), default=None)
-    if nearest is not None and len(REQUIRED_GROUPS) - len(nearest[1].missing()) >= len(REQUIRED_GROUPS) / 2:
+    # A preset's hands count as missing when it did not find them (only detection maps arms without hands).
+    def unmatched(bone_map):
+        return [g for g in REQUIRED_GROUPS if not bone_map.bones(g)]
+
+    nearest = max(attempts, key=lambda a: len(REQUIRED_GROUPS) - len(unmatched(a[1])), default=None)
+    if nearest is not None and len(REQUIRED_GROUPS) - len(unmatched(nearest[1])) >= len(REQUIRED_GROUPS) / 2:
         label, bone_map, problems = nearest
-        missing = bone_map.missing()
+        missing = unmatched(bone_map)
         group = min(missing, key=REPORT_ORDER.index) if missing else None
         if group is None or STAGE[group] >= STAGE[detected.group]:
             if group:
                 raise MappingError(missing_message(desc, group, matched=f"other bones have {label} names"))
             raise MappingError(f"Cannot map rig '{desc.name}': it has {label} names but {problems[0]}")
-    raise MappingError(missing_message(desc, detected.group, detected.detail))
+    raise MappingError(missing_message(desc, detected.group, detected.detail, line=detected.line))
 
 
 def with_body_sides(desc, bone_map):
@@ -79,12 +89,13 @@ def with_body_sides(desc, bone_map):
     sk = desc._skeleton
     idx = {g: [desc.index(b) for b in bones] for g, bones in bone_map.groups.items()}
     legs = [Limb(tuple(idx[f"leg.{s}"]), idx[f"foot.{s}"][0]) for s in "LR"]
-    arms = [Limb(tuple(idx[f"arm.{s}"]), idx[f"hand.{s}"][0]) for s in "LR"]
+    arms = [Limb(tuple(idx[f"arm.{s}"]), idx.get(f"hand.{s}", [None])[0]) for s in "LR"]
     lat = body_sides.lateral(sk, *legs)
     if lat is None:
         return bone_map
     # Only a map whose left arm is on its left leg's side can be mirrored as a whole.
-    if float((sk.heads[arms[0].end] - sk.heads[arms[1].end]) @ lat) <= 0:
+    wrists = [body_sides.end_point(sk, arm) for arm in arms]
+    if float((wrists[0] - wrists[1]) @ lat) <= 0:
         return bone_map
     if body_sides.left_pair(sk, legs, arms).left == 0:
         return bone_map
@@ -125,7 +136,9 @@ def store_map(obj, bone_map, typed=False):
     settings = obj.fullbody_adjust
     items = settings.bone_map
     items.clear()
-    for group, bone in bone_map.items():
+    handless = bone_map.handless()  # shown as a hand row with no bone: the wrist is the arm's end
+    rows = [(g, b) for g in GROUPS for b in (bone_map.bones(g) or (("",) if g in handless else ()))]
+    for group, bone in rows + [(g, b) for g, b in bone_map.items() if g not in GROUPS]:
         item = items.add()
         item.group = group
         item.bone = bone
@@ -140,7 +153,8 @@ def _as_text(items):
 
 
 def load_map(obj):
-    """The map stored on ``obj`` (items with an empty bone name are skipped), or None when nothing is stored."""
+    """The map stored on ``obj`` (items with an empty bone name are skipped: a hand without a bone is an arm that
+    ends at its last bone, ``BoneMap.handless``), or None when nothing is stored."""
     pairs = [(item.group, item.bone) for item in obj.fullbody_adjust.bone_map if item.bone]
     return BoneMap.from_items(pairs, source="stored") if pairs else None
 

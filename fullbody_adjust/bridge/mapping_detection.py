@@ -62,7 +62,7 @@ def detect_map(desc):
     try:
         return detect(desc)
     except NotFound as failure:
-        raise MappingError(missing_message(desc, failure.group, failure.detail)) from None
+        raise MappingError(missing_message(desc, failure.group, failure.detail, line=failure.line)) from None
 
 
 def detect(desc):
@@ -79,8 +79,8 @@ def detect(desc):
             if best is None or STAGE[failure.group] > STAGE[best.group]:
                 best = failure
             continue
-        bone_map = BoneMap({g: [desc.names[b] for b in bones] for g, bones in groups.items()},
-                           source="detected from the hierarchy")
+        bone_map = BoneMap({g: [desc.names[b] for b in bones] for g, bones in groups.items()})
+        bone_map = BoneMap(bone_map.groups, source="detected from the hierarchy" + bone_map.wrists_note())
         problems = bone_map.problems(desc)
         if not problems:
             return bone_map
@@ -151,7 +151,7 @@ def _detect_from_root(sk, root):
     arms = [split_arm(sk, arm_paths[k], said[k], _clavicle(sk, arm_paths[k], legs, lat)) for k in (0, 1)]
     knees = np.mean([sk.heads[leg.chain[-1], 2] for leg in legs])
     for k in (0, 1):
-        if sk.heads[arms[k].end, 2] <= knees:
+        if body_sides.end_point(sk, arms[k])[2] <= knees:
             raise NotFound(f"arm.{said[k]}", f"'{names[arm_paths[k][0]]}' hangs down to the knees (a leg?)")
 
     sides = body_sides.left_pair(sk, legs, arms)
@@ -160,8 +160,8 @@ def _detect_from_root(sk, root):
     groups = {"root": [root], "trunk": _with_length(sk, trunk) if trunk else []}
     for k in (0, 1):
         s = "L" if k == sides.left else "R"
-        groups[f"arm.{s}"] = _with_length(sk, list(arms[k].chain), sk.heads[arms[k].end])
-        groups[f"hand.{s}"] = [arms[k].end]
+        groups[f"arm.{s}"] = _with_length(sk, list(arms[k].chain), body_sides.end_point(sk, arms[k]))
+        groups[f"hand.{s}"] = [] if arms[k].end is None else [arms[k].end]  # none: the wrist ends the forearm
         groups[f"leg.{s}"], groups[f"foot.{s}"] = list(legs[k].chain), [legs[k].end]
     if head:
         groups["head"] = head
@@ -254,7 +254,9 @@ def _find_head(sk, chest, arm_starts, shoulder_z, mid, lat):
         chain.append(max(steps, key=lambda c: sk.top[c]))
 
 
-def missing_message(desc, group, detail="", matched=""):
+def missing_message(desc, group, detail="", matched="", line=None):
+    if line:
+        return f"Cannot map rig '{desc.name}': {line}"
     looked = f"looked for {looked_for(group)}, or {_SHAPE[group]}"
     extra = "; ".join(x for x in (detail, matched) if x)
     return f"Cannot map rig '{desc.name}': no {_WHAT[group]} found ({looked}{'; ' + extra if extra else ''})"

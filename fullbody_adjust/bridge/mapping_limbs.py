@@ -26,11 +26,12 @@ _ARM_FIT_LIMIT = 0.7  # worst accepted arm score (0.7: upper arm / forearm twice
 
 
 class NotFound(Exception):
-    """Detection found no bones for ``group``; ``detail`` says where it stopped."""
+    """Detection found no bones for ``group``; ``detail`` says where it stopped; ``line``, when given, says all
+    of it (``mapping_detection.missing_message``)."""
 
-    def __init__(self, group, detail=""):
+    def __init__(self, group, detail="", line=None):
         super().__init__(group, detail)
-        self.group, self.detail = group, detail
+        self.group, self.detail, self.line = group, detail, line
 
 
 def segments(sk, path):
@@ -62,8 +63,8 @@ def split_leg(sk, path, s):
     foot = next((k for k in range(i + 2, len(path)) if joints[k, 2] - low < _ANKLE_HEIGHT * hip or (
         k < len(seg) and joints[k, 2] - low < 0.5 * hip and angle_between(seg[k], DOWN) > _DOWNWARD)), None)
     if foot is None:
-        raise NotFound(f"foot.{s}", f"the {SIDE_WORDS[s]} leg ends at '{names[path[-1]]}' with no foot "
-                                    f"below it{_loose_foot(sk, path[i:])}")
+        raise NotFound(f"foot.{s}", f"the {SIDE_WORDS[s]} leg ends at '{names[path[-1]]}' with no foot below it",
+                       _loose_foot(sk, path[i:], SIDE_WORDS[s]))
     reach = float(length[i:foot].sum())
     if reach < LEG_MIN_DROP * sk.height:
         raise NotFound(group, f"from '{names[path[i]]}' to '{names[path[foot]]}' is only {reach:.3g} long")
@@ -76,8 +77,9 @@ def split_leg(sk, path, s):
     return body_sides.Limb((path[i], path[knee]), path[foot])
 
 
-def _loose_foot(sk, leg):
-    """', and <bone> at its end hangs from <bone>' for a foot bone outside the leg (an IK-style foot), or ''."""
+def _loose_foot(sk, leg, side):
+    """The line that names a foot bone at the leg's end but outside it (an IK-style foot hanging from the rig's
+    root, as on Quaternius' characters) and why the rig cannot be used so, or None."""
     names, hip, last = sk.desc.names, sk.heads[leg[0]], sk.heads[leg[-1]]
     length = float(np.linalg.norm(last - hip))
     # Where the ankle would be: as far below the last joint as the leg is long so far, straight down.
@@ -85,23 +87,27 @@ def _loose_foot(sk, leg):
     near = [b for b in range(len(sk.desc)) if not sk.is_ancestor(leg[-1], b) and b not in leg
             and np.linalg.norm(sk.heads[b] - ankle) < 0.4 * length]
     if not near:
-        return ""
+        return None
     foot = min(near, key=lambda b: (np.linalg.norm(sk.heads[b] - ankle), sk.depth[b]))
     parent = sk.parent[foot]
-    return (f" ('{names[foot]}', at its end, hangs from '{names[parent]}' instead: the body model needs the foot "
-            f"below the shin)" if parent >= 0 else f" ('{names[foot]}', at its end, has no parent)")
+    where = f"hangs from '{names[parent]}'" if parent >= 0 else "has no parent"
+    return (f"its {side} foot '{names[foot]}' {where}, not below the leg's last bone '{names[leg[-1]]}' (an "
+            f"IK-style foot), so a moved leg would leave the mesh's foot behind; parent '{names[foot]}' to "
+            f"'{names[leg[-1]]}' (Keep Offset) to use this rig")
 
 
 def split_arm(sk, path, s, clavicle=None):
-    """Limb([clavicle?, upper arm, forearm], hand) on the longest path out from the chest.
+    """Limb([clavicle?, upper arm, forearm], hand) on the longest path out from the chest; the hand None when
+    the arm has no hand bone (fingers fanning out of the forearm, or nothing below it: ``_handless``).
 
     Every split of the path into clavicle (optional, one bone), upper arm and forearm (each possibly several
     bones, as with twist bones) and hand + fingers is scored by how far it is from a human arm: upper arm about
     1.15 forearms, hand + fingers 0.25..1.3 forearms (head to head; unknown for a hand bone that ends the path,
     which then must fit the arm closer); a hand bone that is neither a branch (fingers) nor where fingers
     branch is a twist or wrist link, less likely, and so is a forearm with a branching bone inside. ``clavicle``
-    (True/False) says whether the path's first bone is a clavicle, when the caller knows. The best split wins (on a tie the earlier wrist); when
-    nothing fits, the hand or the arm is reported missing.
+    (True/False) says whether the path's first bone is a clavicle, when the caller knows. The best split wins (on a
+    tie the earlier wrist); when nothing fits, the arm may end at its forearm (``_handless``), else the hand or the
+    arm is reported missing.
     """
     names = sk.desc.names
     _, _, length = segments(sk, path)
@@ -141,13 +147,35 @@ def split_arm(sk, path, s, clavicle=None):
                 if score < best[0] - 1e-9:
                     best = (score, (first, elbow, wrist))
     if best[0] > _ARM_FIT_LIMIT:
+        handless = _handless(sk, path, clavicle, after)
+        if handless is not None:
+            return handless
         if len(path) <= 3:
             raise NotFound(f"hand.{s}", f"the {SIDE_WORDS[s]} arm ends at '{names[path[-1]]}' with no hand "
                                         f"below it")
         raise NotFound(f"arm.{s}", f"the bones from the chest to '{names[path[-1]]}' are not shaped like an arm")
     first, elbow, wrist = best[1]
     chain = ([path[0]] if first > 0 else []) + [path[first], path[elbow]]
-    return body_sides.Limb(tuple(chain), path[wrist])
+    # Fingers fanning out of the forearm (no hand bone, as in Quaternius' rigs): the hand is what hangs there, all
+    # of it riding on the forearm, and the wrist is the forearm's end (where the fingers start).
+    fingers = elbow == wrist - 1 and _fans_out(sk, path[wrist])
+    return body_sides.Limb(tuple(chain), None if fingers else path[wrist])
+
+
+def _handless(sk, path, clavicle, after):
+    """Limb([clavicle?, upper arm, forearm], None) for an arm of 2 or 3 bones that ends at its forearm (a robot's
+    arm: no hand bone, nothing below the forearm), the wrist being the forearm's end (``_Skeleton.ends``), when
+    upper arm and forearm are in an arm's proportions (and a first of 3 bones is a clavicle); else None."""
+    first = len(path) - 2
+    if first not in (0, 1) or (clavicle is not None and first != int(clavicle)):
+        return None
+    fore = float(np.linalg.norm(sk.ends[path[-1]] - sk.heads[path[-1]]))
+    upper = float(after[first] - after[first + 1])
+    if min(upper, fore) <= sk.tiny or (first and after[0] - after[1] > _CLAVICLE * (upper + fore)):
+        return None
+    if abs(math.log(upper / fore / _UPPER_TO_FOREARM)) > _ARM_FIT_LIMIT:
+        return None
+    return body_sides.Limb(tuple(path), None)
 
 
 def _fans_out(sk, b):

@@ -30,6 +30,7 @@ from ..solver import SolverInputError
 from ..solver import retarget as rt
 from ..solver.adjust import UNCONSTRAINED
 from ..solver.adjust import adjust_frames as solve_frames
+from ..solver.body import LIMB_OF_EFFECTOR
 from . import adjustment, ik_limits, mapping, outcome, start_checks, targets
 from .errors import AdjustError
 from .retarget_read import (check_source, contact_boxes, frame_range, pose_property, read_motion, rig_of,
@@ -159,8 +160,9 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
     action, keyed = write_pose(context, target_obj, target, posed, prepared.frames, name, plan.carried)
     progress("done", 1.0)
 
-    ends = [model.groups[e][0] for e in rt.EFFECTORS]
-    residuals = np.linalg.norm(target.to_world(result.heads[:, ends]) - plan.world_targets, axis=-1)
+    wrists = np.stack([model.limbs[LIMB_OF_EFFECTOR[e]].end_point(result.heads, result.tails) for e in rt.EFFECTORS],
+                      axis=1)  # the hands' and feet's heads; a hand-less arm's last bone's end
+    residuals = np.linalg.norm(target.to_world(wrists) - plan.world_targets, axis=-1)
     reachable = {e: result.status[:, k] != "unreachable" for k, e in enumerate(rt.EFFECTORS)}
     # How the result keeps the source's contacts, and how the transferred motion did before the solve.
     fps = context.scene.render.fps / context.scene.render.fps_base

@@ -17,7 +17,7 @@ import re
 
 import numpy as np
 
-
+from ..solver.joint_ends import joint_ends
 
 MIDLINE = 0.01  # a bone whose head is this close (fraction of the height) to the body's middle plane is at it
 
@@ -163,6 +163,15 @@ class _Skeleton:
             if not self.children[b] and p >= 0:
                 step = float(np.linalg.norm(self.heads[b] - self.heads[p]))
                 self.leaf_reach[b] = reach[b] if reach[b] <= 2.0 * step else 0.0
+
+    @cached_property
+    def ends(self):
+        """(N,3) where each bone ends as a joint (solver.joint_ends without a bone map: its only child's head,
+        else its tail shortened where implausibly long), world-oriented like ``heads``. A hand-less arm's wrist
+        is its forearm's end."""
+        rest = np.tile(np.eye(4), (len(self.parent), 1, 1))
+        rest[:, :3, 3] = self.heads
+        return self.heads + joint_ends(self.desc.parents, rest, self.tails)
 
     def subtree(self, b):
         return self.order[self.tin[b]:self.tout[b]]

@@ -241,7 +241,7 @@ class _Problem(SubBasePlacement, LimbPlacement):
                 name = LIMB_OF_EFFECTOR[e]
                 limb = self.model.limbs[name]
                 r = rows[held[rows, k]]
-                got = norm(result.heads[r, limb.end_bone] - result.heads[r, limb.bones[0]])
+                got = norm(limb.end_point(result.heads[r], result.tails[r]) - result.heads[r, limb.bones[0]])
                 self.reach_eff[name][r] = np.minimum(self.reach_eff[name][r], got)
             sub = self._subset(rows)
             again = sub._solve_once()
@@ -316,9 +316,9 @@ class _Problem(SubBasePlacement, LimbPlacement):
     def _result(self, heads, tails, rotations, solves) -> AdjustBatchResult:
         model, F = self.model, self.F
         if F == 1:
-            residuals, status, reasons = self._effector_outcome_one_frame(heads, solves)
+            residuals, status, reasons = self._effector_outcome_one_frame(heads, tails, solves)
         else:
-            residuals, status, reasons = self._effector_outcome(heads, solves)
+            residuals, status, reasons = self._effector_outcome(heads, tails, solves)
         moved = np.zeros((F, len(GROUPS)), dtype=bool)
         bone_moved = ((heads != self.H0) | (tails != self.T0)).any(axis=2)  # (F,J)
         columns, bones, starts = group_bones(model)
@@ -330,7 +330,7 @@ class _Problem(SubBasePlacement, LimbPlacement):
         return AdjustBatchResult(heads, tails, rotations, self.effectors, residuals, status, reasons, moved, GROUPS,
                                  self.iterations.copy(), sc_disp, root_disp)
 
-    def _effector_outcome_one_frame(self, heads, solves):
+    def _effector_outcome_one_frame(self, heads, tails, solves):
         """_effector_outcome of one frame, effector by effector in plain floats and strings (the same distances;
         numpy's per-call cost on five values was most of it)."""
         tol = self.settings.chain.tolerance
@@ -345,7 +345,7 @@ class _Problem(SubBasePlacement, LimbPlacement):
                 reasons.append("no target on this frame")
                 continue
             limb = self.model.limbs[name]
-            res = gp.norm(gp.sub(heads[0, limb.end_bone].tolist(), self.targets[0, k].tolist()))
+            res = gp.norm(gp.sub(limb.end_point(heads[0], tails[0]).tolist(), self.targets[0, k].tolist()))
             st, why = solves[name].status[0], solves[name].reason[0]
             if res <= tol:
                 st, why = "reached", why or "reached"
@@ -359,14 +359,15 @@ class _Problem(SubBasePlacement, LimbPlacement):
             reasons.append(why)
         return np.array([residuals]), np.array([status], dtype=str), np.array([reasons], dtype=str)
 
-    def _effector_outcome(self, heads, solves):
+    def _effector_outcome(self, heads, tails, solves):
         """(residuals, status, reasons) (F,E) of the effectors: each limb's end against its target, and why."""
         model = self.model
         tol = self.settings.chain.tolerance
         # Every effector at once (F,E): each limb's end against its target.
         names = [LIMB_OF_EFFECTOR[e] for e in self.effectors]
         act = self.active_e
-        pos = heads[:, [model.limbs[name].end_bone for name in names]]
+        pos = np.stack([model.limbs[name].end_point(heads, tails) for name in names], axis=1) if names else \
+            np.zeros((self.F, 0, 3))
         res = norm(pos - np.where(act[..., None], self.targets, 0.0))
         residuals = np.where(act, res, np.nan)
         met = act & (res <= tol)

@@ -7,7 +7,10 @@ Groups (ordered bone lists, parent -> child; the names are solver/vocabulary.py'
     root            [pelvis]                translates only
     trunk           [spine bones...]        chain: heads + tail of the last bone (= the SC, sterno-clavicular)
     arm.L / arm.R   [clavicle?, upper, fore] chain: heads + head of the hand bone (the wrist, end effector)
-    hand.L / hand.R [hand]                  keeps its world orientation while its arm is solved
+    hand.L / hand.R [hand]                  keeps its world orientation while its arm is solved. Optional: an
+                                            arm without one (a robot's forearm ending in a fist, fingers hanging
+                                            from the forearm) ends at its last bone's tail, the wrist; whatever
+                                            hangs from the forearm rides on it
     leg.L / leg.R   [thigh, shin]           chain: heads + head of the foot bone (the ankle, end effector)
     foot.L / foot.R [foot]                  keeps its world orientation while its leg is solved
     head (optional) [neck bones..., head]   rides on the chest; with a head target it is a chain of the neck
@@ -38,6 +41,8 @@ LIMB_OF_EFFECTOR = {"hand.L": "arm.L", "hand.R": "arm.R", "foot.L": "leg.L", "fo
 # Up to this many frames the default hinge axes are computed in plain floats (hinge_axis_plain): a click's new
 # start pose computes them for the limbs it moved, where numpy's per-call cost was most of the time.
 _FEW_FRAMES = 4
+# Hands may be left out: the arm then ends at its last bone's tail (the wrist; the bridge passes joint ends as tails).
+OPTIONAL_HANDS = ("hand.L", "hand.R")
 _MIN_BONES = {"trunk": 1, "arm.L": 2, "arm.R": 2, "leg.L": 2, "leg.R": 2, "head": 1}
 
 # Roles of bones in the propagation pass (adjust.py): how a bone's new head and rotation are found.
@@ -51,7 +56,7 @@ class Limb:
 
     name: str
     bones: tuple[int, ...]
-    end_bone: int | None  # whose head is the end effector; None: the tail of bones[-1] (trunk)
+    end_bone: int | None  # whose head is the end effector; None: the tail of bones[-1] (trunk, hand-less arm)
     effector: str | None  # the effector name it serves (None for the trunk)
     hub: str  # sub-base it hangs from: 'root' (trunk, legs) or 'sc' (arms, head)
 
@@ -61,8 +66,12 @@ class Limb:
 
     def joints(self, heads: np.ndarray, tails: np.ndarray) -> np.ndarray:
         """Chain joint positions (..., n, 3) from bone heads/tails (..., J, 3)."""
-        end = tails[..., self.bones[-1], :] if self.end_bone is None else heads[..., self.end_bone, :]
+        end = self.end_point(heads, tails)
         return np.concatenate([heads[..., list(self.bones), :], end[..., None, :]], axis=-2)
+
+    def end_point(self, heads: np.ndarray, tails: np.ndarray) -> np.ndarray:
+        """The chain's last joint (..., 3): the end bone's head, else the last bone's tail."""
+        return tails[..., self.bones[-1], :] if self.end_bone is None else heads[..., self.end_bone, :]
 
 
 def _check_hierarchy(names, parents):
@@ -128,7 +137,7 @@ class BodyModel:
         unknown = [g for g in groups_by_name if g not in GROUPS]
         if unknown:
             raise SolverInputError(f"unknown group {unknown[0]!r} (known: {', '.join(GROUPS)})")
-        missing = [g for g in REQUIRED_GROUPS if g not in groups_by_name]
+        missing = [g for g in REQUIRED_GROUPS if g not in groups_by_name and g not in OPTIONAL_HANDS]
         if missing:
             raise SolverInputError(f"group {missing[0]!r} is missing")
         groups: dict[str, tuple[int, ...]] = {}
@@ -177,7 +186,9 @@ class BodyModel:
         require_descendant(groups["trunk"][0], root, "trunk must hang from the root")
         for side in ("L", "R"):
             require_descendant(groups[f"arm.{side}"][0], chest, f"arm.{side} must hang from the chest")
-            require_descendant(groups[f"hand.{side}"][0], groups[f"arm.{side}"][-1], f"hand.{side} must end arm.{side}")
+            if f"hand.{side}" in groups:
+                require_descendant(groups[f"hand.{side}"][0], groups[f"arm.{side}"][-1],
+                                   f"hand.{side} must end arm.{side}")
             require_descendant(groups[f"leg.{side}"][0], root, f"leg.{side} must hang from the root")
             for t in groups["trunk"]:
                 if is_ancestor(t, groups[f"leg.{side}"][0]):
@@ -188,8 +199,8 @@ class BodyModel:
 
         limbs = {"trunk": Limb("trunk", groups["trunk"], None, None, "root")}
         for side in ("L", "R"):
-            limbs[f"arm.{side}"] = Limb(f"arm.{side}", groups[f"arm.{side}"], groups[f"hand.{side}"][0],
-                                        f"hand.{side}", "sc")
+            hand = groups.get(f"hand.{side}", (None,))[0]  # None: the wrist is the forearm's tail
+            limbs[f"arm.{side}"] = Limb(f"arm.{side}", groups[f"arm.{side}"], hand, f"hand.{side}", "sc")
         if "head" in groups and len(groups["head"]) >= 2:
             limbs["head"] = Limb("head", groups["head"][:-1], groups["head"][-1], "head", "sc")
         for side in ("L", "R"):

@@ -70,7 +70,9 @@ def rest_hinge_axes(model, heads, rotations, bent=HumanLimits().bent):
     rotations = np.asarray(rotations, dtype=np.float64)
     _up, _left, forward = rest_facing(model, heads)
     limbs = [(model.limbs[name], side) for name, side in _HINGED if len(model.limbs[name].bones) >= 2]
-    joints = np.array([limb.joints(heads, heads)[-3:] for limb, _side in limbs])  # heads only: arms, legs
+    # Heads only, but for an arm without a hand bone, whose wrist is its forearm's end: along the forearm's Y axis.
+    tails = heads + rotations[:, :, 1]
+    joints = np.array([limb.joints(heads, tails)[-3:] for limb, _side in limbs])
     sides = np.array([side * forward for _limb, side in limbs])
     axes = rest_hinge_axis(joints[:, 1] - joints[:, 0], joints[:, 2] - joints[:, 1], sides, bent)
     bones = np.array([limb.bones[-1] for limb, _side in limbs], dtype=np.int64)

@@ -13,8 +13,8 @@ from .errors import SolverInputError
 from .foot_pivots import held_still, pivot_bone, roll
 from .geometry import all_set, norm
 from .joint_ends import end_points
-from .retarget_rig import (EFFECTOR_CHAIN, EFFECTORS, FEET, Rig, ankle_above_sole, chain_joints, effector_points,
-                           facing_turn, hip_centres, leg_length, rest_points, sole_heights)
+from .retarget_rig import (EFFECTOR_CHAIN, EFFECTORS, FEET, Rig, ankle_above_sole, chain_joints, effector_joint,
+                           effector_points, facing_turn, hip_centres, leg_length, rest_points, sole_heights)
 from .retarget_transfer import carried_bones, transfer_pose, translate_body
 
 
@@ -145,7 +145,7 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
         return anchor_t + ratio * (points @ heading.T - anchor_s)
 
     start = transfer_pose(turned, source_pose, target, target_basis, scaled(hip_centres(source, s_heads)))
-    t_heads = target.world_points(start)[0]
+    t_heads, t_ends = target.world_points(start)
     soles = ankle_above_sole(target, start)  # the transferred feet's own ankle heights above their soles
     frames = len(source_pose)
     blend = settings.frames(settings.blend_duration) if settings.blend_duration else 0
@@ -188,7 +188,7 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
 
     # Free of contacts, each wrist and ankle goes where the transferred pose puts it (its limb keeps the
     # source's angles); the holds are blended into that.
-    free = np.stack([t_heads[:, target.groups[e][0]] for e in EFFECTORS], axis=1)
+    free = np.stack([effector_joint(target, t_heads, t_ends, e) for e in EFFECTORS], axis=1)
     own = free.copy()  # where the transferred limbs put each wrist and ankle: within reach, moving with the body
     if ground:
         _stand_in_place(free, found, s_points, soles, floor, leg_s, settings)

@@ -76,9 +76,10 @@ class Rig:
                 or np.linalg.det(world[:3, :3]) <= 0.0:
             raise SolverInputError("armature object scale must be uniform and positive (apply its scale)")
         groups = {g: tuple(int(b) for b in bones) for g, bones in dict(self.groups).items()}
-        for g in ("root", "trunk", "arm.L", "arm.R", "hand.L", "hand.R", "leg.L", "leg.R", "foot.L", "foot.R"):
+        for g in ("root", "trunk", "arm.L", "arm.R", "leg.L", "leg.R", "foot.L", "foot.R"):
             if not groups.get(g):
                 raise SolverInputError(f"rig mapping has no {g!r} group")
+        groups = {g: bones for g, bones in groups.items() if bones}  # no hand bone: the wrist ends the arm
         if self.ends is None:
             rest_tails = rest[:, :3, 3] + unit_columns(rest[:, :3, :3])[:, :, 1] * lengths[:, None]
             ends = joint_ends(parents, rest, rest_tails, groups)
@@ -189,14 +190,15 @@ def unit_columns(m):
 
 def chain_joints(rig, group, heads, ends):
     """Joint positions (…,n,3) of a chain group from heads and joint ends (…,J,3): heads of the bones + the
-    head of the group's end bone (hand, foot, head) or, for the trunk, its last bone's joint end (the SC)."""
+    head of the group's end bone (hand, foot, head) or, for the trunk and a hand-less arm, its last bone's joint
+    end (the SC, the wrist)."""
     bones = list(rig.groups[group])
     end = {"arm.L": "hand.L", "arm.R": "hand.R", "leg.L": "foot.L", "leg.R": "foot.R"}.get(group)
     if group == "head":
         bones, last = bones[:-1], heads[..., rig.groups["head"][-1], :]
         if not bones:
             return heads[..., rig.groups["head"], :]
-    elif end is not None:
+    elif end in rig.groups:
         last = heads[..., rig.groups[end][0], :]
     else:
         last = ends[..., bones[-1], :]
@@ -258,9 +260,14 @@ def effector_points(rig, pose, effector):
     """World points (…,P,3) of a hand or foot of armature-space pose matrices (…,J,4,4): the effector joint
     (wrist, ankle) first; then for a foot its sole's points (Rig.soles) and the ball of the foot (the joint it
     stands on as the heel lifts: foot_pivots.ball_bone; the ankle again on a foot without toes), for a hand the
-    hand's joint end and the heads and joint ends of every bone below it (fingers)."""
-    bone = rig.groups[effector][0]
+    hand's joint end and the heads and joint ends of every bone below it (fingers; of a hand-less arm, the bones
+    below its forearm)."""
     heads, ends = rig.world_points(pose)
+    if effector not in rig.groups:  # no hand bone: the wrist is the forearm's end
+        below = rig.descendants(rig.groups[EFFECTOR_CHAIN[effector]][-1])[1:]
+        return np.concatenate([effector_joint(rig, heads, ends, effector)[..., None, :], heads[..., below, :],
+                               ends[..., below, :]], axis=-2)
+    bone = rig.groups[effector][0]
     if effector in FEET:
         ball = ball_bone(rig, effector)
         return np.concatenate([heads[..., [bone], :], rig.sole_points(pose, effector),
@@ -268,6 +275,14 @@ def effector_points(rig, pose, effector):
     below = rig.descendants(bone)[1:]
     return np.concatenate([heads[..., [bone], :], ends[..., [bone], :], heads[..., below, :], ends[..., below, :]],
                           axis=-2)
+
+
+def effector_joint(rig, heads, ends, effector):
+    """The wrist or ankle (…,3) of heads and joint ends (…,J,3): the hand's or foot's head, else (an arm with no
+    hand bone) the joint end of the arm's last bone."""
+    if effector in rig.groups:
+        return heads[..., rig.groups[effector][0], :]
+    return ends[..., rig.groups[EFFECTOR_CHAIN[effector]][-1], :]
 
 
 def rest_forward(rig):

@@ -70,10 +70,13 @@ def pair_bones(source, target):
                  (1.0 - (x - lo), x - lo) if hi != lo and x > lo else (1.0,))
     for side in ("L", "R"):
         for end, chain in ((f"hand.{side}", f"arm.{side}"), (f"foot.{side}", f"leg.{side}")):
+            if end not in target.groups or end not in source.groups:
+                continue  # no hand bone on one side: the other's hand rides on its forearm
             last = pairs.get(target.groups[chain][-1])
             pair(target.groups[end][0], source.groups[end], alignment=last.alignment if last else body)
     # Fingers both rigs have (retarget_fingers), aligned as their hand is.
-    hands = {side: pairs[target.groups[f"hand.{side}"][0]].alignment for side in ("L", "R")}
+    hands = {side: pairs[target.groups[f"hand.{side}"][0]].alignment for side in ("L", "R")
+             if f"hand.{side}" in target.groups and f"hand.{side}" in source.groups}
     for t, s, alignment in finger_pairs(source, target, s_dirs, t_dirs, hands):
         if t not in pairs:
             pair(t, (s,), alignment=alignment)

@@ -16,7 +16,8 @@ import bpy
 import numpy as np
 
 from tests.helpers import real_rigs, rig_measures as rm
-from tests.helpers.blender_data import bone_map
+from fullbody_adjust.solver.joint_ends import joint_ends
+from tests.helpers.blender_data import bone_map, evaluated
 from tests.helpers.bvh import CMU_SCALE, MOCAP_DIR
 
 WALK = MOCAP_DIR / "cmu_07_01_walk.bvh"
@@ -64,11 +65,26 @@ def joint(rig, role):
 
 
 def wrist_of(rig, side="R"):
-    """The wrist: the known joint, else the head of the bone the product mapped to the hand (rigs without one)."""
+    """The wrist: the known joint, else the head of the bone the product mapped to the hand, else (an arm mapped
+    with no hand bone) where the arm's last bone ends (joint_ends: at rest, in the bone's frame) as Blender
+    evaluates that bone now."""
     w = joint(rig, f"wrist.{side}")
     if w is None:
-        w = rm.world_heads(rig.armature, [bone_map(rig.armature)[f"hand.{side}"][-1]])[0]
+        groups = bone_map(rig.armature)
+        hand = [bone for bone in groups.get(f"hand.{side}", []) if bone]
+        w = rm.world_heads(rig.armature, hand)[0] if hand else bone_end(rig.armature, groups[f"arm.{side}"][-1])
     return w
+
+
+def bone_end(armature, name):
+    """World point where bone ``name`` ends as a joint (solver.joint_ends at rest), carried by its evaluated pose."""
+    bones = armature.data.bones
+    parents = [bones.find(b.parent.name) if b.parent else -1 for b in bones]
+    rest = np.array([b.matrix_local for b in bones], dtype=np.float64)
+    ends = joint_ends(parents, rest, np.array([b.tail_local for b in bones], dtype=np.float64))
+    ev = evaluated(armature)
+    posed = np.array(ev.matrix_world, dtype=np.float64) @ np.array(ev.pose.bones[name].matrix, dtype=np.float64)
+    return posed[:3, :3] @ ends[bones.find(name)] + posed[:3, 3]
 
 
 def arm_of(rig, side="R"):
@@ -113,8 +129,11 @@ def map_case(saved):
     hips = joint(rig, "hips")
     sides = {}
     for group in ("hand.L", "hand.R", "foot.L", "foot.R", "arm.L", "arm.R", "leg.L", "leg.R"):
-        bones = groups.get(group, [])
-        lateral = [float((h - hips) @ rig.left) for h in rm.world_heads(rig.armature, bones)] if bones else []
+        bones = [bone for bone in groups.get(group, []) if bone]
+        points = rm.world_heads(rig.armature, bones) if bones else []
+        if group.startswith("hand") and not bones and groups.get(group):  # a hand row with no bone: the wrist
+            points = [bone_end(rig.armature, groups[f"arm.{group[-1]}"][-1])]
+        lateral = [float((h - hips) @ rig.left) for h in points]
         want = 1.0 if group.endswith(".L") else -1.0
         sides[group] = bool(lateral) and all(want * x > 0 for x in lateral)
     return {"mapping": "ok", "groups": groups,
