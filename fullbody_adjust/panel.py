@@ -5,7 +5,7 @@ obstacles and settings, and the buttons that run the operators."""
 import bpy
 
 from .bridge import live, start_checks
-from .bridge.mapping import GROUP_LABELS
+from .bone_mapping import GROUP_LABELS
 
 
 def _active_armature(context):

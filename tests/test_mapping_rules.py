@@ -1,4 +1,4 @@
-"""Bone mapping onto the five-group body model (bridge/mapping.py), without Blender.
+"""Bone mapping onto the five-group body model (fullbody_adjust/bone_mapping), without Blender.
 
 Rigs are built by hand as RigDescriptions: synthetic Mixamo, Unreal (UE4/UE5) and Daz Genesis 8 skeletons with
 their real bone names and plausible rest positions (metres, z up, facing -Y, left at +X, as in Blender), and the
@@ -14,7 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fullbody_adjust.bridge.mapping import (
+from fullbody_adjust.bone_mapping import (
     BoneMap,
     MappingError,
     RigDescription,

@@ -1,4 +1,4 @@
-"""Mapping that reads the body (bridge/body_sides.py, mapping_detection.py), without Blender: sides from where
+"""Mapping that reads the body (bone_mapping/body_sides.py, detection.py), without Blender: sides from where
 the skeleton faces whatever the object axes, joints from heads whatever importers did to tails, and the one line
 a rig that cannot be mapped gets.
 
@@ -14,8 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from fullbody_adjust.bridge import body_sides
-from fullbody_adjust.bridge.mapping import BoneMap, MappingError, RigDescription, detect_map, map_rig
+from fullbody_adjust.bone_mapping import BoneMap, MappingError, RigDescription, body_sides, detect_map, map_rig
 from tests.test_mapping_rules import NAMED_RIGS, build_rig, rename_map, renamed
 
 TURNS = {"-Y": 0.0, "+X": 90.0, "+Y": 180.0, "-X": 270.0}  # facing after turning a -Y facing rig about z

@@ -1,13 +1,6 @@
-"""The one typed error the bridge raises for problems the user can fix in the scene."""
+"""The one typed error the bridge raises for problems the user can fix in the scene: ``AdjustError``, defined in
+fullbody_adjust/errors.py (the bone mapping raises it too) and named here for the bridge's modules."""
 
+from ..errors import AdjustError
 
-class AdjustError(Exception):
-    """A user-facing problem with the scene or the settings (not a bug).
-
-    str(error) is a single line, ready for an operator's ``self.report({'ERROR'}, str(error))``.
-    Raised before anything is changed, so catching it leaves the file as it was.
-    """
-
-    def __init__(self, message):
-        # Reports and the CLI print one line: fold any line breaks a caller let slip in.
-        super().__init__(" ".join(str(message).split()))
+__all__ = ["AdjustError"]

@@ -10,7 +10,8 @@ import bpy
 import numpy as np
 import pytest
 
-from fullbody_adjust.bridge.mapping import describe_armature, map_rig
+from fullbody_adjust.bone_mapping import map_rig
+from fullbody_adjust.bridge.mapping import describe_armature
 
 from .test_mapping import rigify_groups, rigify_metarig
 from tests.test_mapping_rules import rename_map

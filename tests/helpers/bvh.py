@@ -41,7 +41,7 @@ def body_groups(sides, *, root, trunk, arm, hand, leg, foot, head):
 CMU_GROUPS = body_groups(("Left", "Right"), root=["Hips"], trunk=["LowerBack", "Spine", "Spine1"],
                          arm=["{side}Shoulder", "{side}Arm", "{side}ForeArm"], hand=["{side}Hand"],
                          leg=["{side}UpLeg", "{side}Leg"], foot=["{side}Foot"], head=["Neck", "Neck1", "Head"])
-# ... and for the Daz-skeleton BVH (cmu_daz_02_01_walk.bvh), as bridge/mapping_presets.toml maps it.
+# ... and for the Daz-skeleton BVH (cmu_daz_02_01_walk.bvh), as bone_mapping/presets.toml maps it.
 DAZ_GROUPS = body_groups(("l", "r"), root=["hip"], trunk=["abdomen", "chest"],
                          arm=["{side}Collar", "{side}Shldr", "{side}ForeArm"], hand=["{side}Hand"],
                          leg=["{side}Thigh", "{side}Shin"], foot=["{side}Foot"], head=["neck", "head"])

@@ -1,7 +1,7 @@
 """The Rigify full human metarig (159 bones) at rest, as the bridge reads it, for solver tests and benches.
 
 tests/data/human_metarig.npz was dumped once from Blender 5.0.1 (`armature_human_metarig_add`, mapped by
-bridge.mapping.map_rig, read by bridge.pose.read_pose): bone names, parents, world heads/tails, each bone's
+bone_mapping.map_rig, read by bridge.pose.read_pose): bone names, parents, world heads/tails, each bone's
 pose X axis and the bone map's groups. Loading it needs no Blender.
 """
 

@@ -1,10 +1,10 @@
-"""Mapping a rig by name: each preset variant of ``mapping_presets`` tried on the rig's bone names."""
+"""Mapping a rig by name: each preset variant of ``presets`` tried on the rig's bone names."""
 
 import re
 
 from ..solver.vocabulary import CHAIN_GROUPS
 from .bone_map import BoneMap
-from .mapping_presets import PRESETS, SIDED_GROUPS
+from .presets import PRESETS, SIDED_GROUPS
 
 
 def _preset_group_names(preset):

@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from ..solver.vocabulary import CHAIN_GROUPS, GROUPS, REQUIRED_GROUPS, SINGLE_BONE_GROUPS
-from .errors import AdjustError
+from ..errors import AdjustError
 from .rig_description import angle_between
 
 GROUP_LABELS = {

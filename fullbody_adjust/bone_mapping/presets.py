@@ -1,5 +1,5 @@
 """Bone-name presets for the five-group body model (solver/vocabulary.py's groups), read from
-mapping_presets.toml beside this file (data a rigger can extend without touching code).
+presets.toml beside this file (data a rigger can extend without touching code).
 
 No bpy. A preset names, per group, the chain's slots in parent → child order. A slot is a string:
 
@@ -31,7 +31,7 @@ class Preset:
 
 
 def _load(path):
-    """The presets of a TOML file laid out as mapping_presets.toml is, in its order."""
+    """The presets of a TOML file laid out as presets.toml is, in its order."""
     data = tomllib.loads(path.read_text(encoding="utf-8"))
     return tuple(Preset(name=p["name"], sides=tuple(p["sides"]),
                         table={group: tuple(slots) for group, slots in p["table"].items()},

@@ -1,4 +1,4 @@
-"""Splitting a limb found by detection (mapping_detection) into its groups' bones, from joint positions (bone
+"""Splitting a limb found by detection (detection) into its groups' bones, from joint positions (bone
 heads): a leg into thigh, shin and foot, an arm into clavicle, upper arm, forearm and hand. No bpy."""
 
 import math
@@ -27,7 +27,7 @@ _ARM_FIT_LIMIT = 0.7  # worst accepted arm score (0.7: upper arm / forearm twice
 
 class NotFound(Exception):
     """Detection found no bones for ``group``; ``detail`` says where it stopped; ``line``, when given, says all
-    of it (``mapping_detection.missing_message``)."""
+    of it (``detection.missing_message``)."""
 
     def __init__(self, group, detail="", line=None):
         super().__init__(group, detail)

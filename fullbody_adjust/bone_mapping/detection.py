@@ -7,7 +7,7 @@ import numpy as np
 
 from . import body_sides
 from .bone_map import BoneMap, MappingError
-from .mapping_limbs import LEG_MIN_DROP, SIDE_WORDS, NotFound, split_arm, split_leg
+from .limbs import LEG_MIN_DROP, SIDE_WORDS, NotFound, split_arm, split_leg
 from .preset_matching import looked_for
 from .rig_description import MIDLINE, UP, angle_between
 
