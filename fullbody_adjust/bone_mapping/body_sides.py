@@ -1,10 +1,11 @@
 """Which limbs are on the character's own left, from its skeleton (no bpy).
 
-The facing comes from the body, never from the object's axes: up is world z (the rig's orientation applied);
-the two hip joints give the lateral line; forward is across it, on the side the toes point to (the heads of
-the foot's descendants, seen from the ankle), else the side the knees bend to (a knee's offset from the line
-hip joint - ankle), with the foot bones' own direction as a last hint. Left = up x forward (a character facing
--Y has its left at +X).
+The facing comes from the body, never from the object's axes (solver/facing.py, the one calculation the
+retarget's heading and the rest hinges use too): up is world z (the rig's orientation applied); the two hip
+joints give the lateral line; forward is across it, on the side the toes point to (the heads of the foot's
+descendants, seen from the ankle), else the side the knees bend to (a knee's offset from the line hip joint -
+ankle), with the foot bones' own direction as a last hint. Left = up x forward (a character facing -Y has its
+left at +X).
 
 Side markers in names still count. When the names mark the two sides consistently (every mapped bone of one
 side L, of the other R) and the skeleton's facing is unclear, the names decide. When the skeleton's facing is
@@ -19,12 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .rig_description import UP
-
-_TOE_REACH = 0.1  # a toe joint lies at least this many leg lengths from the ankle, horizontally
-_TOE_CLEAR = 0.5  # cosine between the toes' horizontal direction and forward for a clear facing
-_KNEE_BEND = 0.01  # a knee lies at least this many leg lengths off the hip - ankle line to count
-_FOOT_FLAT = 0.3  # a foot bone's horizontal part is at least this fraction of its length to count
+from ..solver.facing import UP, skeleton_facing
+from ..solver.facing import lateral as lateral_across
 
 
 @dataclass(frozen=True)
@@ -51,14 +48,7 @@ class Sides:
 
 def lateral(sk, leg0, leg1):
     """Unit horizontal vector from leg 1 to leg 0 (hip joints, else knees, else ankles), or None."""
-    for k in range(3):
-        a = _joint(sk, leg0, k)
-        b = _joint(sk, leg1, k)
-        d = (a - b) * np.array([1.0, 1.0, 0.0])
-        norm = float(np.linalg.norm(d))
-        if norm > 10 * sk.tiny:
-            return d / norm
-    return None
+    return lateral_across(UP, [(_joint(sk, leg0, k), _joint(sk, leg1, k)) for k in range(3)], sk.tiny)
 
 
 def _joint(sk, leg, k):
@@ -66,60 +56,14 @@ def _joint(sk, leg, k):
     return sk.heads[leg.chain[0] if k == 0 else leg.chain[-1] if k == 1 else leg.end]
 
 
-def _length(sk, leg):
-    return float(np.linalg.norm(_joint(sk, leg, 0) - _joint(sk, leg, 2))) or 1.0
-
-
-def _toes(sk, leg, across):
-    """Cosine between across and the horizontal direction from the ankle to the farthest joint below the
-    foot, or None when the foot has no such joint."""
-    ankle = sk.heads[leg.end]
-    below = [c for c in sk.subtree(leg.end).tolist() if c != leg.end]
-    if not below:
-        return None
-    offsets = (sk.heads[below] - ankle) * np.array([1.0, 1.0, 0.0])
-    reach = np.linalg.norm(offsets, axis=1)
-    k = int(np.argmax(reach))
-    if reach[k] < _TOE_REACH * _length(sk, leg):
-        return None
-    return float(offsets[k] @ across) / float(reach[k])
-
-
-def _knee(sk, leg, across):
-    """Signed offset of the knee from the hip - ankle line along across, in leg lengths."""
-    hip, knee, ankle = (_joint(sk, leg, k) for k in range(3))
-    line = ankle - hip
-    t = float((knee - hip) @ line) / max(float(line @ line), sk.tiny ** 2)
-    return float((knee - (hip + t * line)) @ across) / _length(sk, leg)
-
-
-def _foot(sk, leg, across):
-    """Cosine between across and the foot bone's own horizontal direction (head to tail), or None."""
-    direction = sk.tails[leg.end] - sk.heads[leg.end]
-    flat = direction * np.array([1.0, 1.0, 0.0])
-    if np.linalg.norm(flat) < _FOOT_FLAT * max(float(np.linalg.norm(direction)), sk.tiny):
-        return None
-    return float(flat @ across) / float(np.linalg.norm(flat))
-
-
 def facing(sk, legs, lat):
-    """(sign, clear): the body faces sign * (up x lat) (0: no sign of it); clear when the toes of both feet
-    agree, or both knees and both foot bones do."""
-    across = np.cross(UP, lat)
-    toes = [_toes(sk, leg, across) for leg in legs]
-    if all(t is not None and abs(t) > _TOE_CLEAR for t in toes) and np.sign(toes[0]) == np.sign(toes[1]):
-        return int(np.sign(toes[0])), True
-    knees = [_knee(sk, leg, across) for leg in legs]
-    feet = [_foot(sk, leg, across) for leg in legs]
-    knee_signs = {int(np.sign(k)) for k in knees if abs(k) > _KNEE_BEND}
-    foot_signs = {int(np.sign(f)) for f in feet if f is not None and abs(f) > _TOE_CLEAR}
-    if (len(knee_signs) == 1 and all(abs(k) > _KNEE_BEND for k in knees) and foot_signs == knee_signs
-            and all(f is not None and abs(f) > _TOE_CLEAR for f in feet)):
-        return knee_signs.pop(), True
-    votes = sum(np.sign(t) for t in toes if t is not None and abs(t) > _TOE_CLEAR)
-    votes += sum(np.sign(k) for k in knees if abs(k) > _KNEE_BEND)
-    votes += 0.5 * sum(np.sign(f) for f in feet if f is not None and abs(f) > _TOE_CLEAR)
-    return int(np.sign(votes)), False
+    """(sign, clear): the body faces sign * (up x lat) (0: no sign of it), lat = lateral(sk, *legs); clear when
+    the toes of both feet agree, or both knees and both foot bones do (solver/facing.py)."""
+    joints = [[_joint(sk, leg, k) for leg in legs] for k in range(3)]
+    below = [sk.heads[[c for c in sk.subtree(leg.end).tolist() if c != leg.end]] for leg in legs]
+    feet = [sk.tails[leg.end] - sk.heads[leg.end] for leg in legs]
+    found = skeleton_facing(UP, joints[0], joints[2], below, sk.tiny, knees=joints[1], feet=feet)
+    return found.sign, found.clear
 
 
 def _names(sk, limbs):
