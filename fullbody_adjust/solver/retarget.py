@@ -50,9 +50,9 @@ Rz @ Ry @ Rx), quaternions (w, x, y, z), axis-angle (angle, x, y, z).
      - a hand on an object: still at the mean of the source's own world positions (exact) or its scaled
        ones (exact=False; scaled about the ground below the hips, by the leg ratio, turned by the heading).
    The heading: the source's motion is turned about world Z by the angle from the source skeleton's rest
-   forward to the target's (retarget_rig.rest_forward: from the hips and the SC, else the feet; never the
-   objects' axes), so the target faces its travel as the source faces its own: a source walking forward
-   makes the target walk forward, whichever way either character faces in its file.
+   forward to the target's (retarget_rig.rest_forward: the toes, else square across the hips, as solver/facing.py
+   reads them; never the objects' axes), so the target faces its travel as the source faces its own: a source
+   walking forward makes the target walk forward, whichever way either character faces in its file.
    No foot goes below the floor. The whole body then shifts, smoothly, as its held hands and feet moved (on
    average), and as far again as needed to bring every target within its limb's reach less a margin (see
    ``RetargetSettings.reach_margin``); the free trajectories move with it, so only the held limbs are

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import SolverInputError
+from .facing import UP, skeleton_facing
 from .foot_pivots import ball_bone
 from .joint_ends import end_points, joint_ends
 from .retarget_soles import default_soles, descendants, posed_soles, skin_soles
@@ -287,24 +288,18 @@ def effector_joint(rig, heads, ends, effector):
 
 def rest_forward(rig):
     """The skeleton's facing at rest: its forward (3,) in world space, horizontal and of unit length, from its
-    feet and hips whatever its object's axes. The feet first: the horizontal direction from the ankles to the
-    toes (the mean of the feet's sole points ahead of the ankles), which is where a character looks and walks even
-    when its hips are yawed (GDQuest's mannequin: hip and shoulder lines 13 degrees off its face and toes); the
-    hips where the feet do not say (flat feet pointing sideways, more than 60 degrees off the hips, or none ahead
-    of the ankles): left x up of the rest body frame (left = right hip -> left hip, up = root -> SC)."""
-    heads, ends = rest_points(rig)
-    frame = body_frame(rig, heads, ends)
-    hips = np.cross(frame[:, 0], frame[:, 2])
-    hips = np.array([hips[0], hips[1], 0.0])
-    toes = np.mean([rig.sole_points(rig.rest, foot).mean(axis=0) - heads[rig.groups[foot][0]] for foot in FEET],
-                   axis=0)
-    toes = np.array([toes[0], toes[1], 0.0])
-    hips_size, toes_size = np.hypot(hips[0], hips[1]), np.hypot(toes[0], toes[1])
-    flat = hips
-    if toes_size > 1e-9 * max(hips_size, 1e-300) and (hips_size < 0.3 or dot(toes, hips) > 0.5 * toes_size * hips_size):
-        flat = toes
-    size = np.hypot(flat[0], flat[1])
-    return flat / size if size > 1e-12 else np.array([0.0, -1.0, 0.0])
+    leg joints whatever its object's axes (facing.skeleton_facing, as the bone mapping's sides): the horizontal
+    direction from the ankles to the toes (the joint below each foot farthest from its ankle), which is where a
+    character looks and walks even when its hips are yawed (GDQuest's mannequin: hip and shoulder lines 13 degrees
+    off its face and toes); square across the hip line on the side the map's left says where the toes do not say
+    (flat feet pointing sideways, more than 60 degrees off that, or no joint ahead of the ankles)."""
+    heads = rig.world_points(rig.rest)[0]
+    hips = heads[[rig.groups["leg.L"][0], rig.groups["leg.R"][0]]]
+    feet = [rig.groups[foot][0] for foot in FEET]
+    below = [heads[rig.descendants(foot)[1:]] for foot in feet]
+    tiny = 1e-6 * max(float(np.linalg.norm(hips - heads[feet], axis=1).max()), 1e-300)
+    forward = skeleton_facing(UP, hips, heads[feet], below, tiny, left=0).forward
+    return forward if forward is not None else np.array([0.0, -1.0, 0.0])
 
 
 def facing_turn(source, target):
