@@ -10,8 +10,9 @@ body's facing at rest:
   - the limb's rest bend plane where it is bent at rest: clearly (more than HumanLimits.bent), or slightly (more
     than REST_BENT, about 5 degrees) in a plane within 60 degrees of the facing rule below, which then gives the
     bend side;
-  - else the facing rule: elbows bend forward, knees backward (axis = upper segment x bend side), with forward
-    = left x up, left = right hip -> left hip, up = hips -> shoulders (the arms' bases), as body.body_frame.
+  - else the facing rule: elbows bend forward, knees backward (axis = upper segment x bend side), with up = hips ->
+    shoulders (the arms' bases) and forward where the toes point across up, else square across the hip line
+    (left = right hip -> left hip): solver/facing.py, the facing the bone mapping and the retarget read too.
 
 The axis is kept in the rest frame of the limb's upper bone (upper arm, thigh), which carries it into a pose as
 an elbow's or knee's axis rides on the humerus or femur: a forearm turned about its own length (pronation, often
@@ -25,6 +26,7 @@ import math
 import numpy as np
 
 from .body import HumanLimits
+from .facing import skeleton_facing
 from .geometry import any_perpendicular, cross, dot, norm, normalize
 
 _UP = np.array([0.0, 0.0, 1.0])
@@ -35,14 +37,29 @@ _HINGED = (("arm.L", 1.0), ("arm.R", 1.0), ("leg.L", -1.0), ("leg.R", -1.0))  # 
 
 
 def rest_facing(model, heads):
-    """Unit (up, left, forward) of a rest pose from its joints: heads (J,3) (see the module docstring)."""
-    hips = heads[model.groups["leg.L"][0]], heads[model.groups["leg.R"][0]]
+    """Unit (up, left, forward) of a rest pose from its joints: heads (J,3) (see the module docstring): up = hips ->
+    shoulders, forward across it as facing.skeleton_facing reads the legs (the map's left leg on the left), left =
+    up x forward."""
+    hips = heads[[model.groups["leg.L"][0], model.groups["leg.R"][0]]]
     shoulders = heads[model.groups["arm.L"][0]], heads[model.groups["arm.R"][0]]
     up = normalize(0.5 * (shoulders[0] + shoulders[1]) - 0.5 * (hips[0] + hips[1]),
                    fallback=np.array([0.0, 0.0, 1.0]))
-    left = hips[0] - hips[1]
-    left = normalize(left - dot(left, up) * up, fallback=any_perpendicular(up))
-    return up, left, cross(left, up)
+    feet = [model.groups["foot.L"][0], model.groups["foot.R"][0]]
+    below = [heads[_below(model, foot)] for foot in feet]
+    tiny = 1e-6 * max(float(np.linalg.norm(hips - heads[feet], axis=1).max()), 1e-300)
+    forward = skeleton_facing(up, hips, heads[feet], below, tiny, left=0).forward
+    if forward is None:  # the hips coincide across up and no toe is ahead of an ankle
+        forward = cross(any_perpendicular(up), up)
+    return up, cross(up, forward), forward
+
+
+def _below(model, bone):
+    """The bones below ``bone`` (model.order lists every parent before its children)."""
+    inside = {bone}
+    for j in model.order.tolist():
+        if int(model.parents[j]) in inside:
+            inside.add(j)
+    return sorted(inside - {bone})
 
 
 def rest_hinge_axis(upper, lower, bend_side, bent):
