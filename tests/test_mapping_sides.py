@@ -55,7 +55,7 @@ def world_facing(desc, bone_map):
     legs = [body_sides.Limb(tuple(desc.index(b) for b in bone_map.bones(f"leg.{s}")),
                             desc.index(bone_map.bones(f"foot.{s}")[0])) for s in "LR"]
     lat = body_sides.lateral(sk, *legs)
-    sign, clear = body_sides.facing(sk, legs, lat)
+    sign, clear = body_sides.facing(sk, legs)
     return sign * np.cross([0.0, 0.0, 1.0], lat), clear
 
 
@@ -133,7 +133,7 @@ def test_names_decide_when_the_skeleton_does_not_say_where_it_faces():
     sk = flat._skeleton
     legs = [body_sides.Limb((flat.index(f"{s}UpLeg"), flat.index(f"{s}Leg")), flat.index(f"{s}Foot"))
             for s in ("Left", "Right")]
-    assert body_sides.facing(sk, legs, body_sides.lateral(sk, *legs)) == (0, False)
+    assert body_sides.facing(sk, legs) == (0, False)
     # Mirrored labels: with nothing else to go by, the names decide.
     liars = mirrored_labels(flat.names)
     lying = renamed(flat, liars)

@@ -56,7 +56,7 @@ def _joint(sk, leg, k):
     return sk.heads[leg.chain[0] if k == 0 else leg.chain[-1] if k == 1 else leg.end]
 
 
-def facing(sk, legs, lat):
+def facing(sk, legs):
     """(sign, clear): the body faces sign * (up x lat) (0: no sign of it), lat = lateral(sk, *legs); clear when
     the toes of both feet agree, or both knees and both foot bones do (solver/facing.py)."""
     joints = [[_joint(sk, leg, k) for leg in legs] for k in range(3)]
@@ -80,7 +80,7 @@ def left_pair(sk, legs, arms):
     named = names[0] is not None and names[1] is not None and names[0] != names[1]
     if lat is None:
         return Sides(names.index("L") if named else 0, "the legs are not side by side")
-    sign, clear = facing(sk, legs, lat)
+    sign, clear = facing(sk, legs)
     # Facing sign * (up x lat): left = up x forward = -sign * lat, so pair 0 (at +lat) is left when sign < 0.
     geometric = None if sign == 0 else (0 if sign < 0 else 1)
     if named:

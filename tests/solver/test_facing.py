@@ -106,7 +106,7 @@ def test_the_mapping_and_the_rest_hinges_read_the_same_facing(kind, yaw):
     legs = [body_sides.Limb(tuple(desc.index(b) for b in bone_map.bones(f"leg.{s}")),
                             desc.index(bone_map.bones(f"foot.{s}")[0])) for s in "LR"]
     lat = body_sides.lateral(sk, *legs)
-    sign, clear = body_sides.facing(sk, legs, lat)
+    sign, clear = body_sides.facing(sk, legs)
     mapped = sign * np.cross(UP, lat)
     model = BodyModel.from_description(desc.names, desc.parents, dict(bone_map.groups))
     _up, _left, forward = rest_facing(model, sk.heads)
