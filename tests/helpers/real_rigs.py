@@ -26,8 +26,8 @@ import numpy as np
 from mathutils import Matrix
 
 from tests.helpers.rig_building import (activate, add_body_mesh, add_metarig, import_file, parent_mesh,
-                                        rename_bones_unnamed, round_trip, set_arm_rest, skinned_meshes,
-                                        transform_bones, transform_character)
+                                        rename_bones_unnamed, reparent_bones, round_trip, set_arm_rest,
+                                        skinned_meshes, transform_bones, transform_character)
 
 RIGS_DIR = Path(__file__).resolve().parents[1] / "data" / "rigs"
 UP = np.array([0.0, 0.0, 1.0])
@@ -166,6 +166,8 @@ VARIANTS = {
                                          trip=("gltf", {}, {"bone_heuristic": 'BLENDER'})),
     "mannequin_f_face_px": dict(base="quaternius_mannequin_f", facing="+X"),
     "mannequin_f_face_py": dict(base="quaternius_mannequin_f", facing="+Y"),
+    # Matt's IK-style feet hang from Root; Map Bones names the fix (parent each foot to its shin): made here.
+    "matt_feet_parented": dict(base="quaternius_matt", reparent={"Foot.L": "LowerLeg.L", "Foot.R": "LowerLeg.R"}),
 }
 ALL = tuple(CORPUS) + tuple(VARIANTS)
 
@@ -218,6 +220,8 @@ def _build_variant(name):
         bpy.context.view_layer.update()
     for ob in meshes:
         parent_mesh(armature, ob)
+    if "reparent" in spec:
+        reparent_bones(armature, spec["reparent"])
     if spec.get("unnamed"):
         renamed = rename_bones_unnamed(armature)
         joints = {role: renamed.get(bone) if bone else None for role, bone in joints.items()}

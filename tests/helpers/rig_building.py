@@ -180,6 +180,19 @@ def parent_mesh(armature, mesh):
     bpy.context.view_layer.update()
 
 
+def reparent_bones(armature, parents):
+    """Each bone of ``parents`` {bone: new parent} given that parent in Edit Mode, not connected (Blender's Keep
+    Offset: the bone keeps its rest place), as a user fixes an IK-style foot that hangs from the root."""
+    activate(armature)
+    bpy.ops.object.mode_set(mode='EDIT')
+    bones = armature.data.edit_bones
+    for child, parent in parents.items():
+        bones[child].use_connect = False
+        bones[child].parent = bones[parent]
+    bpy.ops.object.mode_set(mode='OBJECT')
+    bpy.context.view_layer.update()
+
+
 def rename_bones_unnamed(armature):
     """Every bone renamed "Bone", "Bone.001", ... in the armature's order; returns {old: new}. Vertex groups of
     the meshes bound to it follow (Blender renames them; any it left are renamed here)."""
