@@ -33,9 +33,10 @@ KNOWN = {
     ('walk_limbs', 'godot_robot'): 'limb directions 5.10 deg from the source (median)',
     ('walk_pops', 'kaykit_manny'): '11 pop frames (source 0)',
     ('walk_pops', 'godot_plush'): '2 pop frames (source 0), largest step 41.1 deg',
+    ('clip_pops', 'kaykit_manny'): '6 pop frames (the clip itself 5)',
+    ('clip_pops', 'godot_plush'): '8 pop frames (the clip itself 5)',
+    ('clip_pops', 'godot_robot'): '6 pop frames (the clip itself 5)',
 }
-
-
 
 # Rigs whose limbs are not chains, which the goals except ("a rig it cannot map gets one line naming the bone and
 # the reason"): rig -> (the bone named, where it hangs, the bone it belongs below). Quaternius' Matt has IK-style
@@ -60,7 +61,8 @@ def _figures(rig, case, cli=None):
     try:
         saved = sc.Saved(rig, folder)
         run = {"mapping": sc.map_case, "near": sc.near_case, "far": sc.far_case, "obstacle": sc.obstacle_case,
-               "walk": lambda s: sc.retarget_case(s, folder, cli)}[case]
+               "walk": lambda s: sc.retarget_case(s, folder, cli),
+               "clip": lambda s: sc.clip_case(s, folder, cli)}[case]
         try:
             return run(saved)
         except RuntimeError as ex:  # an operator's ERROR report: the figure is its line
@@ -215,3 +217,12 @@ def test_retarget_report_agrees_with_the_written_file_within_1_mm(rig, cli):
     agreement = found["report_vs_measured"]
     assert agreement["largest_disagreement_mm"] is not None and agreement["largest_disagreement_mm"] <= 1.0, \
         agreement
+
+
+@pytest.mark.parametrize("rig", cases("clip_pops"))
+def test_an_fbx_clip_pops_no_more_than_itself(rig, cli):
+    """Kenney's run (an FBX clip of another character, through the command line's --source-file): no more frames
+    where a hips, arm or leg bone turns over 30 degrees than the clip itself has on the same frames."""
+    found = figures(rig, "clip", cli)
+    assert found["exit_code"] == 0 and found["source_action"].endswith("Run"), found
+    assert found["pop_frames"] <= found["source_pop_frames"], found

@@ -340,9 +340,10 @@ def measure_walk(saved, last, contacts):
 def clip_case(saved, folder, cli, clip_name="kenney_run"):
     """An FBX clip of the corpus (its own character's skeleton) retargeted onto the saved rig with
     `retarget FILE --target RIG --source-file CLIP --jobs 1` (cli.main); the written action and the clip imported
-    again with Blender's FBX importer (defaults: the action it makes active is the one the batch carries, which
-    for Kenney's files is the 1-frame 'Targeting Pose', not the run: source_action and frames say which) are
-    measured on the same frames: pop frames of each, and the limb directions against each other."""
+    again with Blender's FBX importer (defaults; the clip is given the longest action the import made, the take
+    the batch carries: Kenney's run, not the 1-frame 'Targeting Pose' the importer makes active; source_action
+    and frames say which) are measured on the same frames: pop frames of each, and the limb directions against
+    each other."""
     saved.open()
     clip = real_rigs.RIGS_DIR / real_rigs.CLIP_FILES[clip_name]
     source_joints = real_rigs.CORPUS[real_rigs.CLIP_CHARACTER[clip_name]]["joints"]
@@ -361,7 +362,10 @@ def clip_case(saved, folder, cli, clip_name="kenney_run"):
     reopen(path_out)
     target = bpy.data.objects[saved.armature_name]
     rm.assign_action(target, bpy.data.actions[row["action"]])
+    before = set(bpy.data.actions)
     source = next(ob for ob in real_rigs.import_file(clip) if ob.type == 'ARMATURE')
+    takes = [a for a in bpy.data.actions if a not in before]
+    rm.assign_action(source, max(takes, key=lambda a: a.frame_range[1] - a.frame_range[0]))
     frames = np.arange(int(row["frame_start"]), int(row["frame_end"]) + 1)
     roles = [r for r, b in saved.rig.joints.items() if b and source_joints.get(r)]
     (heads, source_heads), (rots, source_rots), _ = rm.sample(
