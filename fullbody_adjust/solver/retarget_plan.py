@@ -36,7 +36,8 @@ def moving_average(values, half_width):
     return (total[2 * w + 1:] - total[:-2 * w - 1]) / (2 * w + 1)
 
 
-def body_shift(bases, targets, reach, priorities, margin, settle_margin, half_width, max_step=None, preferred=None):
+def body_shift(bases, targets, reach, priorities, margin, settle_margin, half_width, max_step=None, preferred=None,
+               riding=None):
     """World shifts (F,3) of the whole body that bring each target (F,E,3) within its limb's ``reach`` (E,)
     less ``margin`` from the limb's base (F,E,3) (a knee or elbow stretched straighter swings about a barely
     bent hinge, and a target just within reach or just beyond it moves the trunk or not). On each frame the
@@ -46,10 +47,12 @@ def body_shift(bases, targets, reach, priorities, margin, settle_margin, half_wi
     its reach less ``settle_margin`` again. Continuous from frame to frame, as the nearest point of a convex
     set is; where it still changes by more than ``max_step`` from one frame to the next (the
     reach balls barely meet, or the shift must follow a target that moves fast), smoothed again over windows
-    twice as wide each time (the solve reaches what that leaves just out of reach)."""
+    twice as wide each time (the solve reaches what that leaves just out of reach). ``riding`` (F,E) bool: targets
+    that move with the body (free trajectories), which no shift brings nearer or farther: they bound nothing
+    (None: every target is fixed in the world)."""
     centres = targets - bases  # a shift d serves target k when |centres_k - d| <= radius_k
     frames = len(targets)
-    active = np.ones(centres.shape[:2], dtype=bool)
+    active = np.ones(centres.shape[:2], dtype=bool) if riding is None else ~np.asarray(riding, dtype=bool)
     wanted = np.zeros((frames, 3)) if preferred is None else np.asarray(preferred, dtype=np.float64)
     reach = np.asarray(reach, dtype=np.float64)
 
@@ -186,6 +189,7 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     # Free of contacts, each wrist and ankle goes where the transferred pose puts it (its limb keeps the
     # source's angles); the holds are blended into that.
     free = np.stack([effector_joint(target, t_heads, t_ends, e) for e in EFFECTORS], axis=1)
+    own = free.copy()  # where the transferred limbs put each wrist and ankle: within reach, moving with the body
     if ground:
         _stand_in_place(free, found, s_points, soles, floor, leg_s, settings)
     # Every target within its limb's reach (see reach_margin): shift the whole body, smoothly, where needed;
@@ -204,7 +208,8 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     # they stay within what retarget_metrics counts as a pop (POP_SPEED).
     targets = held(free)
     shift = body_shift(bases, targets, reach, feet_first, settings.reach_margin, settings.settle_margin, blend,
-                       max_step=0.5 * step, preferred=_held_offset(targets, free, contacts, blend))
+                       max_step=0.5 * step, preferred=_held_offset(targets, free, contacts, blend),
+                       riding=np.all(targets == own, axis=-1))  # the limb's own: it rides on the shift
     world_targets = held(free + shift[:, None])
     translate_body(target, start, shift)
     heads = start[..., :3, 3]

@@ -48,11 +48,9 @@ KNOWN = {
         "exit 2: no output written: fullbody_adjust retarget: error: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': its right foot 'Foot.R' hangs from 'Root', not below the leg's last",
     ('walk_heading', 'quaternius_matt'):
         "exit 2: no output written: fullbody_adjust retarget: error: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': its right foot 'Foot.R' hangs from 'Root', not below the leg's last",
-    ('walk_limbs', 'godot_robot'): 'limb directions 5.10 deg from the source (median)',
     ('walk_pops', 'quaternius_matt'):
         "exit 2: no output written: fullbody_adjust retarget: error: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': its right foot 'Foot.R' hangs from 'Root', not below the leg's last",
-    ('walk_pops', 'kaykit_manny'): '11 pop frames (source 0)',
-    ('walk_pops', 'godot_plush'): '2 pop frames (source 0), largest step 41.1 deg',
+    ('walk_pops', 'kaykit_manny'): '1 pop frame (source 0), largest step 30.9 deg',
     ('walk_report', 'quaternius_matt'):
         "exit 2: no output written: fullbody_adjust retarget: error: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': its right foot 'Foot.R' hangs from 'Root', not below the leg's last",
 }
