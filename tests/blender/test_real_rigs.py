@@ -50,7 +50,6 @@ KNOWN = {
         "exit 2: no output written: fullbody_adjust retarget: error: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': its right foot 'Foot.R' hangs from 'Root', not below the leg's last",
     ('walk_pops', 'quaternius_matt'):
         "exit 2: no output written: fullbody_adjust retarget: error: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': its right foot 'Foot.R' hangs from 'Root', not below the leg's last",
-    ('walk_pops', 'kaykit_manny'): '1 pop frame (source 0), largest step 30.9 deg',
     ('walk_report', 'quaternius_matt'):
         "exit 2: no output written: fullbody_adjust retarget: error: --target 'CharacterArmature' cannot be mapped: Cannot map rig 'CharacterArmature': its right foot 'Foot.R' hangs from 'Root', not below the leg's last",
 }

@@ -557,6 +557,25 @@ def test_body_shift_is_held_back_by_fixed_targets_but_not_by_those_that_ride_on_
     assert np.all(feet <= (1 - settle) * reach[2:] + 1e-9) and np.all(held[:, 2] < 0.0)
 
 
+@given(arrays(np.float64, st.integers(1, 40), elements=st.floats(0.0, 0.3)), st.floats(0.001, 0.05))
+@settings(max_examples=60, deadline=None)
+def test_a_raised_foot_is_let_down_no_faster_than_the_blend(lift, step):
+    """The foot's lift over the floor after _let_go: at least what the floor asks on every frame, falling by at
+    most ``step`` a frame, and the least such lift (on each frame some earlier frame's lift, less ``step`` per
+    frame since, is exactly it)."""
+    from fullbody_adjust.solver.retarget_plan import _let_go
+
+    out = _let_go(lift, step)
+    assert np.all(out >= lift - 1e-12)
+    assert np.all(np.diff(out) >= -step - 1e-12)
+    since = np.arange(len(lift))[:, None] - np.arange(len(lift))[None, :]
+    cone = np.where(since >= 0, lift[None, :] - step * since, -np.inf).max(axis=1)
+    np.testing.assert_allclose(out, cone, atol=1e-12)
+    spike = np.zeros(10)
+    spike[3] = 0.122  # KayKit's toe-off: the clamp lets go at once; the lift comes down over frames
+    np.testing.assert_allclose(_let_go(spike, 0.02)[3:10], np.maximum(0.122 - 0.02 * np.arange(7), 0.0))
+
+
 # ---------------------------------------------------------------------------------------------------------
 # The plan
 
