@@ -54,7 +54,7 @@ _STALLED = 0.7
 
 
 # A scale step is taken against the slope its last step measured when that step moved the control's scale by
-# more than this (in logs; float32 channels), and that slope is taken as no smaller than _SLOPE_MIN.
+# more than this (in logs; float32 channels); under _SLOPE_MIN the control no longer sets the chain's length.
 _SLOPE_STEP = 1e-5
 _SLOPE_MIN = 0.2
 
@@ -165,7 +165,7 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
     view_layer.update()
     error = best_error = np.inf
     best = None
-    scaled = {}  # scale pairs: (control scale, bone scale) of the last step, for the next step's slope
+    scaled = {}  # scale pairs: (control's Y scale, chain length) at their last step (None: left as they are)
     for _sweep in range(max_sweeps):
         pending = []  # (pair, armature-space step) of the controls moved since the last evaluation
         for level_pairs in by_level:
@@ -183,7 +183,9 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
                     continue
                 control = pose_bones[pair.control]
                 if pair.kind == "scale":
-                    scales.append((control, _scale_step(pair, control, pose_bones, desired, lengths, scaled)))
+                    scale = _scale_step(pair, control, pose_bones, desired, lengths, scaled)
+                    if scale is not None:
+                        scales.append((control, scale))
                     continue
                 if pair.bends:
                     step = _bend_step(pose_bones, pair, desired, lengths)
@@ -216,7 +218,6 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
         if pending:
             view_layer.update()
         previous, error = error, max(_pair_error(pose_bones, p, desired, lengths) for p in pairs)
-
         if error < best_error:
             best_error, best = error, read_channels(obj, controls)
         if error <= tolerance or error > _STALLED * previous:
@@ -246,16 +247,25 @@ def _scale_step(pair, control, pose_bones, desired, lengths, scaled):
     """A scale pair's new control scale (3,): its current one times the chain's desired over its evaluated length,
     that ratio raised to 1 / the slope the last step measured (how much of a control's scaling reached the chain,
     in logs: a stretchy IK undoes part of it, on Rigify's limbs about two thirds, which left 0.65 of the error
-    after each step), the slope bounded to [_SLOPE_MIN, 1]. ``scaled`` keeps each pair's last step."""
+    after each step), at most 1. None once a step measured a slope under _SLOPE_MIN: near full stretch the IK
+    stretches the chain to its end whatever its base's scale (a straight arm's length stayed 0.1 mm long over
+    six sweeps, the control's scaling reaching it less each time), and the control is left as it is.
+    ``scaled`` keeps each pair's last step (None: left)."""
+    last = scaled.get(pair, ())
+    if last is None:
+        return None
     now, want = _scale_lengths(pose_bones, pair, desired, lengths)
     current = np.array(control.scale, dtype=np.float64)
     ratio = math.log(want / now)
-    last = scaled.get(pair)
     scaled[pair] = (current[1], now)
-    if last is not None:
+    if last:
         moved = math.log(current[1] / last[0])
         if abs(moved) > _SLOPE_STEP:
-            ratio /= min(max(math.log(now / last[1]) / moved, _SLOPE_MIN), 1.0)
+            slope = math.log(now / last[1]) / moved
+            if slope < _SLOPE_MIN:
+                scaled[pair] = None
+                return None
+            ratio /= min(slope, 1.0)
     return current * math.exp(ratio)
 
 
