@@ -10,10 +10,16 @@ Each control is paired with one bone it drives, in one of two ways:
 - bend: the control sets the bend plane of a two-bone IK chain (its pole, or the chain's base control when the
   rig uses no pole). Turning it about the chain's axis (first bone's head to the end bone's head) turns the IK
   solution about that axis by the same angle, so the step is the angle from the evaluated middle joint to the
-  desired one about that axis;
+  desired one about that axis, and the pair's error is that angle (as an arc at the middle joint). How far the
+  middle joint lies from the axis is the chain's stretch, not its bend: a stretchy IK shares its stretch between
+  its two bones as its solver finds (on a generated Rigify leg bent 30 degrees, the shin 0.17 % shorter than the
+  thigh, the knee 1.4 mm off), which no control sets; counted as the bend's error, it stalled every sweep and
+  chose the best one by the knee, not by the hands and feet;
 - scale: the control is the first bone of a stretchy IK chain (Rigify's IK shrinks or stretches its bones to
-  reach), scaled by the ratio of the bone's desired to its evaluated axis lengths, as Rigify's own IK-to-FK
-  snapping does.
+  reach), scaled by the ratio of the chain's desired to its evaluated length (first bone's head, middle joint,
+  end bone's head), as Rigify's own IK-to-FK snapping scales it by its first bone's. The chain's length, not
+  the first bone's: the IK shares its stretch between the two bones as its solver finds, and matching the first
+  bone's length alone left the whole error on the second (a Rigify shin 0.67 % short with the thigh exact).
 Pairs are applied level by level, parents' controls first, and the sweep is repeated until every driven bone is within
 tolerance or a sweep stops helping; the controls are left as the best sweep placed them. An evaluation of the rig costs
 about as much as Blender's own IK on it, so a level is evaluated only when the moves since the last evaluation leave its
@@ -47,6 +53,11 @@ _CONTROL_MOVED = 1e-7
 _STALLED = 0.7
 
 
+# A scale step is taken against the slope its last step measured when that step moved the control's scale by
+# more than this (in logs; float32 channels); under _SLOPE_MIN the control no longer sets the chain's length.
+_SLOPE_STEP = 1e-5
+_SLOPE_MIN = 0.2
+
 # The group of the trunk's pairs: a move of the trunk carries every limb.
 TRUNK_GROUP = "trunk"
 
@@ -58,7 +69,7 @@ class ControlPair:
     control: str
     bone: str
     level: int
-    end: str = None  # bend pairs: the bone whose head ends the chain (hand, foot)
+    end: str = None  # bend and scale pairs: the bone whose head ends the chain (hand, foot)
     kind: str = "rigid"  # 'rigid' | 'bend' | 'scale'
     # The limb (or TRUNK_GROUP) whose bones the pair poses; pairs of different limbs do not affect each other.
     # None: unknown, every move is evaluated before the pair is placed.
@@ -88,18 +99,15 @@ def _tail(m, length):
     return (m[0][1] * length + m[0][3], m[1][1] * length + m[1][3], m[2][1] * length + m[2][3])
 
 
-def _axis_scales(m):
-    return [math.hypot(m[0][j], m[1][j], m[2][j]) for j in range(3)]
-
-
 def _pair_error(pose_bones, pair, desired, lengths):
     return _error(_matrix(pose_bones[pair.bone]), pair, pose_bones, desired, lengths)
 
 
-def _bend_step(pose_bones, pair, desired, lengths):
-    """The rotation (4x4, about the chain's axis through its first joint) taking the evaluated middle joint
-    towards the desired one, or None when the axis is degenerate. Plain floats (numpy's per-call cost on
-    3-vectors made this step cost 0.15 ms)."""
+def _bend_plane(pose_bones, pair, desired, lengths):
+    """(base, axis, now, want) of a bend pair: the chain's first joint, its unit axis (to the end bone's head)
+    and the evaluated and desired middle joints' offsets from that axis, or None when the axis or either offset
+    is degenerate (a straight chain has no bend plane to turn). Plain floats (numpy's per-call cost on
+    3-vectors made a bend step cost 0.15 ms)."""
     length = lengths[pair.bone]
     bone = _matrix(pose_bones[pair.bone]).tolist()
     base = _head(bone)
@@ -113,9 +121,32 @@ def _bend_step(pose_bones, pair, desired, lengths):
     now = g.sub(now, g.scaled(axis, g.dot(now, axis)))
     want = g.sub(want, g.scaled(axis, g.dot(want, axis)))
     if min(g.norm(now), g.norm(want)) <= 1e-9 * length:
-        return None  # a straight chain has no bend plane to turn
-    angle = math.atan2(g.dot(g.cross(now, want), axis), g.dot(now, want))
-    turn = g.rotation_about(axis, angle)  # about the base: x -> R (x - base) + base
+        return None
+    return base, axis, now, want
+
+
+def _bend_angle(plane):
+    _base, axis, now, want = plane
+    return math.atan2(g.dot(g.cross(now, want), axis), g.dot(now, want))
+
+
+def _bend_error(pose_bones, pair, desired, lengths):
+    """How far a bend pair's middle joint is turned from the desired one about the chain's axis: the arc at the
+    desired joint's distance from the axis (what a bend step removes). Its distance from the axis and along
+    it are not the bend's: a stretchy IK (Rigify's) shares its stretch between its two bones as its solver
+    finds, and no control sets that share (the first bone's scale is the scale pair's)."""
+    plane = _bend_plane(pose_bones, pair, desired, lengths)
+    return 0.0 if plane is None else abs(_bend_angle(plane)) * g.norm(plane[3])
+
+
+def _bend_step(pose_bones, pair, desired, lengths):
+    """The rotation (4x4, about the chain's axis through its first joint) taking the evaluated middle joint
+    towards the desired one, or None when the axis is degenerate."""
+    plane = _bend_plane(pose_bones, pair, desired, lengths)
+    if plane is None:
+        return None
+    base, axis = plane[0], plane[1]
+    turn = g.rotation_about(axis, _bend_angle(plane))  # about the base: x -> R (x - base) + base
     shift = [b - g.dot(row, base) for row, b in zip(turn, base)]
     return np.array([[*turn[0], shift[0]], [*turn[1], shift[1]], [*turn[2], shift[2]], [0.0, 0.0, 0.0, 1.0]])
 
@@ -134,6 +165,7 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
     view_layer.update()
     error = best_error = np.inf
     best = None
+    scaled = {}  # scale pairs: (control's Y scale, chain length) at their last step (None: left as they are)
     for _sweep in range(max_sweeps):
         pending = []  # (pair, armature-space step) of the controls moved since the last evaluation
         for level_pairs in by_level:
@@ -151,8 +183,9 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
                     continue
                 control = pose_bones[pair.control]
                 if pair.kind == "scale":
-                    ratio = np.array(_axis_scales(desired[pair.bone].tolist())) / _axis_scales(bone.tolist())
-                    scales.append((control, np.array(control.scale) * ratio))
+                    scale = _scale_step(pair, control, pose_bones, desired, lengths, scaled)
+                    if scale is not None:
+                        scales.append((control, scale))
                     continue
                 if pair.bends:
                     step = _bend_step(pose_bones, pair, desired, lengths)
@@ -196,6 +229,46 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
     return best_error
 
 
+def _chain_length(bone, end, length):
+    """A two-bone chain's length from its first bone's matrix ``bone`` (its head, and its tail: the middle joint)
+    and its end bone's ``end`` (its head), as nested lists."""
+    middle = _tail(bone, length)
+    return math.dist(_head(bone), middle) + math.dist(middle, _head(end))
+
+
+def _scale_lengths(pose_bones, pair, desired, lengths):
+    """A scale pair's chain length (_chain_length) as evaluated and as desired."""
+    length = lengths[pair.bone]
+    now = _chain_length(_matrix(pose_bones[pair.bone]).tolist(), _matrix(pose_bones[pair.end]).tolist(), length)
+    return now, _chain_length(desired[pair.bone].tolist(), desired[pair.end].tolist(), length)
+
+
+def _scale_step(pair, control, pose_bones, desired, lengths, scaled):
+    """A scale pair's new control scale (3,): its current one times the chain's desired over its evaluated length,
+    that ratio raised to 1 / the slope the last step measured (how much of a control's scaling reached the chain,
+    in logs: a stretchy IK undoes part of it, on Rigify's limbs about two thirds, which left 0.65 of the error
+    after each step), at most 1. None once a step measured a slope under _SLOPE_MIN: near full stretch the IK
+    stretches the chain to its end whatever its base's scale (a straight arm's length stayed 0.1 mm long over
+    six sweeps, the control's scaling reaching it less each time), and the control is left as it is.
+    ``scaled`` keeps each pair's last step (None: left)."""
+    last = scaled.get(pair, ())
+    if last is None:
+        return None
+    now, want = _scale_lengths(pose_bones, pair, desired, lengths)
+    current = np.array(control.scale, dtype=np.float64)
+    ratio = math.log(want / now)
+    scaled[pair] = (current[1], now)
+    if last:
+        moved = math.log(current[1] / last[0])
+        if abs(moved) > _SLOPE_STEP:
+            slope = math.log(now / last[1]) / moved
+            if slope < _SLOPE_MIN:
+                scaled[pair] = None
+                return None
+            ratio /= min(slope, 1.0)
+    return current * math.exp(ratio)
+
+
 def _set_channels(obj, channels):
     """Put back channels as read_channels read them (RNA sets: Blender evaluates the rig again)."""
     for name, props in channels.items():
@@ -226,13 +299,16 @@ def _carried_or_apart(pair, pending, above):
 
 
 def _error(bone, pair, pose_bones, desired, lengths):
-    """_pair_error from the bone's (possibly carried) matrix ``bone``: a scale pair's largest axis scale error
-    times the bone's length, a bend pair's middle joint distance, else the larger of the head's and the tail's."""
+    """_pair_error from the bone's (possibly carried) matrix ``bone``: a scale pair's chain length error, a bend
+    pair's turn as _bend_error measures it (both from the evaluated rig: they are never carried), else the larger
+    of the head's and the tail's distances."""
+    if pair.bends:
+        return _bend_error(pose_bones, pair, desired, lengths)
     b, d, length = bone.tolist(), desired[pair.bone].tolist(), lengths[pair.bone]
     if pair.kind == "scale":
-        return max(abs(s - t) for s, t in zip(_axis_scales(b), _axis_scales(d))) * length
-    tail = math.dist(_tail(b, length), _tail(d, length))
-    return tail if pair.bends else max(math.dist(_head(b), _head(d)), tail)
+        now, want = _scale_lengths(pose_bones, pair, desired, lengths)
+        return abs(now - want)
+    return max(math.dist(_head(b), _head(d)), math.dist(_tail(b, length), _tail(d, length)))
 
 
 def control_channels(obj, view_layer, pairs, bones, desired, tolerance, rows, start=None):

@@ -168,5 +168,5 @@ def control_pairs(obj, bone_map):
             bend_control = f"{pole}.{side}" if mode.pole else f"{ik_base}.{side}"
             add(bend_control, org[0], _CLAVICLE_LEVEL + 2, end=org[2], kind="bend", group=group)
             # Scaled from the same evaluation as the bend: turning the chain about its axis leaves its scale.
-            add(f"{ik_base}.{side}", org[0], _CLAVICLE_LEVEL + 2, kind="scale", group=group)
+            add(f"{ik_base}.{side}", org[0], _CLAVICLE_LEVEL + 2, end=org[2], kind="scale", group=group)
     return pairs

@@ -36,7 +36,8 @@ def moving_average(values, half_width):
     return (total[2 * w + 1:] - total[:-2 * w - 1]) / (2 * w + 1)
 
 
-def body_shift(bases, targets, reach, priorities, margin, settle_margin, half_width, max_step=None, preferred=None):
+def body_shift(bases, targets, reach, priorities, margin, settle_margin, half_width, max_step=None, preferred=None,
+               riding=None):
     """World shifts (F,3) of the whole body that bring each target (F,E,3) within its limb's ``reach`` (E,)
     less ``margin`` from the limb's base (F,E,3) (a knee or elbow stretched straighter swings about a barely
     bent hinge, and a target just within reach or just beyond it moves the trunk or not). On each frame the
@@ -46,10 +47,12 @@ def body_shift(bases, targets, reach, priorities, margin, settle_margin, half_wi
     its reach less ``settle_margin`` again. Continuous from frame to frame, as the nearest point of a convex
     set is; where it still changes by more than ``max_step`` from one frame to the next (the
     reach balls barely meet, or the shift must follow a target that moves fast), smoothed again over windows
-    twice as wide each time (the solve reaches what that leaves just out of reach)."""
+    twice as wide each time (the solve reaches what that leaves just out of reach). ``riding`` (F,E) bool: targets
+    that move with the body (free trajectories), which no shift brings nearer or farther: they bound nothing
+    (None: every target is fixed in the world)."""
     centres = targets - bases  # a shift d serves target k when |centres_k - d| <= radius_k
     frames = len(targets)
-    active = np.ones(centres.shape[:2], dtype=bool)
+    active = np.ones(centres.shape[:2], dtype=bool) if riding is None else ~np.asarray(riding, dtype=bool)
     wanted = np.zeros((frames, 3)) if preferred is None else np.asarray(preferred, dtype=np.float64)
     reach = np.asarray(reach, dtype=np.float64)
 
@@ -180,12 +183,14 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
                 holds.append((a, b, path, _blend_frames(path, paths[:, k], a, b, blend, step)))
             out[:, k] = hold(paths[:, k], holds, blend)
             if e in FEET and ground:  # never below the floor: the lowest point of the foot at least on it
-                out[:, k, 2] = np.maximum(out[:, k, 2], floor + soles[:, FEET.index(e)])
+                lift = np.maximum(floor + soles[:, FEET.index(e)] - out[:, k, 2], 0.0)
+                out[:, k, 2] += np.where(contacts[:, k], lift, _let_go(lift, step))  # a planted foot stays down
         return out
 
     # Free of contacts, each wrist and ankle goes where the transferred pose puts it (its limb keeps the
     # source's angles); the holds are blended into that.
     free = np.stack([effector_joint(target, t_heads, t_ends, e) for e in EFFECTORS], axis=1)
+    own = free.copy()  # where the transferred limbs put each wrist and ankle: within reach, moving with the body
     if ground:
         _stand_in_place(free, found, s_points, soles, floor, leg_s, settings)
     # Every target within its limb's reach (see reach_margin): shift the whole body, smoothly, where needed;
@@ -204,7 +209,8 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     # they stay within what retarget_metrics counts as a pop (POP_SPEED).
     targets = held(free)
     shift = body_shift(bases, targets, reach, feet_first, settings.reach_margin, settings.settle_margin, blend,
-                       max_step=0.5 * step, preferred=_held_offset(targets, free, contacts, blend))
+                       max_step=0.5 * step, preferred=_held_offset(targets, free, contacts, blend),
+                       riding=np.all(targets == own, axis=-1))  # the limb's own: it rides on the shift
     world_targets = held(free + shift[:, None])
     translate_body(target, start, shift)
     heads = start[..., :3, 3]
@@ -268,6 +274,15 @@ def _stand_in_place(free, found, s_points, soles, floor, leg, settings):
         if np.median(low[resting]) <= near:
             k = EFFECTORS.index(e)
             free[:, k, 2] += float(np.median((floor + soles[:, i] - free[:, k, 2])[resting]))
+
+
+def _let_go(lift, step):
+    """The least lift (F,) at least ``lift`` on every frame that falls by at most ``step`` a frame: a foot raised
+    over the floor (a long foot pitched at toe-off: KayKit's ankle up to 122 mm above its free path) is let
+    down at the blend's speed, not the moment its sole clears the floor (a shin turning 30.9 degrees in one
+    frame). It rises as ``lift`` does."""
+    frames = np.arange(len(lift)) * step
+    return np.maximum.accumulate(lift + frames) - frames
 
 
 def _held_offset(targets, free, contacts, half_width):

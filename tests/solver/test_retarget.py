@@ -531,6 +531,51 @@ def test_body_shift_goes_where_it_is_asked_to_as_far_as_reach_allows_and_no_fast
     assert np.linalg.norm(np.diff(free, axis=0), axis=1).max() > 0.01  # the asked-for shift jumps
 
 
+def test_body_shift_is_held_back_by_fixed_targets_but_not_by_those_that_ride_on_it():
+    """Held feet that ask the body 0.15 up while the hands' targets hang near full stretch below the shoulders:
+    taken as fixed in the world, the hands keep the body down (within their reach less the margin); marked as
+    riding on the shift (free trajectories, which move with the body), they bound nothing and the body goes
+    the whole way. Held targets bound it either way."""
+    frames = 40
+    bases = np.broadcast_to(np.array([[0.2, 0, 0.5], [-0.2, 0, 0.5], [0.1, 0, 0], [-0.1, 0, 0]]), (frames, 4, 3))
+    reach = np.array([0.6, 0.6, 0.9, 0.9])
+    targets = bases + np.array([[0.0, 0.0, -0.58], [0.0, 0.0, -0.58], [0.0, 0.1, -0.6], [0.0, -0.1, -0.6]])
+    up = np.broadcast_to(np.array([0.0, 0.0, 0.15]), (frames, 3))
+    margin, settle, half = 0.03, 0.015, 3
+    riding = np.zeros((frames, 4), dtype=bool)
+    riding[:, :2] = True
+    fixed = rt.body_shift(bases, targets, reach, [2, 2, 3, 3], margin, settle, half, preferred=up)
+    assert np.all(fixed[:, 2] < 0.15 - 0.1)
+    hands = np.linalg.norm(targets[:, :2] - bases[:, :2] - fixed[:, None], axis=-1)
+    assert np.all(hands <= (1 - settle) * reach[:2] + 1e-9)
+    free = rt.body_shift(bases, targets, reach, [2, 2, 3, 3], margin, settle, half, preferred=up, riding=riding)
+    np.testing.assert_allclose(free, up, atol=1e-12)
+    far = targets.copy()
+    far[:, 2:, 2] -= 0.3  # the feet held lower than the legs reach from there: the held ones still bound the shift
+    held = rt.body_shift(bases, far, reach, [2, 2, 3, 3], margin, settle, half, preferred=up, riding=riding)
+    feet = np.linalg.norm(far[:, 2:] - bases[:, 2:] - held[:, None], axis=-1)
+    assert np.all(feet <= (1 - settle) * reach[2:] + 1e-9) and np.all(held[:, 2] < 0.0)
+
+
+@given(arrays(np.float64, st.integers(1, 40), elements=st.floats(0.0, 0.3)), st.floats(0.001, 0.05))
+@settings(max_examples=60, deadline=None)
+def test_a_raised_foot_is_let_down_no_faster_than_the_blend(lift, step):
+    """The foot's lift over the floor after _let_go: at least what the floor asks on every frame, falling by at
+    most ``step`` a frame, and the least such lift (on each frame some earlier frame's lift, less ``step`` per
+    frame since, is exactly it)."""
+    from fullbody_adjust.solver.retarget_plan import _let_go
+
+    out = _let_go(lift, step)
+    assert np.all(out >= lift - 1e-12)
+    assert np.all(np.diff(out) >= -step - 1e-12)
+    since = np.arange(len(lift))[:, None] - np.arange(len(lift))[None, :]
+    cone = np.where(since >= 0, lift[None, :] - step * since, -np.inf).max(axis=1)
+    np.testing.assert_allclose(out, cone, atol=1e-12)
+    spike = np.zeros(10)
+    spike[3] = 0.122  # KayKit's toe-off: the clamp lets go at once; the lift comes down over frames
+    np.testing.assert_allclose(_let_go(spike, 0.02)[3:10], np.maximum(0.122 - 0.02 * np.arange(7), 0.0))
+
+
 # ---------------------------------------------------------------------------------------------------------
 # The plan
 
