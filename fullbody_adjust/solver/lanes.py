@@ -1,0 +1,100 @@
+"""One frame or many: the only module that knows which.
+
+A calculation is written once, on components: a 3-vector is a tuple (x, y, z) whose components are each a Python
+float (one frame) or a float64 array of shape (F,) (F frames, one lane each). `+ - * /`, abs, comparisons and
+sqrt round the same on a float and on an array's element, and the trigonometry calls numpy's routine on the one
+value as on the many, so a frame solved alone equals its row of a batch by construction. What differs between the
+two lives here: choosing per lane (where, pick), asking about all lanes (any_, all_), a division that never raises,
+and `run`, which decides how a kernel meets its (F,3) arrays: up to FEW frames one frame at a time in plain
+floats (numpy's per-call cost is most of a one-frame solve), beyond that on component arrays."""
+
+import math
+
+import numpy as np
+
+# Up to this many frames a kernel runs frame by frame on Python floats.
+FEW = 4
+
+
+def many(x):
+    """True when x holds a lane per frame (an array), False for one frame's float or bool."""
+    return isinstance(x, np.ndarray)
+
+
+def where(cond, a, b):
+    """a where cond, else b (per lane)."""
+    if many(cond):
+        return np.where(cond, a, b)
+    return a if cond else b
+
+
+def pick(cond, u, v):
+    """The vector u where cond, else v (per lane)."""
+    if many(cond):
+        return (np.where(cond, u[0], v[0]), np.where(cond, u[1], v[1]), np.where(cond, u[2], v[2]))
+    return u if cond else v
+
+
+def any_(cond):
+    """Whether cond holds in some lane."""
+    return np.count_nonzero(cond) != 0 if many(cond) else bool(cond)
+
+
+def all_(cond):
+    """Whether cond holds in every lane."""
+    return np.count_nonzero(cond) == cond.size if many(cond) else bool(cond)
+
+
+def not_(cond):
+    return ~cond if many(cond) else not cond
+
+
+def isnan(x):
+    return np.isnan(x) if many(x) else x != x
+
+
+def sqrt(x):
+    if many(x):
+        return np.sqrt(x)
+    if not x < 0.0:
+        return math.sqrt(x)
+    with np.errstate(invalid="ignore"):
+        return float(np.sqrt(x))
+
+
+def divide(a, b):
+    """a / b, as numpy divides (inf or NaN where b is zero, never an exception)."""
+    if many(a) or many(b):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.divide(a, b)
+    if b != 0.0:
+        return a / b
+    with np.errstate(divide="ignore", invalid="ignore"):  # numpy's inf or NaN, its sign bits included
+        return float(np.float64(a) / b)
+
+
+def arctan2(y, x):
+    return np.arctan2(y, x) if many(y) or many(x) else float(np.arctan2(y, x))
+
+
+def cos(x):
+    return np.cos(x) if many(x) else float(np.cos(x))
+
+
+def sin(x):
+    return np.sin(x) if many(x) else float(np.sin(x))
+
+
+def run(kernel, vectors, *rest):
+    """kernel(*vector components, *rest) -> a vector, on (F,3) arrays `vectors` (None passes through as None):
+    (F,3). Up to FEW frames each frame alone in floats, else every frame at once on component arrays."""
+    frames = next(v for v in vectors if v is not None).shape[0]
+    if frames <= FEW:
+        rows = [[None if v is None else tuple(v[f].tolist()) for v in vectors] for f in range(frames)]
+        out = [kernel(*row, *rest) for row in rows]
+        return np.array(out, dtype=np.float64).reshape(frames, 3)
+    cols = [None if v is None else (v[:, 0], v[:, 1], v[:, 2]) for v in vectors]
+    x, y, z = kernel(*cols, *rest)
+    out = np.empty((frames, 3))
+    out[:, 0], out[:, 1], out[:, 2] = x, y, z
+    return out

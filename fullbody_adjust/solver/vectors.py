@@ -1,0 +1,68 @@
+"""3-vectors on components (x, y, z), each a float for one frame or an (F,) array for F frames (lanes.py): the
+helpers of geometry.py written once for both. Sums run in order, (x0 + x1) + x2, as geometry.dot adds."""
+
+from . import lanes
+from .errors import SolverInputError
+from .geometry import TINY
+
+
+def sub(a, b):
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+def add(a, b):
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
+
+
+def neg(a):
+    return (-a[0], -a[1], -a[2])
+
+
+def scaled(v, s):
+    return (v[0] * s, v[1] * s, v[2] * s)
+
+
+def divided(v, s):
+    """v / s, inf or NaN where s is zero (as numpy divides)."""
+    return (lanes.divide(v[0], s), lanes.divide(v[1], s), lanes.divide(v[2], s))
+
+
+def dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def norm(v):
+    return lanes.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+
+
+def cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def normalize(v, fallback=None):
+    """geometry.normalize: unit v; where v has no length the fallback (normalised itself); SolverInputError
+    where there is neither."""
+    n = norm(v)
+    zero = lanes.not_(n > TINY)
+    if not lanes.any_(zero):
+        return (v[0] / n, v[1] / n, v[2] / n)
+    if fallback is None:
+        raise SolverInputError("cannot normalise a zero-length vector")
+    safe = lanes.pick(zero, fallback, v)
+    n = norm(safe)
+    if not lanes.all_(n > TINY):
+        raise SolverInputError("cannot normalise a zero-length vector (fallback is zero too)")
+    return (safe[0] / n, safe[1] / n, safe[2] / n)
+
+
+def any_perpendicular(v):
+    """geometry.any_perpendicular: v crossed with the coordinate axis of its smallest |component| (numpy's argmin:
+    the first NaN, else the first smallest), divided by its length."""
+    ax, ay, az = abs(v[0]), abs(v[1]), abs(v[2])
+    nx, ny, nz = lanes.isnan(ax), lanes.isnan(ay), lanes.isnan(az)
+    first = nx | (lanes.not_(ny | nz) & (ax <= ay) & (ax <= az))
+    second = lanes.not_(first) & (ny | (lanes.not_(nz) & (ay <= az)))
+    third = lanes.not_(first | second)
+    e = (lanes.where(first, 1.0, 0.0), lanes.where(second, 1.0, 0.0), lanes.where(third, 1.0, 0.0))
+    p = cross(v, e)
+    return divided(p, norm(p))
