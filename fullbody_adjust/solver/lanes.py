@@ -73,6 +73,23 @@ def divide(a, b):
         return float(np.float64(a) / b)
 
 
+def maximum(x, c):
+    return np.maximum(x, c) if many(x) or many(c) else max(x, c)
+
+
+def clip(x, lo, hi):
+    """x within [lo, hi] (NaN stays NaN)."""
+    return np.clip(x, lo, hi) if many(x) or many(lo) or many(hi) else min(max(x, lo), hi)
+
+
+def isfinite(x):
+    return np.isfinite(x) if many(x) else math.isfinite(x)
+
+
+def arccos(x):
+    return np.arccos(x) if many(x) else float(np.arccos(x))
+
+
 def arctan2(y, x):
     return np.arctan2(y, x) if many(y) or many(x) else float(np.arctan2(y, x))
 
@@ -85,16 +102,39 @@ def sin(x):
     return np.sin(x) if many(x) else float(np.sin(x))
 
 
-def run(kernel, vectors, *rest):
-    """kernel(*vector components, *rest) -> a vector, on (F,3) arrays `vectors` (None passes through as None):
-    (F,3). Up to FEW frames each frame alone in floats, else every frame at once on component arrays."""
-    frames = next(v for v in vectors if v is not None).shape[0]
+def run(kernel, arrays, *rest):
+    """kernel(*vectors, *rest) on arrays (F,3) (a vector each), (F,n,3) (a list of n vectors) or None (passed as
+    None): its vector or list of vectors as (F,3) or (F,n,3). Up to FEW frames each frame alone in floats, else
+    every frame at once on component arrays."""
+    frames = next(a for a in arrays if a is not None).shape[0]
     if frames <= FEW:
-        rows = [[None if v is None else tuple(v[f].tolist()) for v in vectors] for f in range(frames)]
-        out = [kernel(*row, *rest) for row in rows]
-        return np.array(out, dtype=np.float64).reshape(frames, 3)
-    cols = [None if v is None else (v[:, 0], v[:, 1], v[:, 2]) for v in vectors]
-    x, y, z = kernel(*cols, *rest)
-    out = np.empty((frames, 3))
-    out[:, 0], out[:, 1], out[:, 2] = x, y, z
+        out = [kernel(*[_row(a, f) for a in arrays], *rest) for f in range(frames)]
+        return np.array(out, dtype=np.float64)
+    out = kernel(*[_lanes(a) for a in arrays], *rest)
+    if isinstance(out, tuple):
+        return _joined(out, (frames, 3))
+    joined = np.empty((frames, len(out), 3))
+    for j, v in enumerate(out):
+        joined[:, j, 0], joined[:, j, 1], joined[:, j, 2] = v
+    return joined
+
+
+def _row(a, f):
+    if a is None:
+        return None
+    r = a[f].tolist()
+    return tuple(r) if a.ndim == 2 else [tuple(p) for p in r]
+
+
+def _lanes(a):
+    if a is None:
+        return None
+    if a.ndim == 2:
+        return (a[:, 0], a[:, 1], a[:, 2])
+    return [(a[:, j, 0], a[:, j, 1], a[:, j, 2]) for j in range(a.shape[1])]
+
+
+def _joined(v, shape):
+    out = np.empty(shape)
+    out[..., 0], out[..., 1], out[..., 2] = v
     return out

@@ -5,6 +5,8 @@ from . import lanes
 from .errors import SolverInputError
 from .geometry import TINY
 
+EYE = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+
 
 def sub(a, b):
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
@@ -66,3 +68,36 @@ def any_perpendicular(v):
     e = (lanes.where(first, 1.0, 0.0), lanes.where(second, 1.0, 0.0), lanes.where(third, 1.0, 0.0))
     p = cross(v, e)
     return divided(p, norm(p))
+
+
+def rotate_about_axis(v, axis, angle):
+    """geometry.rotate_about_axis: v turned about axis (need not be unit) by angle (Rodrigues)."""
+    k = normalize(axis)
+    cos_a, sin_a = lanes.cos(angle), lanes.sin(angle)
+    kv, along = cross(k, v), dot(k, v) * (1.0 - cos_a)
+    return (v[0] * cos_a + kv[0] * sin_a + k[0] * along, v[1] * cos_a + kv[1] * sin_a + k[1] * along,
+            v[2] * cos_a + kv[2] * sin_a + k[2] * along)
+
+
+def swing_rotation(old, new):
+    """geometry.swing_rotation: the minimal rotation taking direction old to new, as its three rows."""
+    a, b = normalize(old), normalize(new)
+    c = dot(a, b)
+    w = sub(b, scaled(a, c))
+    s = norm(w)
+    degenerate = lanes.not_(s > 1e-14)
+    if lanes.any_(degenerate):
+        w = lanes.pick(degenerate, any_perpendicular(a), w)
+    w = sub(w, scaled(a, dot(w, a)))
+    e = divided(w, norm(w))
+    t = lanes.arctan2(lanes.where(degenerate, 0.0, s), c)
+    cl, st = lanes.cos(t) - 1.0, lanes.sin(t)
+    return tuple((cl * (ai * a[0] + ei * e[0]) + eye[0] + st * (ei * a[0] - ai * e[0]),
+                  cl * (ai * a[1] + ei * e[1]) + eye[1] + st * (ei * a[1] - ai * e[1]),
+                  cl * (ai * a[2] + ei * e[2]) + eye[2] + st * (ei * a[2] - ai * e[2]))
+                 for eye, ai, ei in zip(EYE, a, e))
+
+
+def apply_matrix(m, v):
+    """The matrix m (three rows) times v."""
+    return (dot(m[0], v), dot(m[1], v), dot(m[2], v))
