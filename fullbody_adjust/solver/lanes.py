@@ -102,17 +102,20 @@ def sin(x):
     return np.sin(x) if many(x) else float(np.sin(x))
 
 
-def run(kernel, arrays, *rest):
-    """kernel(*vectors, *rest) on arrays (F,3) (a vector each), (F,n,3) (a list of n vectors) or None (passed as
-    None): its vector or list of vectors as (F,3) or (F,n,3). Up to FEW frames each frame alone in floats, else
-    every frame at once on component arrays."""
+def run(kernel, arrays, *rest, values=()):
+    """kernel(*vectors, *values, *rest) on `arrays` (F,3) (a vector each), (F,n,3) (a list of n vectors) or None
+    (passed as None) and `values` (F,) (a number each) or (F,m) (a list of m numbers). Returns its vector, list of
+    vectors or number as (F,3), (F,n,3) or (F,). Up to FEW frames each frame alone in floats, else every frame
+    at once on component arrays."""
     frames = next(a for a in arrays if a is not None).shape[0]
     if frames <= FEW:
-        out = [kernel(*[_row(a, f) for a in arrays], *rest) for f in range(frames)]
+        out = [kernel(*[_row(a, f) for a in arrays], *[a[f].tolist() for a in values], *rest) for f in range(frames)]
         return np.array(out, dtype=np.float64)
-    out = kernel(*[_lanes(a) for a in arrays], *rest)
+    out = kernel(*[_lanes(a) for a in arrays], *[a if a.ndim == 1 else list(a.T) for a in values], *rest)
     if isinstance(out, tuple):
         return _joined(out, (frames, 3))
+    if not isinstance(out, list):
+        return np.broadcast_to(out, (frames,)).astype(np.float64)
     joined = np.empty((frames, len(out), 3))
     for j, v in enumerate(out):
         joined[:, j, 0], joined[:, j, 1], joined[:, j, 2] = v

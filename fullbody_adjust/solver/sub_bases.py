@@ -8,8 +8,7 @@ from . import geometry_plain as gp
 from .geometry import all_set, any_set, norm
 from .obstacles import penetrations
 from .reach_balls import nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point
-from .trunk_curl import curl_start
-from .trunk_curl_plain import curl_chord
+from .trunk_curl import curl_chord, curl_start
 
 # The lean's radius is the chord of the curl toward the lean point, which moves a little with the radius: a few
 # rounds settle both (the chord changes with the square of the bend, so each round shrinks the change).

@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from fullbody_adjust.solver import body, lanes
+from fullbody_adjust.solver.trunk_curl import curl_chord, curl_start
 from fullbody_adjust.solver.two_bone_start import two_bone_start
 from fullbody_adjust.solver.errors import SolverInputError
 
@@ -133,6 +134,39 @@ def test_two_bone_start_captured(joints, with_pole):
 def test_two_bone_start_random(problem):
     with np.errstate(invalid="ignore", divide="ignore"):
         _alone_and_together(two_bone_start, len(problem[0]), *problem)
+
+
+def _trunks(rng, b, segments):
+    """Spines near upright, some straight; targets about the end, some straight along the spine's chord."""
+    steps = np.array([0.0, 0.0, 0.12]) + 0.04 * rng.normal(size=(b, segments, 3))
+    steps[::10] = [0.0, 0.0, 0.12]
+    chains = np.concatenate([np.zeros((b, 1, 3)), np.cumsum(steps, axis=1)], axis=1)
+    targets = chains[:, -1] + rng.normal(size=(b, 3)) * 0.2
+    targets[2::5] = 1.3 * chains[2::5, -1]
+    return chains, targets
+
+
+@pytest.mark.parametrize("segments", [3, 4])
+@pytest.mark.parametrize("fn", [curl_chord, curl_start])
+def test_trunk_curl_captured(segments, fn):
+    rng = np.random.default_rng(segments)
+    for frames in (MANY, 60):
+        chains, targets = _trunks(rng, frames, segments)
+        for shares in (rng.uniform(0.2, 1.0, segments), rng.uniform(0.2, 1.0, (frames, segments))):
+            per_frame = shares if shares.ndim == 1 else None
+            call = (lambda c, t, s=None: fn(c, t, per_frame if s is None else s))  # noqa: E731
+            args = (chains, targets) if per_frame is not None else (chains, targets, shares)
+            assert _alone_and_together(call, frames, *args) == frames
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.integers(2, 5).flatmap(lambda m: st.integers(1, 2 * MANY).flatmap(lambda f: st.tuples(
+    arrays(np.float64, (f, m + 1, 3), elements=st.floats(-1.0, 1.0)), arrays(np.float64, (f, 3), elements=st.floats(-2, 2)),
+    arrays(np.float64, (f, m), elements=st.floats(0.0, 1.0))))))
+def test_trunk_curl_random(problem):
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        for fn in (curl_chord, curl_start):
+            _alone_and_together(fn, len(problem[0]), *problem)
 
 
 @given(st.floats(allow_nan=True, allow_infinity=True), st.floats(allow_nan=True, allow_infinity=True))
