@@ -90,6 +90,14 @@ def arccos(x):
     return np.arccos(x) if many(x) else float(np.arccos(x))
 
 
+def hypot(x, y):
+    return np.hypot(x, y) if many(x) or many(y) else float(np.hypot(x, y))
+
+
+def remainder(x, y):
+    return np.remainder(x, y) if many(x) or many(y) else float(np.remainder(x, y))
+
+
 def arctan2(y, x):
     return np.arctan2(y, x) if many(y) or many(x) else float(np.arctan2(y, x))
 

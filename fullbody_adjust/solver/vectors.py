@@ -101,3 +101,16 @@ def swing_rotation(old, new):
 def apply_matrix(m, v):
     """The matrix m (three rows) times v."""
     return (dot(m[0], v), dot(m[1], v), dot(m[2], v))
+
+
+def matmul(a, b):
+    """The matrix product a b (matrices as their three rows)."""
+    return tuple(tuple(r[0] * b[0][k] + r[1] * b[1][k] + r[2] * b[2][k] for k in (0, 1, 2)) for r in a)
+
+
+def rotation_about(k, angle):
+    """The rotation about the unit axis k by angle (Rodrigues): the rows of c I + s [k]x + (1 - c) k k'."""
+    c, s = lanes.cos(angle), lanes.sin(angle)
+    kx = ((0.0, -k[2], k[1]), (k[2], 0.0, -k[0]), (-k[1], k[0], 0.0))
+    return tuple(tuple(c * EYE[i][j] + s * kx[i][j] + (1.0 - c) * (k[i] * k[j]) for j in (0, 1, 2))
+                 for i in (0, 1, 2))

@@ -9,6 +9,8 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from fullbody_adjust.solver import body, lanes
+from fullbody_adjust.solver import limb_rotations as lr
+from fullbody_adjust.solver.limits import CONE, FREE, HINGE
 from fullbody_adjust.solver.trunk_curl import curl_chord, curl_start
 from fullbody_adjust.solver.two_bone_start import two_bone_start
 from fullbody_adjust.solver.errors import SolverInputError
@@ -167,6 +169,25 @@ def test_trunk_curl_random(problem):
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         for fn in (curl_chord, curl_start):
             _alone_and_together(fn, len(problem[0]), *problem)
+
+
+@pytest.mark.parametrize("kind", [(CONE, HINGE, CONE), (FREE, HINGE, HINGE), (HINGE, CONE, HINGE), None])
+def test_segment_rotations_captured(kind):
+    """Chains with hinges (one, or two in a row), cones and free joints; segments that do not turn, turn right
+    round, fold onto their parent, a hinge axis along its parent; a segment of no length (an error)."""
+    rng = np.random.default_rng(7)
+    for frames in (MANY, 50):
+        n = 4
+        start = np.cumsum(rng.normal(size=(frames, n, 3)) * 0.3, axis=1)
+        joints = start + rng.normal(size=(frames, n, 3)) * rng.choice([0.0, 0.05, 0.5], size=(frames, 1, 1))
+        joints[1::7, 2] = joints[1::7, 1] - (start[1::7, 2] - start[1::7, 1])
+        joints[2::7, 2] = joints[2::7, 1] + 0.7 * (joints[2::7, 1] - joints[2::7, 0])
+        joints[5::19, 3] = joints[5::19, 2]
+        axes = rng.normal(size=(frames, n - 1, 3))
+        axes[3::7, 1] = start[3::7, 1] - start[3::7, 0]
+        k = None if kind is None else np.array(kind)
+        fn = (lambda s, j, a: lr._segment_rotations(s, j, k, None if k is None else a))  # noqa: E731
+        assert _alone_and_together(fn, frames, start, joints, axes) >= frames - frames // 19 - 1
 
 
 @given(st.floats(allow_nan=True, allow_infinity=True), st.floats(allow_nan=True, allow_infinity=True))
