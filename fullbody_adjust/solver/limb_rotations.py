@@ -7,7 +7,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import geometry_plain as gp
 from . import lanes
 from . import vectors as vec
 from .geometry import any_perpendicular, any_set, apply_matrix, norm, stack_rows, swing_rotation
@@ -127,10 +126,6 @@ def end_rotation(wanted, carried, direction, max_swing=END_SWING):
 
 
 def chest_rotation(trunk0, trunk_new):
-    """(F,3,3) swing of the last trunk segment: the chest's world rotation delta (one frame in plain floats, the
-    same bits: numpy's per-call cost was most of it)."""
+    """(F,3,3) swing of the last trunk segment: the chest's world rotation delta."""
     old, new = trunk0[:, -1] - trunk0[:, -2], trunk_new[:, -1] - trunk_new[:, -2]
-    if old.shape[0] == 1:
-        return np.array([gp.swing_rotation(old[0].tolist(), new[0].tolist())])
-    return swing_rotation(old, new)
-
+    return lanes.run(lambda o, n: list(vec.swing_rotation(o, n)), (old, new))

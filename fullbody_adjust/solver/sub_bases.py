@@ -4,7 +4,7 @@ settings)."""
 
 import numpy as np
 
-from . import geometry_plain as gp
+from . import vectors as vec
 from .geometry import all_set, any_set, norm
 from .obstacles import penetrations
 from .reach_balls import nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point
@@ -49,7 +49,7 @@ class SubBasePlacement:
         if len(rows) == 1:  # one frame (Adjust Pose, Live): the same distances in plain floats
             r = int(rows[0])
             return np.array([all(not self.limb_active[n][r]
-                                 or gp.norm(gp.sub(self.limb_target[n][r].tolist(), bases[n][0].tolist()))
+                                 or vec.norm(vec.sub(self.limb_target[n][r].tolist(), bases[n][0].tolist()))
                                  <= self.reach_eff[n][r] + tol for n in names)])
         ok = np.ones(len(rows), dtype=bool)
         for n in names:
