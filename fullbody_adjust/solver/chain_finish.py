@@ -7,8 +7,9 @@ import math
 import numpy as np
 
 from . import geometry_plain as g
+from . import limits_plain
 from .geometry import any_set, cross, dot, norm, outward_angles, unit_or_perpendicular
-from .limits import CONE, FREE, HINGE, apply_cone, apply_hinge, carry, carry_axis, cone, limit
+from .limits import CONE, FREE, HINGE, apply_cone, apply_hinge, carry_axis, carry_axis_plain
 from .obstacles import penetrates_one
 
 # Two-segment finish (ChainModel._two_bone_finish): swivel angles of the middle joint around the pivot ->
@@ -182,10 +183,10 @@ class TwoBoneFinish:
             if self._plain_limit_one(j, r, parent, u, first)[1]:
                 return False
         if limits.kind[k] == CONE:
-            return not cone(u, v, float(limits.cone_angle[k]), v)[1]
+            return not limits_plain.apply_cone(u, v, float(limits.cone_angle[k]), v)[1]
         if limits.kind[k] == HINGE:
-            axis = carry(self.hinge_axes[r, k].tolist(), self.hinge_refs[r, k].tolist(), u)
-            return not limit(limits, k, u, v, v, axis)[1]
+            axis = carry_axis_plain(self.hinge_axes[r, k].tolist(), self.hinge_refs[r, k].tolist(), u)
+            return not limits_plain.limit(limits, k, u, v, v, axis)[1]
         return True
 
     def _limits_hold(self, rows, P, E, S, a, v):

@@ -1,11 +1,12 @@
 """The batch-first numpy chain solver: B chains (B, n, 3) with joint limits and obstacles, each problem leaving
 the active set when it converges, so a problem's result does not depend on what else is in the batch. A few
-problems' joint limits are applied in plain floats (limits.limit: the numpy path's own calculation), and a few
-limited or obstructed chains iterate in plain floats (chain_iterate_plain.py), with the same bits."""
+problems' joint limits are applied in plain floats (limits_plain.py), and a few limited or obstructed chains
+iterate in plain floats (chain_iterate_plain.py), with the same bits."""
 
 import numpy as np
 
 from . import geometry_plain as g
+from . import limits_plain
 from .chain_finish import _MIN_FINISH_TWIST, TwoBoneFinish
 from .chain_iterate_plain import PlainIterations
 from .chain_obstacles import ObstacleResponse
@@ -14,11 +15,11 @@ from .chain_types import (_COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL, Chain
                           _reach_bounds, _segment_lengths)
 from .errors import SolverInputError
 from .geometry import all_set, any_perpendicular, any_set, cross, norm
-from .limits import CONE, FREE, HINGE, JointLimits, apply_cone, apply_hinge, carry, carry_axis, limit
+from .limits import CONE, FREE, HINGE, JointLimits, apply_cone, apply_hinge, carry_axis, carry_axis_plain
 from .obstacles import as_boxes, count_penetrations_few, points_inside, segments_cross
 
 # Up to this many problems, the limit steps (of the passes and of the limit check) run in plain floats
-# (limits.limit on floats).
+# (limits_plain.py).
 _FEW_CHAINS = 4
 # Up to this many axis-aligned boxes, a few chains iterate in plain floats among them too (each joint is tested
 # against every box in plain floats: beyond a few, numpy's one test of all of them costs less).
@@ -144,8 +145,8 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
                            self.limits.hinge_twist[j])[0]
 
     def _plain_limit(self, i, rows, parent, dirs, fallback, reverse=False):
-        """_limit (reverse: _limit_reverse) of a few rows' directions (b,3) in plain floats (limits.limit: the
-        same calculation); None where plain floats cannot take a row (the numpy path answers then)."""
+        """_limit (reverse: _limit_reverse) of a few rows' directions (b,3) in plain floats (limits_plain.py: the
+        same bits); None where plain floats cannot take a row (the numpy path answers then)."""
         out, binding = [], []
         try:
             for r, p, v, fb in zip(rows.tolist(), parent.tolist(), dirs.tolist(), fallback.tolist()):
@@ -163,8 +164,8 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
         if self.limits.kind[i] == HINGE:
             axis = self.hinge_axes[r, i].tolist()
             if reverse or i > 0:  # carried by the proposed parent direction, or by the parent
-                axis = carry(axis, self.hinge_refs[r, i].tolist(), v if reverse else parent)
-        return limit(self.limits, i, parent, v, fallback, axis, reverse)
+                axis = carry_axis_plain(axis, self.hinge_refs[r, i].tolist(), v if reverse else parent)
+        return limits_plain.limit(self.limits, i, parent, v, fallback, axis, reverse)
 
     def _plain_binding(self, P, rows):
         """violations' limit test of a few problems `rows` with poses P (b,n,3) in plain floats (the same bits as

@@ -3,7 +3,7 @@ a target beyond reach (one stretched backward pass) and a start already at its t
 untouched). One frame's solve makes several such calls (a trunk or an arm stretched toward a far target, limbs a
 warm start already placed), and for them ChainModel's bookkeeping in numpy cost more than the work
 (SettledChains._solve_settled, mixed into ChainModel). The operations are the numpy path's in its order, the limits
-limits.limit on floats, so each call returns the numpy path's bits (tests/solver/test_chain_settled.py)."""
+those of limits_plain.py, so each call returns the numpy path's bits (tests/solver/test_chain_settled.py)."""
 
 import numpy as np
 

@@ -26,12 +26,16 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from . import geometry_plain as gp
 from . import lanes
 from . import vectors as vec
 from .errors import SolverInputError
-from .geometry import all_set, any_set, cross, norm, normalize
+from .geometry import (all_set, any_perpendicular, any_set, apply_matrix, cross, dot, norm, normalize,
+                       swing_rotation)
 
 FREE, CONE, HINGE = 0, 1, 2
+# Up to this many hinge axes carry_axis turns in plain floats (a warm start, one frame's limbs).
+_FEW_CARRIED = 4
 
 # A direction whose in-plane part is shorter than this is treated as parallel to the hinge axis / antiparallel
 # to the parent: its bend angle is undefined, so the previous direction stands in.
@@ -181,69 +185,51 @@ def hinge_axis_from_bend(parent_dir, child_dir):
 
 def carry_axis(axis_at_start, start_parent_dir, parent_dir):
     """The hinge axis moved with its parent segment: the minimal swing from the start parent direction to
-    the current one, applied to the start axis. Arrays (...,3) (carry)."""
-    return _joined(carry(*_parts(axis_at_start, start_parent_dir, parent_dir)))
+    the current one, applied to the start axis. A few rows (b,3) each are carried in plain floats
+    (geometry_plain: the same bits)."""
+    if axis_at_start.ndim == 2 and len(axis_at_start) <= _FEW_CARRIED \
+            and axis_at_start.shape == start_parent_dir.shape == parent_dir.shape:
+        try:
+            return np.array([carry_axis_plain(axis, ref, parent) for axis, ref, parent
+                             in zip(axis_at_start.tolist(), start_parent_dir.tolist(), parent_dir.tolist())],
+                            dtype=np.float64).reshape(axis_at_start.shape)
+        except ZeroDivisionError:
+            pass
+    return apply_matrix(swing_rotation(start_parent_dir, parent_dir), axis_at_start)
 
 
-def carry(axis_at_start, start_parent_dir, parent_dir):
-    """carry_axis on components (lanes.py)."""
-    return vec.apply_matrix(vec.swing_rotation(start_parent_dir, parent_dir), axis_at_start)
+def carry_axis_plain(axis_at_start, start_parent_dir, parent_dir):
+    """carry_axis of one axis in plain floats (3-vectors as lists; geometry_plain: the same bits)."""
+    return gp.apply_matrix(gp.swing_rotation(start_parent_dir, parent_dir), axis_at_start)
 
 
-def _parts(*arrays):
-    """Arrays (...,3) broadcast together, as components."""
-    return [(v[..., 0], v[..., 1], v[..., 2]) for v in np.broadcast_arrays(*arrays)]
-
-
-def _joined(v):
-    return np.stack(np.broadcast_arrays(*v), axis=-1)
-
-
-def limit(limits, i, parent, v, fallback, axis, reverse=False):
-    """Joint i's limit (JointLimits `limits`) on the unit direction v of its segment, on components, as
-    chain_model.ChainModel._limit applies it (reverse: as _limit_reverse does, `parent` then the child's
-    direction and the hinge range mirrored); `axis` the hinge axis carried to where it applies. Returns
-    (direction, binding)."""
-    if limits.kind[i] == CONE:
-        return cone(parent, v, float(limits.cone_angle[i]), fallback)
-    lo, hi = float(limits.hinge_min[i]), float(limits.hinge_max[i])
-    if reverse:
-        lo, hi = -hi, -lo
-    return hinge(parent, v, axis, lo, hi, fallback, None if limits.hinge_twist is None
-                 else float(limits.hinge_twist[i]))
+def _with_fallback(v, fallback, bad):
+    return np.where(bad[..., None], fallback, v)
 
 
 def apply_cone(parent, v, angle, fallback):
     """Clamp unit directions v (...,3) into the cone of half-angle `angle` (...) about unit `parent`: a direction
     outside is rotated toward the parent in their common plane to exactly the cone angle. `fallback` (the
     previous direction) gives the rotation plane when v is antiparallel to the parent.
-    Returns (limited directions, binding mask). Arrays (cone)."""
-    p, u, fb = _parts(parent, v, fallback)
-    limited, over = cone(p, u, np.asarray(angle, dtype=np.float64), fb)
-    if limited is None:
-        return v, np.asarray(over)  # nothing to clamp (the common case inside FABRIK's iterations)
-    return _joined(limited), np.asarray(over)
-
-
-def cone(parent, v, angle, fallback):
-    """apply_cone on components; the direction None where no lane is over the cone (v stands)."""
-    c = vec.dot(parent, v)
-    w = vec.sub(v, vec.scaled(parent, c))
-    wn = vec.norm(w)
+    Returns (limited directions, binding mask)."""
+    c = dot(parent, v)
+    w = v - c[..., None] * parent
+    wn = norm(w)
     # atan2 of the perpendicular and parallel parts resolves small angles; cos alone only to ~1e-8 rad.
-    over = lanes.arctan2(wn, c) > angle
-    if not lanes.any_(over):
-        return None if lanes.many(over) else v, over
-    bad = lanes.not_(wn > _DEGENERATE)
-    if lanes.any_(bad):
-        w = lanes.pick(bad, vec.sub(fallback, vec.scaled(parent, vec.dot(fallback, parent))), w)
-        bad = lanes.not_(vec.norm(w) > _DEGENERATE)
-        if lanes.any_(bad):
-            w = lanes.pick(bad, vec.any_perpendicular(parent), w)
-    w = vec.sub(w, vec.scaled(parent, vec.dot(w, parent)))  # twice: w may be tiny, its first pass inexact
-    e = vec.divided(w, vec.norm(w))
-    limited = vec.add(vec.scaled(parent, lanes.cos(angle)), vec.scaled(e, lanes.sin(angle)))
-    return lanes.pick(over, limited, v), over
+    over = np.arctan2(wn, c) > angle
+    if not any_set(over) and v.shape == over.shape + (3,):
+        return v, over  # nothing to clamp (the common case inside FABRIK's iterations)
+    bad = ~(wn > _DEGENERATE)
+    if any_set(bad):
+        fb = fallback - dot(fallback, parent)[..., None] * parent
+        w = _with_fallback(w, fb, bad)
+        bad = ~(norm(w) > _DEGENERATE)
+        w = _with_fallback(w, np.broadcast_to(any_perpendicular(parent), w.shape), bad)
+    w = w - dot(w, parent)[..., None] * parent  # twice: w may be tiny, its first pass inexact
+    e = w / norm(w)[..., None]
+    angle = np.asarray(angle, dtype=np.float64)[..., None]
+    limited = np.cos(angle) * parent + np.sin(angle) * e
+    return np.where(over[..., None], limited, v), over
 
 
 def _clamp_angle(theta, lo, hi):
@@ -251,18 +237,17 @@ def _clamp_angle(theta, lo, hi):
     circle (a bend wanted at -2.9 rad is 0.68 rad from a 2.7 rad bound, 2.9 from a 0 bound), so the result is
     the nearest direction of the arc, not merely the nearer bound on the line."""
     inside = (theta >= lo) & (theta <= hi)
-    if lanes.all_(inside):
-        return theta
-    to_lo = abs(lanes.remainder(theta - lo + math.pi, 2 * math.pi) - math.pi)
-    to_hi = abs(lanes.remainder(theta - hi + math.pi, 2 * math.pi) - math.pi)
-    return lanes.where(inside, theta, lanes.where(to_lo <= to_hi, lo, hi))
+    to_lo = np.abs(np.remainder(theta - lo + math.pi, 2 * math.pi) - math.pi)
+    to_hi = np.abs(np.remainder(theta - hi + math.pi, 2 * math.pi) - math.pi)
+    return np.where(inside, theta, np.where(to_lo <= to_hi, lo, hi))
 
 
 def _hinge_frame(parent, axis):
     """Unit hinge axis made perpendicular to the unit `parent` (any perpendicular if it lies along the parent)
     and the side of positive bend, axis x parent: arrays (...,3) (hinge_frame)."""
-    a, side = hinge_frame(*_parts(parent, axis))
-    return _joined(a), _joined(side)
+    parent, axis = np.broadcast_arrays(parent, axis)
+    a, side = hinge_frame(*[(v[..., 0], v[..., 1], v[..., 2]) for v in (parent, axis)])
+    return np.stack(a, axis=-1), np.stack(side, axis=-1)
 
 
 def apply_hinge(parent, v, axis, lo, hi, fallback, twist=None):
@@ -271,59 +256,57 @@ def apply_hinge(parent, v, axis, lo, hi, fallback, twist=None):
     (nearly) parallel to the axis has no bend angle: the previous direction `fallback` stands in, and if that
     is degenerate too the clamped zero bend. With `twist` (radians, scalar or (...)) the plane may turn about
     the parent by up to +-twist: the nearest direction of the two wedges the module docstring describes.
-    Returns (limited directions, binding mask: the direction had to change). Arrays (hinge)."""
-    parent, v, axis, fallback = _parts(parent, v, axis, fallback)
-    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
-    limited, binding = hinge(parent, v, axis, lo, hi, fallback, None if twist is None
-                             else np.asarray(twist, dtype=np.float64))
-    return _joined(limited), np.asarray(binding)
+    Returns (limited directions, binding mask: the direction had to change)."""
+    a, side = _hinge_frame(parent, axis)
+    if twist is not None and any_set(np.asarray(twist) > 0.0):
+        return _apply_twisted_hinge(parent, v, a, side, lo, hi, fallback, np.asarray(twist, dtype=np.float64))
+    x = dot(v, parent)
+    y = dot(v, side)
+    bad = ~(np.hypot(x, y) > _DEGENERATE)
+    if any_set(bad):
+        x = np.where(bad, dot(fallback, parent), x)
+        y = np.where(bad, dot(fallback, side), y)
+        bad = ~(np.hypot(x, y) > _DEGENERATE)
+        x = np.where(bad, 1.0, x)
+        y = np.where(bad, 0.0, y)
+    theta = _clamp_angle(np.arctan2(y, x), lo, hi)[..., None]
+    limited = np.cos(theta) * parent + np.sin(theta) * side
+    binding = norm(limited - v) > 1e-12
+    return limited, binding
 
 
-def hinge(parent, v, axis, lo, hi, fallback, twist):
-    """apply_hinge on components (lanes.py)."""
-    a, side = hinge_frame(parent, axis)
-    if twist is not None and lanes.any_(twist > 0.0):
-        return _twisted_hinge(parent, v, a, side, lo, hi, fallback, twist)
-    x, y = vec.dot(v, parent), vec.dot(v, side)
-    bad = lanes.not_(lanes.hypot(x, y) > _DEGENERATE)
-    if lanes.any_(bad):
-        x, y = lanes.where(bad, vec.dot(fallback, parent), x), lanes.where(bad, vec.dot(fallback, side), y)
-        bad = lanes.not_(lanes.hypot(x, y) > _DEGENERATE)
-        x, y = lanes.where(bad, 1.0, x), lanes.where(bad, 0.0, y)
-    theta = _clamp_angle(lanes.arctan2(y, x), lo, hi)
-    limited = vec.add(vec.scaled(parent, lanes.cos(theta)), vec.scaled(side, lanes.sin(theta)))
-    return limited, vec.norm(vec.sub(limited, v)) > 1e-12
-
-
-def _twisted_hinge(parent, v, a, side, lo, hi, fallback, twist):
-    """hinge with a twist range. In the frame (parent, side, a), v has azimuth phi about the parent (from the
-    side toward the axis) and polar angle from the parent. The bend plane turned by tau has the side
+def _apply_twisted_hinge(parent, v, a, side, lo, hi, fallback, twist):
+    """apply_hinge with a twist range. In the frame (parent, side, a), v has azimuth phi about the parent
+    (from the side toward the axis) and polar angle from the parent. The bend plane turned by tau has the side
     cos(tau) side + sin(tau) a. Candidates: the plane nearest v's azimuth with v on its positive side
     (tau = clip(phi)) and with v on its negative side (tau = clip(phi -+ pi)); in each, v's projection with
     its bend clamped to [lo, hi] (the nearest point of that arc). The nearer candidate wins."""
-    x, y, z = vec.dot(v, parent), vec.dot(v, side), vec.dot(v, a)
-    r, phi = lanes.hypot(y, z), lanes.arctan2(z, y)
+    x, y, z = dot(v, parent), dot(v, side), dot(v, a)
+    r = np.hypot(y, z)
+    phi = np.arctan2(z, y)
     # v along the axis with no twist to turn to it (twist 0 on that row): the previous direction stands in.
-    bad = lanes.not_(lanes.hypot(x, r * lanes.cos(phi - lanes.clip(phi, -twist, twist))) > _DEGENERATE)
-    if lanes.any_(bad):
-        x = lanes.where(bad, vec.dot(fallback, parent), x)
-        y2, z2 = vec.dot(fallback, side), vec.dot(fallback, a)
-        r, phi = lanes.where(bad, lanes.hypot(y2, z2), r), lanes.where(bad, lanes.arctan2(z2, y2), phi)
-        bad = lanes.not_(lanes.hypot(x, r * lanes.cos(phi - lanes.clip(phi, -twist, twist))) > _DEGENERATE)
-        x, r, phi = lanes.where(bad, 1.0, x), lanes.where(bad, 0.0, r), lanes.where(bad, 0.0, phi)
-    best = best_dot = None
-    for wanted in (phi, lanes.where(phi > 0.0, phi - math.pi, phi + math.pi)):
-        tau = lanes.clip(wanted, -twist, twist)
-        theta = _clamp_angle(lanes.arctan2(r * lanes.cos(phi - tau), x), lo, hi)
-        sin_t = lanes.sin(theta)
-        plane = vec.add(vec.scaled(side, lanes.cos(tau)), vec.scaled(a, lanes.sin(tau)))
-        cand = vec.add(vec.scaled(parent, lanes.cos(theta)), vec.scaled(plane, sin_t))
-        c = vec.dot(cand, v)
+    bad = ~(np.hypot(x, r * np.cos(phi - np.clip(phi, -twist, twist))) > _DEGENERATE)
+    if any_set(bad):
+        x = np.where(bad, dot(fallback, parent), x)
+        y2, z2 = dot(fallback, side), dot(fallback, a)
+        r = np.where(bad, np.hypot(y2, z2), r)
+        phi = np.where(bad, np.arctan2(z2, y2), phi)
+        bad = ~(np.hypot(x, r * np.cos(phi - np.clip(phi, -twist, twist))) > _DEGENERATE)
+        x, r, phi = np.where(bad, 1.0, x), np.where(bad, 0.0, r), np.where(bad, 0.0, phi)
+    best, best_dot = None, None
+    for wanted in (phi, np.where(phi > 0.0, phi - math.pi, phi + math.pi)):
+        tau = np.clip(wanted, -twist, twist)
+        theta = _clamp_angle(np.arctan2(r * np.cos(phi - tau), x), lo, hi)
+        sin_t = np.sin(theta)[..., None]
+        cand = np.cos(theta)[..., None] * parent + sin_t * (np.cos(tau)[..., None] * side
+                                                            + np.sin(tau)[..., None] * a)
+        c = dot(cand, v)
         if best is None:
             best, best_dot = cand, c
         else:
-            best = lanes.pick(c > best_dot, cand, best)
-    return best, vec.norm(vec.sub(best, v)) > 1e-12
+            nearer = c > best_dot
+            best = np.where(nearer[..., None], cand, best)
+    return best, norm(best - v) > 1e-12
 
 
 def hinge_twist_angle(parent, child, axis):

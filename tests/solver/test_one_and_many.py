@@ -10,7 +10,6 @@ from hypothesis.extra.numpy import arrays
 
 from fullbody_adjust.solver import body, lanes
 from fullbody_adjust.solver import limb_rotations as lr
-from fullbody_adjust.solver import limits
 from fullbody_adjust.solver.limits import CONE, FREE, HINGE
 from fullbody_adjust.solver.trunk_curl import curl_chord, curl_start
 from fullbody_adjust.solver.two_bone_start import two_bone_start
@@ -189,37 +188,6 @@ def test_segment_rotations_captured(kind):
         k = None if kind is None else np.array(kind)
         fn = (lambda s, j, a: lr._segment_rotations(s, j, k, None if k is None else a))  # noqa: E731
         assert _alone_and_together(fn, frames, start, joints, axes) >= frames - frames // 19 - 1
-
-
-def _unit_rows(rng, f):
-    v = rng.normal(size=(f, 3))
-    return v / np.linalg.norm(v, axis=1, keepdims=True)
-
-
-@pytest.mark.parametrize("twist", [None, 0.0, 0.4])
-def test_joint_limits_captured(twist):
-    """apply_cone and apply_hinge on many directions against limits.cone / limits.hinge on each alone in floats
-    (what a chain of a few rows uses): directions inside and outside, antiparallel to the parent, along the
-    hinge axis, with degenerate fallbacks."""
-    rng = np.random.default_rng(3)
-    f = 400
-    parent, v, fallback, axis = (_unit_rows(rng, f) for _ in range(4))
-    v[1::9], fallback[2::9] = -parent[1::9], -parent[2::9]
-    v[3::9], axis[4::9] = axis[3::9], parent[4::9]
-    fallback[3::18] = axis[3::18]
-    v[5::9] = parent[5::9]
-    angle, lo, hi = rng.uniform(0.0, np.pi, f), -rng.uniform(0.0, 2.0, f), rng.uniform(0.0, 2.5, f)
-    cones, cone_bind = limits.apply_cone(parent, v, angle, fallback)
-    hinges, hinge_bind = limits.apply_hinge(parent, v, axis, lo, hi, fallback, twist)
-    assert cone_bind.any() and not cone_bind.all() and hinge_bind.any() and not hinge_bind.all()
-    for k in range(f):
-        row = [tuple(a[k].tolist()) for a in (parent, v, fallback, axis)]
-        one, bind = limits.cone(row[0], row[1], float(angle[k]), row[2])
-        np.testing.assert_array_equal(_bits(np.array(one)), _bits(cones[k]), err_msg=f"cone {k}")
-        assert bind == cone_bind[k]
-        one, bind = limits.hinge(row[0], row[1], row[3], float(lo[k]), float(hi[k]), row[2], twist)
-        np.testing.assert_array_equal(_bits(np.array(one)), _bits(hinges[k]), err_msg=f"hinge {k}")
-        assert bind == hinge_bind[k]
 
 
 @given(st.floats(allow_nan=True, allow_infinity=True), st.floats(allow_nan=True, allow_infinity=True))
