@@ -16,37 +16,40 @@ import numpy as np
 FEW = 4
 
 
+_ARRAY = np.ndarray
+
+
 def many(x):
     """True when x holds a lane per frame (an array), False for one frame's float or bool."""
-    return isinstance(x, np.ndarray)
+    return isinstance(x, _ARRAY)
 
 
 def where(cond, a, b):
     """a where cond, else b (per lane)."""
-    if many(cond):
+    if isinstance(cond, _ARRAY):
         return np.where(cond, a, b)
     return a if cond else b
 
 
 def pick(cond, u, v):
     """The vector u where cond, else v (per lane)."""
-    if many(cond):
+    if isinstance(cond, _ARRAY):
         return (np.where(cond, u[0], v[0]), np.where(cond, u[1], v[1]), np.where(cond, u[2], v[2]))
     return u if cond else v
 
 
 def any_(cond):
     """Whether cond holds in some lane."""
-    return np.count_nonzero(cond) != 0 if many(cond) else bool(cond)
+    return np.count_nonzero(cond) != 0 if isinstance(cond, _ARRAY) else bool(cond)
 
 
 def all_(cond):
     """Whether cond holds in every lane."""
-    return np.count_nonzero(cond) == cond.size if many(cond) else bool(cond)
+    return np.count_nonzero(cond) == cond.size if isinstance(cond, _ARRAY) else bool(cond)
 
 
 def not_(cond):
-    return ~cond if many(cond) else not cond
+    return ~cond if isinstance(cond, _ARRAY) else not cond
 
 
 def isnan(x):
@@ -54,7 +57,7 @@ def isnan(x):
 
 
 def sqrt(x):
-    if many(x):
+    if isinstance(x, _ARRAY):
         return np.sqrt(x)
     if not x < 0.0:
         return math.sqrt(x)
@@ -64,7 +67,7 @@ def sqrt(x):
 
 def divide(a, b):
     """a / b, as numpy divides (inf or NaN where b is zero, never an exception)."""
-    if many(a) or many(b):
+    if isinstance(a, _ARRAY) or isinstance(b, _ARRAY):
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.divide(a, b)
     if b != 0.0:
@@ -99,15 +102,17 @@ def remainder(x, y):
 
 
 def arctan2(y, x):
-    return np.arctan2(y, x) if many(y) or many(x) else float(np.arctan2(y, x))
+    if isinstance(y, _ARRAY) or isinstance(x, _ARRAY):
+        return np.arctan2(y, x)
+    return float(np.arctan2(y, x))
 
 
 def cos(x):
-    return np.cos(x) if many(x) else float(np.cos(x))
+    return np.cos(x) if isinstance(x, _ARRAY) else float(np.cos(x))
 
 
 def sin(x):
-    return np.sin(x) if many(x) else float(np.sin(x))
+    return np.sin(x) if isinstance(x, _ARRAY) else float(np.sin(x))
 
 
 def run(kernel, arrays, *rest, values=()):

@@ -26,6 +26,8 @@ def scaled(v, s):
 
 def divided(v, s):
     """v / s, inf or NaN where s is zero (as numpy divides)."""
+    if not lanes.many(s) and s != 0.0:
+        return (v[0] / s, v[1] / s, v[2] / s)
     return (lanes.divide(v[0], s), lanes.divide(v[1], s), lanes.divide(v[2], s))
 
 
