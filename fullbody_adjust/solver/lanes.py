@@ -115,20 +115,29 @@ def sin(x):
     return np.sin(x) if isinstance(x, _ARRAY) else float(np.sin(x))
 
 
-def run(kernel, arrays, *rest, values=()):
+def run(kernel, arrays, *rest, values=(), outputs=1):
     """kernel(*vectors, *values, *rest) on `arrays` (F,3) (a vector each), (F,n,3) (a list of n vectors) or None
     (passed as None) and `values` (F,) (a number each) or (F,m) (a list of m numbers). Returns its vector, list of
-    vectors or number as (F,3), (F,n,3) or (F,). Up to FEW frames each frame alone in floats, else every frame
-    at once on component arrays."""
+    vectors or number as (F,3), (F,n,3) or (F,) (with outputs > 1, the kernel returns that many, each so).
+    Up to FEW frames each frame alone in floats, else every frame at once on component arrays."""
     frames = next(a for a in arrays if a is not None).shape[0]
-    if frames <= FEW:
+    if 0 < frames <= FEW:
         out = [kernel(*[_row(a, f) for a in arrays], *[a[f].tolist() for a in values], *rest) for f in range(frames)]
-        return np.array(out, dtype=np.float64)
+        if outputs == 1:
+            return np.array(out, dtype=np.float64)
+        return tuple(np.array([o[k] for o in out]) for k in range(outputs))
     out = kernel(*[_lanes(a) for a in arrays], *[a if a.ndim == 1 else list(a.T) for a in values], *rest)
+    if outputs == 1:
+        return _gathered(out, frames)
+    return tuple(_gathered(o, frames) for o in out)
+
+
+def _gathered(out, frames):
+    """A kernel's output on component arrays as one array (F,3), (F,n,3) or (F,)."""
     if isinstance(out, tuple):
         return _joined(out, (frames, 3))
     if not isinstance(out, list):
-        return np.broadcast_to(out, (frames,)).astype(np.float64)
+        return np.broadcast_to(np.asarray(out), (frames,)).copy()
     joined = np.empty((frames, len(out), 3))
     for j, v in enumerate(out):
         joined[:, j, 0], joined[:, j, 1], joined[:, j, 2] = v

@@ -11,6 +11,7 @@ from hypothesis.extra.numpy import arrays
 from fullbody_adjust.solver import body, lanes
 from fullbody_adjust.solver import limb_rotations as lr
 from fullbody_adjust.solver.limits import CONE, FREE, HINGE
+from fullbody_adjust.solver.reach_balls import nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point
 from fullbody_adjust.solver.trunk_curl import curl_chord, curl_start
 from fullbody_adjust.solver.two_bone_start import two_bone_start
 from fullbody_adjust.solver.errors import SolverInputError
@@ -188,6 +189,82 @@ def test_segment_rotations_captured(kind):
         k = None if kind is None else np.array(kind)
         fn = (lambda s, j, a: lr._segment_rotations(s, j, k, None if k is None else a))  # noqa: E731
         assert _alone_and_together(fn, frames, start, joints, axes) >= frames - frames // 19 - 1
+
+
+def _ball_frames(k, n=400, seed=0):
+    """n frames of k balls: points (n,3), centres (n,k,3), radii (n,k), active (n,k), spheres' centres (n,3) and
+    radii (n,); a quarter random, the rest with one degeneracy each."""
+    rng = np.random.default_rng(seed + 17 * k)
+    points = rng.uniform(-1.5, 1.5, (n, 3))
+    centres = rng.uniform(-1.0, 1.0, (n, k, 3))
+    radii = rng.uniform(0.2, 1.6, (n, k))
+    active = rng.random((n, k)) < 0.8
+    centre = rng.uniform(-1.0, 1.0, (n, 3))
+    radius = rng.uniform(0.3, 1.5, n)
+    kind = np.arange(n) % 8
+    for f in range(n):
+        if k >= 2 and kind[f] == 1:  # concentric balls
+            centres[f, 1] = centres[f, 0]
+        elif k >= 2 and kind[f] == 2:  # tangent spheres: their circle is one point
+            gap = np.linalg.norm(centres[f, 1] - centres[f, 0])
+            radii[f, 1] = gap - radii[f, 0] if gap > radii[f, 0] else radii[f, 0] - gap
+        elif k >= 2 and kind[f] == 3:  # the point on the line through two centres (their circle's axis)
+            points[f] = centres[f, 0] + 0.3 * (centres[f, 1] - centres[f, 0])
+            centre[f] = centres[f, 0] + 0.7 * (centres[f, 1] - centres[f, 0])
+        elif k >= 3 and kind[f] == 4:  # collinear centres: no three-sphere points
+            centres[f, 2] = centres[f, 0] + 2.0 * (centres[f, 1] - centres[f, 0])
+        elif kind[f] == 5:  # the point at the sphere's centre, in every ball
+            centre[f] = points[f]
+            if k:
+                centres[f] = points[f] + rng.uniform(-0.1, 0.1, (k, 3))
+        elif k and kind[f] == 6:  # balls far apart: no common point
+            centres[f] *= 6.0
+            radii[f] *= 0.3
+        elif k and kind[f] == 7:  # the point exactly on a ball's boundary
+            d = points[f] - centres[f, 0]
+            radii[f, 0] = np.sqrt(d @ d)
+    return points, centres, radii, active, centre, radius
+
+
+@pytest.mark.parametrize("k", [0, 1, 2, 3, 4, 5])
+def test_reach_balls_captured(k):
+    """Concentric balls, tangent spheres, a point on a circle's axis, collinear centres, a point at the sphere's
+    centre, no common point, a point on a boundary."""
+    points, centres, radii, active, centre, radius = _ball_frames(k)
+    x_all, ok_all = nearest_in_balls(points, centres, radii, active)
+    s_all, found_all = nearest_on_sphere_in_balls(points, centre, radius, centres, radii, active)
+    assert ok_all.any() and found_all.any()
+    if k >= 2:  # the cases reach every kind of answer: inside, infeasible, moved
+        assert not ok_all.all() and not found_all.all()
+        assert np.any(ok_all & np.any(x_all != points, axis=1))
+    for f in range(len(points)):
+        one = slice(f, f + 1)
+        x, ok = nearest_in_balls(points[one], centres[one], radii[one], active[one])
+        assert ok.dtype == bool and x.shape == (1, 3)
+        np.testing.assert_array_equal(x[0], x_all[f], err_msg=f"nearest_in_balls, frame {f}")
+        assert ok[0] == ok_all[f]
+        s, found = nearest_on_sphere_in_balls(points[one], centre[one], radius[one], centres[one], radii[one],
+                                              active[one])
+        np.testing.assert_array_equal(s[0], s_all[f], err_msg=f"nearest_on_sphere_in_balls, frame {f}")
+        assert found[0] == found_all[f]
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 4, 5])
+@pytest.mark.parametrize("variant", ["priority", "weighted", "fabrik"])
+def test_sub_base_point_captured(k, variant):
+    points, centres, radii, active, _, _ = _ball_frames(k, seed=1)
+    rng = np.random.default_rng(k)
+    for priorities in (rng.choice([0.0, 1.0, 2.0], k), np.append(rng.random(k - 1), -np.inf)):
+        if variant == "weighted" and np.isinf(priorities).any():
+            continue
+        x_all, ok_all = sub_base_point(points, centres, radii, active, priorities, variant)
+        if k >= 2:  # some frames have balls without a common point: the priorities decide there
+            assert not ok_all.all()
+        for f in range(len(points)):
+            one = slice(f, f + 1)
+            x, ok = sub_base_point(points[one], centres[one], radii[one], active[one], priorities, variant)
+            np.testing.assert_array_equal(x[0], x_all[f], err_msg=f"frame {f}, priorities {priorities}")
+            assert ok[0] == ok_all[f]
 
 
 @given(st.floats(allow_nan=True, allow_infinity=True), st.floats(allow_nan=True, allow_infinity=True))
