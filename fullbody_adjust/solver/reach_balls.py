@@ -86,6 +86,8 @@ def _circle_point(point, c1, r1, c2, r2):
     a = (d * d + r1 * r1 - r2 * r2) / (2.0 * safe_d)
     h2 = r1 * r1 - a * a
     ok = ok & (h2 >= 0.0)
+    if not lanes.any_(ok):
+        return point, ok  # no circle: never a candidate
     h = lanes.sqrt(lanes.maximum(h2, 0.0))
     m = vec.add(c1, vec.scaled(u, a))
     w = vec.sub(point, m)
@@ -115,6 +117,8 @@ def _sphere_triple(c1, r1, c2, r2, c3, r3):
     ey_v = vec.sub(v3, vec.scaled(ex, i))
     j = vec.norm(ey_v)
     ok = ok & (j > 1e-12 * lanes.maximum(d, 1e-300))
+    if not lanes.any_(ok):
+        return c1, c1, ok
     safe_j = lanes.where(ok, j, 1.0)
     ey = vec.divided(ey_v, safe_j)
     ez = vec.cross(ex, ey)
@@ -122,6 +126,8 @@ def _sphere_triple(c1, r1, c2, r2, c3, r3):
     y = (r1 * r1 - r3 * r3 + i * i + j * j) / (2.0 * safe_j) - i / safe_j * x
     z2 = r1 * r1 - x * x - y * y
     ok = ok & (z2 >= 0.0)
+    if not lanes.any_(ok):
+        return c1, c1, ok  # no common point: never a candidate
     z = lanes.sqrt(lanes.maximum(z2, 0.0))
     base = vec.add(vec.add(c1, vec.scaled(ex, x)), vec.scaled(ey, y))
     return vec.add(base, vec.scaled(ez, z)), vec.sub(base, vec.scaled(ez, z)), ok
@@ -133,9 +139,10 @@ def _nearest_valid(p, candidates, centres, radii, active):
     best, best_d = p, _INF
     for cand, valid in candidates:
         dist = vec.norm(vec.sub(cand, p))
-        key = lanes.where(valid & _inside(cand, centres, radii, active) & lanes.not_(lanes.isnan(dist)), dist, _INF)
-        nearer = key < best_d
-        best, best_d = lanes.pick(nearer, cand, best), lanes.where(nearer, key, best_d)
+        nearer = valid & (dist < best_d)  # (NaN is never nearer)
+        if lanes.any_(nearer):
+            nearer = nearer & _inside(cand, centres, radii, active)
+            best, best_d = lanes.pick(nearer, cand, best), lanes.where(nearer, dist, best_d)
     return best, best_d
 
 
