@@ -73,6 +73,8 @@ def _inside(x, centres, radii, active):
     for c, r, on in zip(centres, radii, active):
         if lanes.any_(on):
             ok = ok & ((vec.norm(vec.sub(x, c)) <= r * (1.0 + _INSIDE_SLACK) + _INSIDE_SLACK) | lanes.not_(on))
+            if not lanes.any_(ok):
+                break  # outside in every lane
     return ok
 
 
