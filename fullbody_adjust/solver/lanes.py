@@ -40,6 +40,8 @@ def pick(cond, u, v):
 
 def any_(cond):
     """Whether cond holds in some lane."""
+    if cond.__class__ is bool:
+        return cond
     return np.count_nonzero(cond) != 0 if isinstance(cond, _ARRAY) else bool(cond)
 
 

@@ -1,6 +1,8 @@
 """3-vectors on components (x, y, z), each a float for one frame or an (F,) array for F frames (lanes.py): the
 helpers of geometry.py written once for both. Sums run in order, (x0 + x1) + x2, as geometry.dot adds."""
 
+import math
+
 from . import lanes
 from .errors import SolverInputError
 from .geometry import TINY
@@ -36,7 +38,8 @@ def dot(a, b):
 
 
 def norm(v):
-    return lanes.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    s = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+    return math.sqrt(s) if s.__class__ is float else lanes.sqrt(s)  # a float's sum of squares: never negative
 
 
 def cross(a, b):
