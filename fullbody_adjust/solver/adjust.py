@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import geometry_plain as gp
+from . import vectors as vec
 from .adjust_types import UNCONSTRAINED, VARIANTS, AdjustBatchResult, AdjustResult, AdjustSettings
 from .body import GROUPS, LIMB_OF_EFFECTOR, BodyModel, LimbLimits
 from .errors import SolverInputError
@@ -345,7 +345,7 @@ class _Problem(SubBasePlacement, LimbPlacement):
                 reasons.append("no target on this frame")
                 continue
             limb = self.model.limbs[name]
-            res = gp.norm(gp.sub(limb.end_point(heads[0], tails[0]).tolist(), self.targets[0, k].tolist()))
+            res = vec.norm(vec.sub(limb.end_point(heads[0], tails[0]).tolist(), self.targets[0, k].tolist()))
             st, why = solves[name].status[0], solves[name].reason[0]
             if res <= tol:
                 st, why = "reached", why or "reached"

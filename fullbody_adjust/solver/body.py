@@ -27,7 +27,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import hinge_axis_plain
+from . import lanes
+from . import vectors as vec
 from .errors import SolverInputError
 from .geometry import all_set, any_perpendicular, apply_matrix, cross, dot, norm, normalize
 from .limits import CONE, HINGE, JointLimits
@@ -38,9 +39,10 @@ from .vocabulary import EFFECTORS, GROUPS, REQUIRED_GROUPS, SINGLE_BONE_GROUPS
 # Chain groups ("limbs"), in the order Algorithm 1 solves them: trunk, then arms (and head), then legs.
 LIMB_NAMES = ("trunk", "arm.L", "arm.R", "head", "leg.L", "leg.R")
 LIMB_OF_EFFECTOR = {"hand.L": "arm.L", "hand.R": "arm.R", "foot.L": "leg.L", "foot.R": "leg.R", "head": "head"}
-# Up to this many frames the default hinge axes are computed in plain floats (hinge_axis_plain): a click's new
-# start pose computes them for the limbs it moved, where numpy's per-call cost was most of the time.
-_FEW_FRAMES = 4
+# A slight start bend (up to HumanLimits.bent) keeps its own plane only within this cosine (10 degrees) of the given
+# or body-frame axis: further off it is more likely noise on a nearly straight limb than the plane the limb bends
+# in, and the hinge's twist range holds such a start anyway (45 degrees for knees, 80 for elbows).
+SLIGHT_AGREES = math.cos(math.radians(10.0))
 # Hands may be left out: the arm then ends at its last bone's tail (the wrist; the bridge passes joint ends as tails).
 OPTIONAL_HANDS = ("hand.L", "hand.R")
 _MIN_BONES = {"trunk": 1, "arm.L": 2, "arm.R": 2, "leg.L": 2, "leg.R": 2, "head": 1}
@@ -458,37 +460,39 @@ def _checked_ranges(checked_ranges, kind, cone, lo, hi, twist):
 
 
 def _hinge_axis(parent_seg, child_seg, bend_side, x_axis, bent_angle):
-    """Hinge axes (F,3) at the start pose, oriented so the natural bend is positive.
+    """Hinge axes (F,3) at the start pose, oriented so the natural bend is positive (_hinge_axis_lanes)."""
+    return lanes.run(_hinge_axis_lanes, (parent_seg, child_seg, bend_side, x_axis), bent_angle)
+
+
+def _hinge_axis_lanes(parent_seg, child_seg, bend_side, x_axis, bent_angle):
+    """The hinge axis on components (lanes.py).
 
     A clearly bent start pose defines the hinge plane (axis = parent x child); a nearly straight one takes
     the bone's X axis (if given; sign matched to the heuristic) or the body-frame heuristic
     axis = parent x bend_side (elbows bend forward, knees backward)."""
-    if parent_seg.shape[0] <= _FEW_FRAMES:
-        axes = hinge_axis_plain.hinge_axes(parent_seg, child_seg, bend_side, x_axis, bent_angle)
-        if axes is not None:
-            return axes
-    u = normalize(parent_seg)
-    heuristic = cross(u, normalize(bend_side))
-    weak = norm(heuristic) < 0.3  # limb nearly along the bend side: fall back to any perpendicular
-    heuristic = np.where(weak[:, None], any_perpendicular(u), heuristic)
-    axis = normalize(heuristic)
+    u = vec.normalize(parent_seg)
+    heuristic = vec.cross(u, vec.normalize(bend_side))
+    weak = vec.norm(heuristic) < 0.3  # limb nearly along the bend side: fall back to any perpendicular
+    if lanes.any_(weak):
+        heuristic = lanes.pick(weak, vec.any_perpendicular(u), heuristic)
+    axis = vec.normalize(heuristic)
     if x_axis is not None:
-        x = x_axis - dot(x_axis, u)[:, None] * u
-        ok = norm(x) > 1e-6
-        x = normalize(np.where(ok[:, None], x, axis))
-        x = np.where((dot(x, axis) < 0.0)[:, None], -x, x)
-        axis = np.where(ok[:, None], x, axis)
+        x = vec.sub(x_axis, vec.scaled(u, vec.dot(x_axis, u)))
+        ok = vec.norm(x) > 1e-6
+        x = vec.normalize(lanes.pick(ok, x, axis))
+        x = lanes.pick(vec.dot(x, axis) < 0.0, vec.neg(x), x)
+        axis = lanes.pick(ok, x, axis)
     # A clearly bent start pose is on the natural side (nobody hyperextends an elbow by 15 deg), so it wins.
     # A slightly bent (or slightly hyperextended) one still defines a plane: kept, signed to the natural side,
-    # when it is within 10 deg of the fallback axis (hinge_axis_plain.SLIGHT_AGREES), so the start pose lies
-    # exactly on its own hinge; further off, the fallback axis, whose twist range holds such a start (a nearly
-    # straight knee bent 4 deg in a plane 15 deg off its body's is noise, not the plane it bends in).
-    v = normalize(child_seg)
-    bend = cross(u, v)
-    angle = np.arctan2(norm(bend), dot(u, v))
-    bend_axis = normalize(bend, fallback=axis)
-    agree = dot(bend_axis, axis)
-    slight = (angle > 1e-3) & (np.abs(agree) >= hinge_axis_plain.SLIGHT_AGREES)
-    signed = np.where((agree < 0.0)[:, None], -bend_axis, bend_axis)
-    axis = np.where(slight[:, None], signed, axis)
-    return normalize(np.where((angle > bent_angle)[:, None], bend_axis, axis))
+    # when it is within 10 deg of the fallback axis (SLIGHT_AGREES), so the start pose lies exactly on its own
+    # hinge; further off, the fallback axis, whose twist range holds such a start (a nearly straight knee bent
+    # 4 deg in a plane 15 deg off its body's is noise, not the plane it bends in).
+    v = vec.normalize(child_seg)
+    bend = vec.cross(u, v)
+    angle = lanes.arctan2(vec.norm(bend), vec.dot(u, v))
+    bend_axis = vec.normalize(bend, fallback=axis)
+    agree = vec.dot(bend_axis, axis)
+    slight = (angle > 1e-3) & (abs(agree) >= SLIGHT_AGREES)
+    signed = lanes.pick(agree < 0.0, vec.neg(bend_axis), bend_axis)
+    axis = lanes.pick(slight, signed, axis)
+    return vec.normalize(lanes.pick(angle > bent_angle, bend_axis, axis))

@@ -1,6 +1,6 @@
 """geometry.py's helpers on one 3-vector or 3x3 matrix in plain Python floats, for the single-frame twins of the
-numpy paths (reach_balls_plain.py, two_bone_start_plain.py, limits_plain.py, limb_rotations_plain.py,
-trunk_curl_plain.py). Vectors are 3-tuples (or lists), matrices their rows. Each does the numpy helper's operations
+numpy paths (limits_plain.py, chain_settled.py, chain_iterate_plain.py, chain_finish.py).
+Vectors are 3-tuples (or lists), matrices their rows. Each does the numpy helper's operations
 in its order (numpy adds a 3-vector's components as (x0 + x1) + x2), so it returns the same bits. The trigonometry
 calls numpy's own routines on the one value instead of Python's math module: numpy may use its own SIMD
 implementations of arccos, sin, cos and arctan2 on some processors. The matrix products add as einsum does: from

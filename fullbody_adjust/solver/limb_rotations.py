@@ -7,14 +7,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import geometry_plain as gp
-from . import limb_rotations_plain
+from . import lanes
+from . import vectors as vec
 from .geometry import any_perpendicular, any_set, apply_matrix, norm, stack_rows, swing_rotation
-from .limits import HINGE, hinge_twist_angle
+from .limits import HINGE, hinge_twist
 
 _EYE = np.eye(3)
-# Up to this many chains, plain floats (limb_rotations_plain.py: the same bits, without numpy's per-call cost).
-_FEW_CHAINS = 4
 
 # How far a hand or foot may turn away from where its forearm or shin carries it (its start pose relative to
 # that bone) when it takes a wanted orientation: a wrist bends about 80 degrees, an ankle about 50, so the
@@ -81,27 +79,25 @@ def _segment_rotations(start, joints, kind, axes):
         start hinge axis turned with the bone is the axis the child bends about;
       - the child segment i turns by the minimal swing in its parent's frame: relative to the parent it
         rotates about the hinge axis only, a pure hinge (an elbow or knee does not twist)."""
-    if len(start) <= _FEW_CHAINS:
-        rot = limb_rotations_plain.segment_rotations(start, joints, kind, axes)
-        if rot is not None:
-            return rot
-    old = np.diff(start, axis=1)
-    new = np.diff(joints, axis=1)
-    rot = swing_rotation(old, new)
-    if kind is None:
-        return rot
-    for i in np.nonzero(kind == HINGE)[0]:
-        if i == 0:
+    kinds = None if kind is None else kind.tolist()
+    rows = lanes.run(_rotations, (start, joints, axes), kinds)
+    return rows.reshape(start.shape[0], start.shape[1] - 1, 3, 3)
+
+
+def _rotations(start, joints, axes, kind):
+    """_segment_rotations on components (lanes.py): the rows of each segment's rotation, in turn."""
+    old = [vec.sub(start[i + 1], start[i]) for i in range(len(start) - 1)]
+    new = [vec.sub(joints[i + 1], joints[i]) for i in range(len(joints) - 1)]
+    rot = [vec.swing_rotation(o, n) for o, n in zip(old, new)]
+    for i in range(1, 0 if kind is None else len(kind)):
+        if kind[i] != HINGE:
             continue
-        axis = axes[:, i]
-        parent = new[:, i - 1] / norm(new[:, i - 1])[:, None]
-        child = new[:, i] / norm(new[:, i])[:, None]
-        tau = hinge_twist_angle(parent, child, apply_matrix(rot[:, i - 1], axis))
-        rot[:, i - 1] = np.einsum("bij,bjk->bik", _rotation_about(parent, tau), rot[:, i - 1])
+        parent, child = vec.divided(new[i - 1], vec.norm(new[i - 1])), vec.divided(new[i], vec.norm(new[i]))
+        tau = hinge_twist(parent, child, vec.apply_matrix(rot[i - 1], axes[i]))
+        rot[i - 1] = vec.matmul(vec.rotation_about(parent, tau), rot[i - 1])
         if i + 1 >= len(kind) or kind[i + 1] != HINGE:  # a hinge parent itself keeps the solver's frame
-            rot[:, i] = np.einsum("bij,bjk->bik", swing_rotation(apply_matrix(rot[:, i - 1], old[:, i]), new[:, i]),
-                                  rot[:, i - 1])
-    return rot
+            rot[i] = vec.matmul(vec.swing_rotation(vec.apply_matrix(rot[i - 1], old[i]), new[i]), rot[i - 1])
+    return [row for m in rot for row in m]
 
 
 def end_rotation(wanted, carried, direction, max_swing=END_SWING):
@@ -129,21 +125,7 @@ def end_rotation(wanted, carried, direction, max_swing=END_SWING):
     return out
 
 
-def _rotation_about(axis, angle):
-    """Rotation matrices (b,3,3) about unit axes (b,3) by angles (b,) (Rodrigues)."""
-    k = axis
-    c, s = np.cos(angle)[:, None, None], np.sin(angle)[:, None, None]
-    kx = np.zeros(k.shape[:1] + (3, 3))
-    kx[:, 0, 1], kx[:, 0, 2], kx[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
-    kx[:, 1, 0], kx[:, 2, 0], kx[:, 2, 1] = k[:, 2], -k[:, 1], k[:, 0]
-    return c * _EYE + s * kx + (1.0 - c) * (k[:, :, None] * k[:, None, :])
-
-
 def chest_rotation(trunk0, trunk_new):
-    """(F,3,3) swing of the last trunk segment: the chest's world rotation delta (one frame in plain floats, the
-    same bits: numpy's per-call cost was most of it)."""
+    """(F,3,3) swing of the last trunk segment: the chest's world rotation delta."""
     old, new = trunk0[:, -1] - trunk0[:, -2], trunk_new[:, -1] - trunk_new[:, -2]
-    if old.shape[0] == 1:
-        return np.array([gp.swing_rotation(old[0].tolist(), new[0].tolist())])
-    return swing_rotation(old, new)
-
+    return lanes.run(lambda o, n: list(vec.swing_rotation(o, n)), (old, new))

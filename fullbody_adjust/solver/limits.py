@@ -27,6 +27,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import geometry_plain as gp
+from . import lanes
+from . import vectors as vec
 from .errors import SolverInputError
 from .geometry import (all_set, any_perpendicular, any_set, apply_matrix, cross, dot, norm, normalize,
                        swing_rotation)
@@ -242,7 +244,10 @@ def _clamp_angle(theta, lo, hi):
 
 def _hinge_frame(parent, axis):
     """Unit hinge axis made perpendicular to the unit `parent` (any perpendicular if it lies along the parent)
-    and the side of positive bend, axis x parent."""
+    and the side of positive bend, axis x parent: hinge_frame on arrays (...,3). Kept on whole vectors (a third
+    of the numpy calls of the components): FABRIK's limit steps on many chains call it every pass (through
+    hinge_frame on components, a batch of obstructed limbs took 10-25% longer); test_limits_plain.py checks the
+    two give the same bits."""
     a = axis - dot(axis, parent)[..., None] * parent
     a_bad = ~(norm(a) > _DEGENERATE)
     if any_set(a_bad):
@@ -314,9 +319,27 @@ def _apply_twisted_hinge(parent, v, a, side, lo, hi, fallback, twist):
 def hinge_twist_angle(parent, child, axis):
     """The twist (radians, in (-pi/2, pi/2]) by which the bend plane of unit `child` about unit `parent` is
     turned from the plane perpendicular to `axis` (the carried axis, made perpendicular to the parent), about
-    the parent direction; 0 where the child lies along the parent (every plane holds it)."""
-    a, side = _hinge_frame(parent, axis)
-    y, z = dot(child, side), dot(child, a)
-    phi = np.arctan2(z, y)
-    plane = np.where(phi > math.pi / 2, phi - math.pi, np.where(phi <= -math.pi / 2, phi + math.pi, phi))
-    return np.where(np.hypot(y, z) > _DEGENERATE, plane, 0.0)
+    the parent direction; 0 where the child lies along the parent (every plane holds it). Arrays (...,3)."""
+    parts = [np.asarray(v, dtype=np.float64) for v in (parent, child, axis)]
+    return np.asarray(hinge_twist(*[(v[..., 0], v[..., 1], v[..., 2]) for v in parts]))
+
+
+def hinge_twist(parent, child, axis):
+    """hinge_twist_angle on components (lanes.py)."""
+    a, side = hinge_frame(parent, axis)
+    y, z = vec.dot(child, side), vec.dot(child, a)
+    phi = lanes.arctan2(z, y)
+    plane = lanes.where(phi > math.pi / 2, phi - math.pi, lanes.where(phi <= -math.pi / 2, phi + math.pi, phi))
+    return lanes.where(lanes.hypot(y, z) > _DEGENERATE, plane, 0.0)
+
+
+def hinge_frame(parent, axis):
+    """_hinge_frame on components (lanes.py): (unit axis perpendicular to the parent, the side of positive
+    bend)."""
+    a = vec.sub(axis, vec.scaled(parent, vec.dot(axis, parent)))
+    a_bad = lanes.not_(vec.norm(a) > _DEGENERATE)
+    if lanes.any_(a_bad):
+        a = lanes.pick(a_bad, vec.any_perpendicular(parent), a)
+    a = vec.sub(a, vec.scaled(parent, vec.dot(a, parent)))  # twice: a may be tiny, its first pass inexact
+    a = vec.divided(a, vec.norm(a))
+    return a, vec.cross(a, parent)

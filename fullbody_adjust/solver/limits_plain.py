@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from . import geometry_plain as g
-from .limits import _DEGENERATE, CONE
+from .limits import _DEGENERATE, CONE, hinge_frame
 
 
 def limit(limits, i, parent, v, fallback, axis, reverse=False):
@@ -81,24 +81,6 @@ def _apply_twisted_hinge(parent, v, a, side, lo, hi, fallback, twist):
         elif c > best_dot:
             best = cand
     return best, g.norm(g.sub(best, v)) > 1e-12
-
-
-def hinge_twist_angle(parent, child, axis):
-    """limits.hinge_twist_angle for one joint."""
-    a, side = hinge_frame(parent, axis)
-    y, z = g.dot(child, side), g.dot(child, a)
-    phi = float(np.arctan2(z, y))
-    plane = phi - math.pi if phi > math.pi / 2 else (phi + math.pi if phi <= -math.pi / 2 else phi)
-    return plane if _hypot(y, z) > _DEGENERATE else 0.0
-
-
-def hinge_frame(parent, axis):
-    """limits._hinge_frame for one joint: (unit axis perpendicular to the parent, the side of positive bend)."""
-    a = g.sub(axis, g.scaled(parent, g.dot(axis, parent)))
-    if not g.norm(a) > _DEGENERATE:
-        a = g.any_perpendicular(parent)
-    a = g.divided_by_norm(g.sub(a, g.scaled(parent, g.dot(a, parent))))
-    return a, g.cross(a, parent)
 
 
 def _clamp_angle(theta, lo, hi):

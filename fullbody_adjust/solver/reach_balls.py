@@ -1,78 +1,30 @@
 """Sub-base geometry (paper §5.2.1 eq. (1) and §4.2): the nearest point of an intersection of reach balls, on a
-sphere within them, and the priority variants that decide where the balls do not intersect. Vectorised over
-frames (F rows); one frame goes through reach_balls_plain.py (the same bits, without numpy's per-call cost)."""
+sphere within them, and the priority variants that decide where the balls do not intersect. Written once on
+components (lanes.py): one frame in plain floats, many frames at once on component arrays, each candidate point
+(a projection, a circle point, a three-sphere point) in turn."""
 
 from itertools import combinations
 
 import numpy as np
 
-from . import reach_balls_plain
-from .reach_balls_plain import NEAR_CENTRE
-from .geometry import any_set, cross, dot, norm, unit_or_perpendicular
+from . import lanes
+from . import vectors as vec
 
-_EYE = np.eye(3)
 # Relative slack of "inside a ball" tests on computed points (their rounding is ~1e-16 relative).
 _INSIDE_SLACK = 1e-12
+# A point nearer a sphere's centre than this has no usable direction to it: the squares of its offset's
+# components fall among the subnormal numbers, its length loses digits, and the radial projection lands off the
+# sphere (a point 4e-161 from the centre landed 2.6e-4 off a unit sphere). Every point of the sphere is then as
+# near as any other, up to this distance.
+NEAR_CENTRE = 1e-150
+_INF = float("inf")
 
 
 def project_onto_balls(points, centres, radii):
     """Nearest point of each ball to each point: (F,3), (F,K,3), (F,K) -> (F,K,3). Inside points stay exactly."""
-    d = points[:, None, :] - centres
-    dist = norm(d)
-    outside = dist > radii
-    scale = np.where(outside, radii / np.where(outside, dist, 1.0), 1.0)
-    return np.where(outside[..., None], centres + d * scale[..., None], points[:, None, :])
-
-
-def _inside(x, centres, radii, active):
-    """(F,) x lies in every active ball (F,K), within rounding slack."""
-    dist = norm(x[:, None, :] - centres)
-    ok = dist <= radii * (1.0 + _INSIDE_SLACK) + _INSIDE_SLACK
-    return np.all(ok | ~active, axis=1)
-
-
-def _circle_point(point, c1, r1, c2, r2):
-    """Nearest point to `point` on the circle where spheres (c1,r1) and (c2,r2) meet: (F,3), valid (F,)."""
-    axis = c2 - c1
-    d = norm(axis)
-    ok = d > 0.0
-    u = np.where(ok[:, None], axis / np.where(ok, d, 1.0)[:, None], _EYE[0])  # concentric: no circle
-    a = (d * d + r1 * r1 - r2 * r2) / (2.0 * np.where(ok, d, 1.0))
-    h2 = r1 * r1 - a * a
-    ok &= h2 >= 0.0
-    h = np.sqrt(np.maximum(h2, 0.0))
-    m = c1 + a[:, None] * u
-    w = point - m
-    # Twice: for a point near the axis, the in-plane part left by one pass is so small that that pass's rounding
-    # tilts it out of the plane (2e-12 off the axis tilted it 1e-4 rad, off the sphere by 2e-5).
-    w = w - dot(w, u)[:, None] * u
-    w = w - dot(w, u)[:, None] * u
-    wn = norm(w)
-    # On the axis every circle point is equally near: take a deterministic one.
-    w = unit_or_perpendicular(w, wn, wn > 1e-15, u)
-    return m + h[:, None] * w, ok
-
-
-def _sphere_triple(c1, r1, c2, r2, c3, r3):
-    """The two points where three spheres meet (trilateration): (2,F,3), valid (F,)."""
-    ex_v = c2 - c1
-    d = norm(ex_v)
-    ok = d > 0.0
-    ex = np.where(ok[:, None], ex_v / np.where(ok, d, 1.0)[:, None], _EYE[0])
-    v3 = c3 - c1
-    i = dot(ex, v3)
-    ey_v = v3 - i[:, None] * ex
-    j = norm(ey_v)
-    ok &= j > 1e-12 * np.maximum(d, 1e-300)
-    ey = ey_v / np.where(ok, j, 1.0)[:, None]
-    ez = cross(ex, ey)
-    x = (r1 * r1 - r2 * r2 + d * d) / (2.0 * np.where(ok, d, 1.0))
-    y = (r1 * r1 - r3 * r3 + i * i + j * j) / (2.0 * np.where(ok, j, 1.0)) - i / np.where(ok, j, 1.0) * x
-    z2 = r1 * r1 - x * x - y * y
-    ok &= z2 >= 0.0
-    z = np.sqrt(np.maximum(z2, 0.0))
-    base = c1 + x[:, None] * ex + y[:, None] * ey
-    return np.stack([base + z[:, None] * ez, base - z[:, None] * ez]), ok
+    p, c = np.broadcast_arrays(points[:, None, :], centres)
+    x = _projection((p[..., 0], p[..., 1], p[..., 2]), (c[..., 0], c[..., 1], c[..., 2]), np.asarray(radii))
+    return np.stack(np.broadcast_arrays(*x), axis=-1)
 
 
 def nearest_in_balls(points, centres, radii, active):
@@ -82,79 +34,7 @@ def nearest_in_balls(points, centres, radii, active):
     sphere, the nearest point of a two-sphere circle, or a three-sphere point; the nearest feasible candidate
     wins. Returns (x (F,3), feasible (F,)): feasible False where the balls have no common point (x = points).
     A point already inside every ball is returned unchanged (bit-exact)."""
-    if len(points) == 1:
-        x, ok = reach_balls_plain.nearest_in_balls(points[0].tolist(), centres[0].tolist(), radii[0].tolist(),
-                                                   active[0].tolist())
-        return np.array([x], dtype=np.float64), np.array([ok])
-    best = points.copy()
-    feasible = _inside(points, centres, radii, active)
-    best_d = np.where(feasible, 0.0, np.inf)
-    todo = ~feasible
-    if any_set(todo):
-        # Only the rows outside some ball have candidates to weigh (a point inside all stays, at distance 0).
-        rows = np.nonzero(todo)[0]
-        best[rows], best_d[rows] = _nearest_candidate(points[rows], centres[rows], radii[rows], active[rows])
-    feasible = np.isfinite(best_d)
-    best = np.where(feasible[:, None], best, points)
-    return best, feasible
-
-
-def _nearest_candidate(points, centres, radii, active):
-    """nearest_in_balls' candidates (projections, circle points, three-sphere points) for points outside
-    some ball: the nearest valid one and its distance (inf where none is valid)."""
-    k = radii.shape[1]
-    cands = [project_onto_balls(points, centres, radii)]
-    valid = [active]
-    pairs = list(combinations(range(k), 2))
-    if pairs:
-        a, b = np.array(pairs).T
-        pts, ok = _per_candidate(_circle_point, points[:, None], centres[:, a], radii[:, a], centres[:, b],
-                                 radii[:, b])
-        cands.append(pts)
-        valid.append(ok & active[:, a] & active[:, b])
-    triples = list(combinations(range(k), 3))
-    if triples:
-        a, b, c = np.array(triples).T
-        pts, ok = _per_candidate(_sphere_triple, centres[:, a], radii[:, a], centres[:, b], radii[:, b],
-                                 centres[:, c], radii[:, c])
-        both = ok & active[:, a] & active[:, b] & active[:, c]
-        cands.append(pts.reshape(len(points), 2 * len(triples), 3))  # each triple's two points in turn
-        valid.append(np.repeat(both, 2, axis=1))
-    return _nearest_valid(points, np.concatenate(cands, axis=1), np.concatenate(valid, axis=1), centres, radii,
-                          active)
-
-
-def _per_candidate(fn, *arrays):
-    """Row-wise `fn` (points (F,3), ... -> (F,3) or (2,F,3), valid (F,)) on arrays with a candidate axis
-    (F,C,...): the rows are stacked, so each candidate rounds exactly as a call of its own. Returns (F,C,3)
-    or (F,C,2,3), and valid (F,C)."""
-    f, c = np.broadcast_shapes(*(x.shape[:2] for x in arrays))
-    pts, ok = fn(*(_stacked(x, f, c) for x in arrays))
-    if pts.ndim == 3:  # two points per candidate
-        return np.moveaxis(pts, 0, 1).reshape(f, c, 2, 3), ok.reshape(f, c)
-    return pts.reshape(f, c, 3), ok.reshape(f, c)
-
-
-def _stacked(x, f, c):
-    """(F or 1, C or 1, ...) -> (F*C, ...), rows repeated where x has one."""
-    if x.shape[:2] != (f, c):
-        x = np.repeat(np.repeat(x, f // max(x.shape[0], 1), axis=0), c // max(x.shape[1], 1), axis=1)
-    return x.reshape((f * c,) + x.shape[2:])
-
-
-def _nearest_valid(points, cands, valid, centres, radii, active):
-    """The candidate (F,C,3) nearest to `points` (F,3) among the valid ones (F,C) that lie in every active
-    ball, the first one on a tie; and its distance (inf and `points` where none is valid)."""
-    f, c = cands.shape[:2]
-    inside = _inside(cands.reshape(f * c, 3), np.repeat(centres, c, axis=0), np.repeat(radii, c, axis=0),
-                     np.repeat(active, c, axis=0)).reshape(f, c)
-    dist = norm(cands - points[:, None])
-    key = np.where(valid & inside & ~np.isnan(dist), dist, np.inf)
-    pick = np.argmin(key, axis=1)
-    rows = np.arange(f)
-    best_d = key[rows, pick]
-    best = np.where(np.isfinite(best_d)[:, None], cands[rows, pick], points)
-    return best, best_d
+    return lanes.run(_nearest_in_balls, (points, centres), values=(radii, active), outputs=2)
 
 
 def nearest_on_sphere_in_balls(points, centre, radius, centres, radii, active):
@@ -162,34 +42,7 @@ def nearest_on_sphere_in_balls(points, centre, radius, centres, radii, active):
     (F,K,3)/(F,K)/(F,K). Candidates as in nearest_in_balls with the sphere always active: the radial
     projection, the sphere's circle with each ball's boundary, the two points it shares with two boundaries.
     Returns (x, found (F,))."""
-    if len(points) == 1:
-        x, ok = reach_balls_plain.nearest_on_sphere_in_balls(points[0].tolist(), centre[0].tolist(),
-                                                             float(radius[0]), centres[0].tolist(),
-                                                             radii[0].tolist(), active[0].tolist())
-        return np.array([x], dtype=np.float64), np.array([ok])
-    k = radii.shape[1]
-    d = points - centre
-    dn = norm(d)
-    away = dn > NEAR_CENTRE
-    radial = centre + d * (radius / np.where(away, dn, 1.0))[:, None]
-    radial = np.where(away[:, None], radial, centre + radius[:, None] * _EYE[0])  # any point will do
-    cands = [radial[:, None]]
-    valid = [np.ones((len(points), 1), dtype=bool)]
-    if k:
-        pts, ok = _per_candidate(_circle_point, points[:, None], centre[:, None], radius[:, None], centres, radii)
-        cands.append(pts)
-        valid.append(ok & active)
-    pairs = list(combinations(range(k), 2))
-    if pairs:
-        a, b = np.array(pairs).T
-        pts, ok = _per_candidate(_sphere_triple, centre[:, None], radius[:, None], centres[:, a], radii[:, a],
-                                 centres[:, b], radii[:, b])
-        cands.append(pts.reshape(len(points), 2 * len(pairs), 3))
-        valid.append(np.repeat(ok & active[:, a] & active[:, b], 2, axis=1))
-    best, best_d = _nearest_valid(points, np.concatenate(cands, axis=1), np.concatenate(valid, axis=1), centres,
-                                  radii, active)
-    found = np.isfinite(best_d)
-    return best, found
+    return lanes.run(_nearest_on_sphere, (points, centre, centres), values=(radius, radii, active), outputs=2)
 
 
 def sub_base_point(points, centres, radii, active, priorities, variant):
@@ -202,40 +55,187 @@ def sub_base_point(points, centres, radii, active, priorities, variant):
         point is pulled onto each dropped ball in turn (lowest first), then onto the kept intersection.
     priorities (K,): higher wins; ties keep the given order (earlier wins). Returns (x (F,3), feasible (F,))."""
     prio = np.asarray(priorities, dtype=np.float64)
-    if len(points) == 1 and variant == "priority" and not any_set(np.isnan(prio)):
-        x, ok = reach_balls_plain.sub_base_point_priority(points[0].tolist(), centres[0].tolist(), radii[0].tolist(),
-                                                          active[0].tolist(), prio.tolist())
-        return np.array([x], dtype=np.float64), np.array([ok])
-    x, feasible = nearest_in_balls(points, centres, radii, active)
-    todo = ~feasible & np.any(active, axis=1)
-    if not any_set(todo):
-        return x, feasible
-    rows = np.nonzero(todo)[0]
-    p, c, r, act = points[rows], centres[rows], radii[rows], active[rows]
-    if variant in ("weighted", "fabrik"):
-        proposals = project_onto_balls(p, c, r)
-        w = np.where(act, prio[None, :] if variant == "weighted" else 1.0, 0.0)
-        w = np.where(w.sum(axis=1, keepdims=True) > 0.0, w, act.astype(np.float64))  # all-zero priorities
-        y = np.einsum("fk,fki->fi", w, proposals) / w.sum(axis=1)[:, None]
+    return lanes.run(_sub_base_point, (points, centres), prio.tolist(), variant, values=(radii, active), outputs=2)
+
+
+def _projection(p, c, r):
+    """The nearest point of the ball (c, r) to p (p itself inside)."""
+    d = vec.sub(p, c)
+    dist = vec.norm(d)
+    outside = dist > r
+    scale = lanes.where(outside, r / lanes.where(outside, dist, 1.0), 1.0)
+    return lanes.pick(outside, vec.add(c, vec.scaled(d, scale)), p)
+
+
+def _inside(x, centres, radii, active):
+    """x lies in every active ball, within rounding slack."""
+    ok = True
+    for c, r, on in zip(centres, radii, active):
+        if lanes.any_(on):
+            ok = ok & ((vec.norm(vec.sub(x, c)) <= r * (1.0 + _INSIDE_SLACK) + _INSIDE_SLACK) | lanes.not_(on))
+            if not lanes.any_(ok):
+                break  # outside in every lane
+    return ok
+
+
+def _circle_point(point, c1, r1, c2, r2):
+    """Nearest point to `point` on the circle where spheres (c1,r1) and (c2,r2) meet, and whether there is one."""
+    axis = vec.sub(c2, c1)
+    d = vec.norm(axis)
+    ok = d > 0.0
+    safe_d = lanes.where(ok, d, 1.0)
+    u = lanes.pick(ok, vec.divided(axis, safe_d), vec.EYE[0])  # concentric: no circle
+    a = (d * d + r1 * r1 - r2 * r2) / (2.0 * safe_d)
+    h2 = r1 * r1 - a * a
+    ok = ok & (h2 >= 0.0)
+    if not lanes.any_(ok):
+        return point, ok  # no circle: never a candidate
+    h = lanes.sqrt(lanes.maximum(h2, 0.0))
+    m = vec.add(c1, vec.scaled(u, a))
+    w = vec.sub(point, m)
+    # Twice: for a point near the axis, the in-plane part left by one pass is so small that that pass's rounding
+    # tilts it out of the plane (2e-12 off the axis tilted it 1e-4 rad, off the sphere by 2e-5).
+    w = vec.sub(w, vec.scaled(u, vec.dot(w, u)))
+    w = vec.sub(w, vec.scaled(u, vec.dot(w, u)))
+    wn = vec.norm(w)
+    # On the axis every circle point is equally near: take a deterministic one.
+    along = wn > 1e-15
+    if lanes.all_(along):
+        w = vec.divided(w, wn)
     else:
-        order = np.argsort(-prio, kind="stable")
-        kept = np.zeros_like(act)
-        for k in order:
-            trial = kept.copy()
-            trial[:, k] |= act[:, k]
-            if trial.sum(axis=1).max() <= 1:
+        w = lanes.pick(along, vec.divided(w, lanes.where(along, wn, 1.0)), vec.any_perpendicular(u))
+    return vec.add(m, vec.scaled(w, h)), ok
+
+
+def _sphere_triple(c1, r1, c2, r2, c3, r3):
+    """The two points where three spheres meet (trilateration), and whether they do."""
+    ex_v = vec.sub(c2, c1)
+    d = vec.norm(ex_v)
+    ok = d > 0.0
+    safe_d = lanes.where(ok, d, 1.0)
+    ex = lanes.pick(ok, vec.divided(ex_v, safe_d), vec.EYE[0])
+    v3 = vec.sub(c3, c1)
+    i = vec.dot(ex, v3)
+    ey_v = vec.sub(v3, vec.scaled(ex, i))
+    j = vec.norm(ey_v)
+    ok = ok & (j > 1e-12 * lanes.maximum(d, 1e-300))
+    if not lanes.any_(ok):
+        return c1, c1, ok
+    safe_j = lanes.where(ok, j, 1.0)
+    ey = vec.divided(ey_v, safe_j)
+    ez = vec.cross(ex, ey)
+    x = (r1 * r1 - r2 * r2 + d * d) / (2.0 * safe_d)
+    y = (r1 * r1 - r3 * r3 + i * i + j * j) / (2.0 * safe_j) - i / safe_j * x
+    z2 = r1 * r1 - x * x - y * y
+    ok = ok & (z2 >= 0.0)
+    if not lanes.any_(ok):
+        return c1, c1, ok  # no common point: never a candidate
+    z = lanes.sqrt(lanes.maximum(z2, 0.0))
+    base = vec.add(vec.add(c1, vec.scaled(ex, x)), vec.scaled(ey, y))
+    return vec.add(base, vec.scaled(ez, z)), vec.sub(base, vec.scaled(ez, z)), ok
+
+
+def _nearest_valid(p, candidates, centres, radii, active):
+    """The candidate (point, valid) nearest to p among the valid ones that lie in every active ball, the first
+    one on a tie; and its distance (p and inf where none is)."""
+    best, best_d = p, _INF
+    for cand, valid in candidates:
+        dist = vec.norm(vec.sub(cand, p))
+        nearer = valid & (dist < best_d)  # (NaN is never nearer)
+        if lanes.any_(nearer):
+            nearer = nearer & _inside(cand, centres, radii, active)
+            best, best_d = lanes.pick(nearer, cand, best), lanes.where(nearer, dist, best_d)
+    return best, best_d
+
+
+def _nearest_in_balls(p, centres, radii, active):
+    inside = _inside(p, centres, radii, active)
+    if lanes.all_(inside):
+        return p, inside
+    k = len(radii)
+    cands = [(_projection(p, centres[i], radii[i]), active[i]) for i in range(k) if lanes.any_(active[i])]
+    for a, b in combinations(range(k), 2):
+        on = active[a] & active[b]
+        if lanes.any_(on):
+            pt, ok = _circle_point(p, centres[a], radii[a], centres[b], radii[b])
+            cands.append((pt, ok & on))
+    for a, b, c in combinations(range(k), 3):
+        on = active[a] & active[b] & active[c]
+        if lanes.any_(on):
+            pt1, pt2, ok = _sphere_triple(centres[a], radii[a], centres[b], radii[b], centres[c], radii[c])
+            cands += [(pt1, ok & on), (pt2, ok & on)]
+    best, best_d = _nearest_valid(p, cands, centres, radii, active)
+    found = best_d < _INF
+    return lanes.pick(inside | lanes.not_(found), p, best), inside | found
+
+
+def _nearest_on_sphere(p, centre, centres, radius, radii, active):
+    d = vec.sub(p, centre)
+    dn = vec.norm(d)
+    away = dn > NEAR_CENTRE
+    radial = vec.add(centre, vec.scaled(d, radius / lanes.where(away, dn, 1.0)))
+    radial = lanes.pick(away, radial, vec.add(centre, vec.scaled(vec.EYE[0], radius)))  # any point will do
+    cands = [(radial, True)]
+    k = len(radii)
+    for i in range(k):
+        if lanes.any_(active[i]):
+            pt, ok = _circle_point(p, centre, radius, centres[i], radii[i])
+            cands.append((pt, ok & active[i]))
+    for a, b in combinations(range(k), 2):
+        on = active[a] & active[b]
+        if lanes.any_(on):
+            pt1, pt2, ok = _sphere_triple(centre, radius, centres[a], radii[a], centres[b], radii[b])
+            cands += [(pt1, ok & on), (pt2, ok & on)]
+    best, best_d = _nearest_valid(p, cands, centres, radii, active)
+    return best, best_d < _INF
+
+
+def _sub_base_point(p, centres, radii, active, prio, variant):
+    x, feasible = _nearest_in_balls(p, centres, radii, active)
+    k = len(radii)
+    todo = lanes.not_(feasible) & _any(active)
+    if not lanes.any_(todo):
+        return x, feasible
+    if variant in ("weighted", "fabrik"):
+        w = [lanes.where(on, prio[i] if variant == "weighted" else 1.0, 0.0) for i, on in enumerate(active)]
+        total = _sum(w)
+        w = [lanes.where(total > 0.0, wi, lanes.where(on, 1.0, 0.0)) for wi, on in zip(w, active)]  # all zero
+        total = _sum(w)
+        y = (0.0, 0.0, 0.0)
+        for i in range(k):
+            y = vec.add(y, vec.scaled(_projection(p, centres[i], radii[i]), w[i]))
+        y = vec.divided(y, total)
+    else:
+        order = sorted(range(k), key=lambda i: -prio[i])  # numpy's stable argsort of the negatives
+        kept = [False] * k
+        for i in order:
+            trial = list(kept)
+            trial[i] = trial[i] | active[i]
+            if lanes.all_(_sum([lanes.where(t, 1.0, 0.0) for t in trial]) <= 1.0):
                 kept = trial  # one ball (or none) always has a point
                 continue
-            if np.array_equal(trial, act):
-                continue  # all of them: these rows are those whose balls have no common point (above)
-            _, ok = nearest_in_balls(p, c, r, trial)
-            kept = np.where(ok[:, None], trial, kept)
-        y = p.copy()
-        for k in order[::-1]:
-            dropped = act[:, k] & ~kept[:, k]
-            y = np.where(dropped[:, None], project_onto_balls(y, c[:, k:k + 1], r[:, k:k + 1])[:, 0], y)
-        y, _ = nearest_in_balls(y, c, r, kept)
-    x = x.copy()
-    x[rows] = y
-    return x, feasible
+            if all(lanes.all_(t == on) for t, on in zip(trial, active)):
+                continue  # all of them: these lanes are those whose balls have no common point (above)
+            ok = _nearest_in_balls(p, centres, radii, trial)[1]
+            kept = [lanes.where(ok, t, kk) for t, kk in zip(trial, kept)]
+        y = p
+        for i in reversed(order):
+            dropped = active[i] & lanes.not_(kept[i])
+            if lanes.any_(dropped):
+                y = lanes.pick(dropped, _projection(y, centres[i], radii[i]), y)
+        y = _nearest_in_balls(y, centres, radii, kept)[0]
+    return lanes.pick(todo, y, x), feasible
 
+
+def _any(flags):
+    out = False
+    for f in flags:
+        out = out | f
+    return out
+
+
+def _sum(values):
+    total = 0.0
+    for v in values:
+        total = total + v
+    return total

@@ -4,12 +4,11 @@ settings)."""
 
 import numpy as np
 
-from . import geometry_plain as gp
+from . import vectors as vec
 from .geometry import all_set, any_set, norm
 from .obstacles import penetrations
 from .reach_balls import nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point
-from .trunk_curl import curl_start
-from .trunk_curl_plain import curl_chord
+from .trunk_curl import curl_chord, curl_start
 
 # The lean's radius is the chord of the curl toward the lean point, which moves a little with the radius: a few
 # rounds settle both (the chord changes with the square of the bend, so each round shrinks the change).
@@ -50,7 +49,7 @@ class SubBasePlacement:
         if len(rows) == 1:  # one frame (Adjust Pose, Live): the same distances in plain floats
             r = int(rows[0])
             return np.array([all(not self.limb_active[n][r]
-                                 or gp.norm(gp.sub(self.limb_target[n][r].tolist(), bases[n][0].tolist()))
+                                 or vec.norm(vec.sub(self.limb_target[n][r].tolist(), bases[n][0].tolist()))
                                  <= self.reach_eff[n][r] + tol for n in names)])
         ok = np.ones(len(rows), dtype=bool)
         for n in names:

@@ -1,15 +1,8 @@
 """Warm start of a hinged limb (elbow, knee) before its chain solve: the last two segments placed by the
 two-bone solution in the plane of the start hinge axis (see limb_placement.LimbPlacement._solve)."""
 
-import numpy as np
-
-from . import two_bone_start_plain
-from .geometry import (any_perpendicular, any_set, apply_matrix, cross, dot, norm, rotate_about_axis,
-                       swing_rotation)
-
-_EYE = np.eye(3)
-# Up to this many chains, plain floats (two_bone_start_plain.py: the same bits, without numpy's per-call cost).
-_FEW_CHAINS = 4
+from . import lanes
+from . import vectors as vec
 
 
 def two_bone_start(start, targets, axis, pole=None):
@@ -22,63 +15,73 @@ def two_bone_start(start, targets, axis, pole=None):
       1. swing the two segments about their root (shoulder/hip) so the end points at the target;
       2. turn the upper segment about the hinge axis (made perpendicular to root -> target) so the end lies
          at the target's distance (law of cosines; out-of-range distances are clamped: FABRIK reports them).
-    """
-    if len(start) <= _FEW_CHAINS:
-        out = two_bone_start_plain.two_bone_start(start, targets, axis, pole)
-        if out is not None:
-            return out
-    m = start.shape[1] - 1
-    out = start.copy()
-    a = norm(out[:, m - 1] - out[:, m - 2])
-    c = norm(out[:, m] - out[:, m - 1])
-    if m >= 3:
-        base = out[:, 0]
-        arm = out[:, m - 2] - base  # joint 0 -> root of the two segments, turned as one rigid piece
-        length = norm(arm)
-        to_t = targets - base
-        dist = norm(to_t)
-        reach2 = (a + c) * (1.0 - 1e-3)
-        # Pivot p = base + length * w is within reach2 of the target iff w . t_dir >= cos_max.
-        cos_max = (dist * dist + length * length - reach2 * reach2) / (2.0 * length * np.maximum(dist, 1e-300))
-        cos_now = dot(arm, to_t) / (length * np.maximum(dist, 1e-300))
-        need = (cos_now < cos_max) & (dist > 0.0)
-        if any_set(need):
-            t_dir = to_t / np.maximum(dist, 1e-300)[:, None]
-            angle_now = np.arccos(np.clip(cos_now, -1.0, 1.0))
-            angle_ok = np.arccos(np.clip(cos_max, -1.0, 1.0))
-            new_w = rotate_about_axis(t_dir, cross(t_dir, arm) + (norm(cross(t_dir, arm)) <= 1e-12)[:, None]
-                                      * any_perpendicular(t_dir), angle_ok)
-            turn = swing_rotation(arm, np.where((angle_now > angle_ok)[:, None], new_w, arm))
-            turn = np.where(need[:, None, None], turn, _EYE)
-            out = base[:, None, :] + np.einsum("bij,bkj->bki", turn, out - base[:, None, :])
-            axis = apply_matrix(turn, axis)
-    pivot = out[:, m - 2]
-    turn = swing_rotation(out[:, -1] - pivot, targets - pivot)
-    out[:, m - 2:] = pivot[:, None, :] + np.einsum("bij,bkj->bki", turn, out[:, m - 2:] - pivot[:, None, :])
-    axis = apply_matrix(turn, axis)
-    to_target = targets - pivot
-    d = np.clip(norm(to_target), np.abs(a - c), a + c)
-    dt = to_target / np.maximum(norm(to_target), 1e-300)[:, None]
-    given = None if pole is None else np.isfinite(pole[:, 0])
-    if given is not None and any_set(given):
-        # The elbow lands at cos(alpha) dt + sin(alpha) (dt x n): toward the pole's side when n = w x dt.
-        toward = cross(np.where(given[:, None], pole - pivot, 0.0), dt)
-        use = given & (norm(toward) > 1e-9 * np.maximum(norm(to_target), 1e-300))
-        axis = np.where(use[:, None], toward, axis)
-    n = axis - dot(axis, dt)[:, None] * dt
-    ok = norm(n) > 1e-9
-    # A chain without a bend plane keeps its start (below); any unit axis lets the other rows go on.
-    n = np.where(ok[:, None], n / np.where(ok, norm(n), 1.0)[:, None], _EYE[0])
-    cos_alpha = np.clip((a * a + d * d - c * c) / (2.0 * a * np.maximum(d, 1e-300)), -1.0, 1.0)
-    # Upper segment at -alpha from root -> target about n, so the lower one bends by a positive angle.
-    upper = rotate_about_axis(dt, n, -np.arccos(cos_alpha))
-    elbow = pivot + a[:, None] * upper
-    lower = targets - elbow
-    ln = norm(lower)
-    lower = np.where((ln > 1e-300)[:, None], lower / np.maximum(ln, 1e-300)[:, None], upper)
-    placed = out.copy()
-    placed[:, m - 1] = elbow
-    placed[:, m] = elbow + c[:, None] * lower
-    good = ok & (norm(to_target) > 0.0)
-    return np.where(good[:, None, None], placed, out)
+    Each chain is solved on its own (lanes.py: a chain alone gets its row's bits)."""
+    return lanes.run(_two_bone_start, (start, targets, axis, pole))
 
+
+def _two_bone_start(chain, target, axis, pole):
+    m = len(chain) - 1
+    a = vec.norm(vec.sub(chain[m - 1], chain[m - 2]))
+    c = vec.norm(vec.sub(chain[m], chain[m - 1]))
+    if m >= 3:
+        chain, axis = _within_reach(chain, target, axis, a, c, m)
+    pivot = chain[m - 2]
+    turn = vec.swing_rotation(vec.sub(chain[m], pivot), vec.sub(target, pivot))
+    chain = chain[:m - 2] + [vec.add(pivot, vec.apply_matrix(turn, vec.sub(p, pivot))) for p in chain[m - 2:]]
+    axis = vec.apply_matrix(turn, axis)
+    to_target = vec.sub(target, pivot)
+    dist = vec.norm(to_target)
+    d = lanes.clip(dist, abs(a - c), a + c)
+    dt = vec.divided(to_target, lanes.maximum(dist, 1e-300))
+    given = False if pole is None else lanes.isfinite(pole[0])
+    if lanes.any_(given):
+        # The elbow lands at cos(alpha) dt + sin(alpha) (dt x n): toward the pole's side when n = w x dt.
+        toward = vec.cross(lanes.pick(given, vec.sub(pole, pivot), (0.0, 0.0, 0.0)), dt)
+        use = given & (vec.norm(toward) > 1e-9 * lanes.maximum(dist, 1e-300))
+        axis = lanes.pick(use, toward, axis)
+    n = vec.sub(axis, vec.scaled(dt, vec.dot(axis, dt)))
+    n_len = vec.norm(n)
+    ok = n_len > 1e-9
+    # A chain without a bend plane keeps its start (below); any unit axis lets the calculation go on.
+    n = lanes.pick(ok, vec.divided(n, lanes.where(ok, n_len, 1.0)), vec.EYE[0])
+    cos_alpha = lanes.clip(lanes.divide(a * a + d * d - c * c, 2.0 * a * lanes.maximum(d, 1e-300)), -1.0, 1.0)
+    # Upper segment at -alpha from root -> target about n, so the lower one bends by a positive angle.
+    upper = vec.rotate_about_axis(dt, n, -lanes.arccos(cos_alpha))
+    elbow = vec.add(pivot, vec.scaled(upper, a))
+    lower = vec.sub(target, elbow)
+    ln = vec.norm(lower)
+    lower = lanes.pick(ln > 1e-300, vec.divided(lower, lanes.maximum(ln, 1e-300)), upper)
+    good = ok & (dist > 0.0)
+    placed = (elbow, vec.add(elbow, vec.scaled(lower, c)))
+    return chain[:m - 1] + [lanes.pick(good, p, q) for p, q in zip(placed, chain[m - 1:])]
+
+
+def _within_reach(chain, target, axis, a, c, m):
+    """Step 0: the chain turned about joint 0 as one rigid piece (and its hinge axis with it) by the least angle
+    that brings the target within the two segments' reach, where it is beyond it."""
+    base = chain[0]
+    arm = vec.sub(chain[m - 2], base)  # joint 0 -> root of the two segments
+    length = vec.norm(arm)
+    to_t = vec.sub(target, base)
+    dist = vec.norm(to_t)
+    far = lanes.maximum(dist, 1e-300)
+    reach2 = (a + c) * (1.0 - 1e-3)
+    # Pivot p = base + length * w is within reach2 of the target iff w . t_dir >= cos_max.
+    cos_max = lanes.divide(dist * dist + length * length - reach2 * reach2, 2.0 * length * far)
+    cos_now = lanes.divide(vec.dot(arm, to_t), length * far)
+    need = (cos_now < cos_max) & (dist > 0.0)
+    if not lanes.any_(need):
+        return chain, axis
+    t_dir = vec.divided(to_t, far)
+    angle_now = lanes.arccos(lanes.clip(cos_now, -1.0, 1.0))
+    angle_ok = lanes.arccos(lanes.clip(cos_max, -1.0, 1.0))
+    side = vec.cross(t_dir, arm)
+    flip = lanes.where(vec.norm(side) <= 1e-12, 1.0, 0.0)
+    # Rows that need no turn get a harmless one, thrown away below (they raise nothing a chain alone would not).
+    about = lanes.pick(need, vec.add(side, vec.scaled(vec.any_perpendicular(t_dir), flip)), vec.EYE[0])
+    new_w = vec.rotate_about_axis(t_dir, about, angle_ok)
+    turn = vec.swing_rotation(lanes.pick(need, arm, vec.EYE[0]),
+                              lanes.pick(need & (angle_now > angle_ok), new_w, lanes.pick(need, arm, vec.EYE[0])))
+    turned = [vec.add(base, vec.apply_matrix(turn, vec.sub(p, base))) for p in chain]
+    axis = lanes.pick(need, vec.apply_matrix(turn, axis), axis)
+    return [lanes.pick(need, t, p) for t, p in zip(turned, chain)], axis

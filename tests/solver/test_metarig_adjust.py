@@ -30,7 +30,7 @@ def _frames(rig, targets, boxes, **kwargs):
 
 
 # Six frames: their stacked limbs (12 rows) take the numpy path, one frame alone the plain-float one (a few rows:
-# reach_balls_plain, two_bone_start_plain, limits_plain, limb_rotations_plain, trunk_curl_plain).
+# limits_plain, chain_settled, chain_iterate_plain).
 offsets = arrays(np.float64, (6, 2, 3), elements=st.floats(-0.25, 0.25))
 
 

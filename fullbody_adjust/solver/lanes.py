@@ -1,0 +1,167 @@
+"""One frame or many: the only module that knows which.
+
+A calculation is written once, on components: a 3-vector is a tuple (x, y, z) whose components are each a Python
+float (one frame) or a float64 array of shape (F,) (F frames, one lane each). `+ - * /`, abs, comparisons and
+sqrt round the same on a float and on an array's element, and the trigonometry calls numpy's routine on the one
+value as on the many, so a frame solved alone equals its row of a batch by construction. What differs between the
+two lives here: choosing per lane (where, pick), asking about all lanes (any_, all_), a division that never raises,
+and `run`, which decides how a kernel meets its (F,3) arrays: up to FEW frames one frame at a time in plain
+floats (numpy's per-call cost is most of a one-frame solve), beyond that on component arrays."""
+
+import math
+
+import numpy as np
+
+# Up to this many frames a kernel runs frame by frame on Python floats.
+FEW = 4
+
+
+_ARRAY = np.ndarray
+
+
+def many(x):
+    """True when x holds a lane per frame (an array), False for one frame's float or bool."""
+    return isinstance(x, _ARRAY)
+
+
+def where(cond, a, b):
+    """a where cond, else b (per lane)."""
+    if isinstance(cond, _ARRAY):
+        return np.where(cond, a, b)
+    return a if cond else b
+
+
+def pick(cond, u, v):
+    """The vector u where cond, else v (per lane)."""
+    if isinstance(cond, _ARRAY):
+        return (np.where(cond, u[0], v[0]), np.where(cond, u[1], v[1]), np.where(cond, u[2], v[2]))
+    return u if cond else v
+
+
+def any_(cond):
+    """Whether cond holds in some lane."""
+    if cond.__class__ is bool:
+        return cond
+    return np.count_nonzero(cond) != 0 if isinstance(cond, _ARRAY) else bool(cond)
+
+
+def all_(cond):
+    """Whether cond holds in every lane."""
+    return np.count_nonzero(cond) == cond.size if isinstance(cond, _ARRAY) else bool(cond)
+
+
+def not_(cond):
+    return ~cond if isinstance(cond, _ARRAY) else not cond
+
+
+def isnan(x):
+    return np.isnan(x) if many(x) else x != x
+
+
+def sqrt(x):
+    if isinstance(x, _ARRAY):
+        return np.sqrt(x)
+    if not x < 0.0:
+        return math.sqrt(x)
+    with np.errstate(invalid="ignore"):
+        return float(np.sqrt(x))
+
+
+def divide(a, b):
+    """a / b, as numpy divides (inf or NaN where b is zero, never an exception)."""
+    if isinstance(a, _ARRAY) or isinstance(b, _ARRAY):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.divide(a, b)
+    if b != 0.0:
+        return a / b
+    with np.errstate(divide="ignore", invalid="ignore"):  # numpy's inf or NaN, its sign bits included
+        return float(np.float64(a) / b)
+
+
+def maximum(x, c):
+    return np.maximum(x, c) if many(x) or many(c) else max(x, c)
+
+
+def clip(x, lo, hi):
+    """x within [lo, hi] (NaN stays NaN)."""
+    return np.clip(x, lo, hi) if many(x) or many(lo) or many(hi) else min(max(x, lo), hi)
+
+
+def isfinite(x):
+    return np.isfinite(x) if many(x) else math.isfinite(x)
+
+
+def arccos(x):
+    return np.arccos(x) if many(x) else float(np.arccos(x))
+
+
+def hypot(x, y):
+    return np.hypot(x, y) if many(x) or many(y) else float(np.hypot(x, y))
+
+
+def remainder(x, y):
+    return np.remainder(x, y) if many(x) or many(y) else float(np.remainder(x, y))
+
+
+def arctan2(y, x):
+    if isinstance(y, _ARRAY) or isinstance(x, _ARRAY):
+        return np.arctan2(y, x)
+    return float(np.arctan2(y, x))
+
+
+def cos(x):
+    return np.cos(x) if isinstance(x, _ARRAY) else float(np.cos(x))
+
+
+def sin(x):
+    return np.sin(x) if isinstance(x, _ARRAY) else float(np.sin(x))
+
+
+def run(kernel, arrays, *rest, values=(), outputs=1):
+    """kernel(*vectors, *values, *rest) on `arrays` (F,3) (a vector each), (F,n,3) (a list of n vectors) or None
+    (passed as None) and `values` (F,) (a number each) or (F,m) (a list of m numbers). Returns its vector, list of
+    vectors or number as (F,3), (F,n,3) or (F,) (with outputs > 1, the kernel returns that many, each so).
+    Up to FEW frames each frame alone in floats, else every frame at once on component arrays."""
+    frames = next(a for a in arrays if a is not None).shape[0]
+    if 0 < frames <= FEW:
+        out = [kernel(*[_row(a, f) for a in arrays], *[a[f].tolist() for a in values], *rest) for f in range(frames)]
+        if outputs == 1:
+            return np.array(out, dtype=np.float64)
+        return tuple(np.array([o[k] for o in out]) for k in range(outputs))
+    out = kernel(*[_lanes(a) for a in arrays], *[a if a.ndim == 1 else list(a.T) for a in values], *rest)
+    if outputs == 1:
+        return _gathered(out, frames)
+    return tuple(_gathered(o, frames) for o in out)
+
+
+def _gathered(out, frames):
+    """A kernel's output on component arrays as one array (F,3), (F,n,3) or (F,)."""
+    if isinstance(out, tuple):
+        return _joined(out, (frames, 3))
+    if not isinstance(out, list):
+        return np.broadcast_to(np.asarray(out), (frames,)).copy()
+    joined = np.empty((frames, len(out), 3))
+    for j, v in enumerate(out):
+        joined[:, j, 0], joined[:, j, 1], joined[:, j, 2] = v
+    return joined
+
+
+def _row(a, f):
+    if a is None:
+        return None
+    r = a[f].tolist()
+    return tuple(r) if a.ndim == 2 else [tuple(p) for p in r]
+
+
+def _lanes(a):
+    if a is None:
+        return None
+    if a.ndim == 2:
+        return (a[:, 0], a[:, 1], a[:, 2])
+    return [(a[:, j, 0], a[:, j, 1], a[:, j, 2]) for j in range(a.shape[1])]
+
+
+def _joined(v, shape):
+    out = np.empty(shape)
+    out[..., 0], out[..., 1], out[..., 2] = v
+    return out

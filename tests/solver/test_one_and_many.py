@@ -1,0 +1,279 @@
+"""Every calculation written once on components (solver/lanes.py): F frames solved together against each frame
+solved alone, bit for bit, on random problems (hypothesis) and on captured degenerate ones; and the lanes'
+primitives on one float against numpy on many."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from fullbody_adjust.solver import body, lanes
+from fullbody_adjust.solver import limb_rotations as lr
+from fullbody_adjust.solver.limits import CONE, FREE, HINGE
+from fullbody_adjust.solver.reach_balls import nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point
+from fullbody_adjust.solver.trunk_curl import curl_chord, curl_start
+from fullbody_adjust.solver.two_bone_start import two_bone_start
+from fullbody_adjust.solver.errors import SolverInputError
+
+BENT = np.radians(15.0)
+MANY = lanes.FEW + 3  # more frames than lanes.run solves one at a time
+
+
+def _bits(a):
+    return np.ascontiguousarray(a, dtype=np.float64).view(np.int64)
+
+
+def _alone_and_together(fn, frames, *args):
+    """fn on all frames against fn on each frame alone (rows of (F,...) arrays; None passes): the same bits. A
+    batch that raises must raise an error some frame alone raises; the frames that raise nothing alone are then
+    compared as a batch of their own. Returns the number of frames compared."""
+    alone, errors = {}, []
+    for k in range(frames):
+        try:
+            alone[k] = fn(*[None if a is None else a[k:k + 1] for a in args])[0]
+        except SolverInputError as error:
+            errors.append(str(error))
+    try:
+        together = fn(*args)
+    except SolverInputError as error:
+        assert str(error) in errors
+        keep = np.array(sorted(alone), dtype=int)
+        if keep.size == 0:
+            return 0
+        together = fn(*[None if a is None else a[keep] for a in args])
+        alone = {i: alone[k] for i, k in enumerate(keep)}
+    else:
+        assert not errors
+    for k, row in alone.items():
+        np.testing.assert_array_equal(_bits(row), _bits(together[k]), err_msg=f"frame {k}")
+    return len(alone)
+
+
+def _hinge_frames(rng, n):
+    """Captured-style limbs: bent, about the clear-bend and slight-bend thresholds, straight, hyperextended,
+    folded back, along the bend side, X axes along the limb."""
+    parent = rng.normal(size=(n, 3)) * rng.uniform(0.05, 2.0, (n, 1))
+    child, side, x = rng.normal(size=(n, 3)), rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
+    u = parent / np.linalg.norm(parent, axis=1, keepdims=True)
+    perp = np.cross(u, side)
+    perp /= np.linalg.norm(perp, axis=1, keepdims=True)
+    theta = np.concatenate([rng.uniform(-0.3, 0.3, n // 4), BENT + rng.uniform(-1e-9, 1e-9, n // 8),
+                            rng.uniform(-2e-3, 2e-3, n // 8), np.zeros(n // 8), rng.uniform(-3.0, 3.0, n)])[:n]
+    child[: n // 2] = (np.cos(theta)[:, None] * u + np.sin(theta)[:, None] * perp)[: n // 2]
+    child[3::17] = -u[3::17]
+    side[5::11] = u[5::11] * 2.0
+    side[6::13] = u[6::13] + 0.29 * perp[6::13]
+    x[7::9] = u[7::9] * 3.0
+    x[8::9] = u[8::9] + 1e-7 * perp[8::9]
+    return parent, child, side, x
+
+
+def _hinge(parent, child, side, x):
+    return body._hinge_axis(parent, child, side, x, BENT)
+
+
+@pytest.mark.parametrize("with_x", [True, False])
+def test_hinge_axes_captured(with_x):
+    parent, child, side, x = _hinge_frames(np.random.default_rng(11 + with_x), 600)
+    assert _alone_and_together(_hinge, 600, parent, child, side, x if with_x else None) == 600
+
+
+vectors3 = st.integers(1, 2 * MANY).flatmap(
+    lambda f: st.tuples(*[arrays(np.float64, (f, 3), elements=st.floats(-1e3, 1e3) | st.sampled_from([0.0, 1e-12]))
+                          for _ in range(4)], st.booleans()))
+
+
+@settings(max_examples=200, deadline=None)
+@given(vectors3)
+def test_hinge_axes_random(problem):
+    parent, child, side, x, with_x = problem
+    _alone_and_together(_hinge, len(parent), parent, child, side, x if with_x else None)
+
+
+@pytest.mark.parametrize("bad", ["zero parent", "zero child", "nan"])
+def test_hinge_axes_degenerate(bad):
+    parent, child, side, x = (a[:MANY] for a in _hinge_frames(np.random.default_rng(5), 40))
+    {"zero parent": parent, "zero child": child, "nan": x}[bad][1] = 0.0 if bad != "nan" else np.nan
+    assert _alone_and_together(_hinge, MANY, parent, child, side, x) >= MANY - 1
+
+
+def _limbs(rng, b, joints):
+    """b random chains of `joints` joints, targets from within reach to far beyond, hinge axes, poles on some;
+    a target at the two segments' pivot, a hinge axis along the line to the target, a target straight along the
+    first segment, a folded upper segment."""
+    steps = rng.normal(size=(b, joints - 1, 3))
+    steps *= rng.uniform(0.1, 0.4, (b, joints - 1, 1)) / np.linalg.norm(steps, axis=-1, keepdims=True)
+    start = np.concatenate([np.zeros((b, 1, 3)), np.cumsum(steps, axis=1)], axis=1) + 0.05 * rng.normal(size=(b, 1, 3))
+    reach = np.linalg.norm(steps, axis=-1).sum(axis=1)
+    direction = rng.normal(size=(b, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    targets = start[:, 0] + direction * (reach * rng.uniform(0.2, 2.0, b))[:, None]
+    axis = rng.normal(size=(b, 3))
+    pole = np.where(rng.random((b, 1)) < 0.4, start[:, -2] + rng.normal(size=(b, 3)), np.nan)
+    targets[1::11] = start[1::11, -3]
+    axis[2::13] = targets[2::13] - start[2::13, -3]
+    targets[3::7] = start[3::7, 0] + 3.0 * (start[3::7, 1] - start[3::7, 0])
+    start[4::17, -2] = start[4::17, -3]
+    return start, targets, axis, pole
+
+
+@pytest.mark.parametrize("joints", [3, 4, 5])
+@pytest.mark.parametrize("with_pole", [True, False])
+def test_two_bone_start_captured(joints, with_pole):
+    rng = np.random.default_rng(joints)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for frames in (MANY, 40):
+            start, targets, axis, pole = _limbs(rng, frames, joints)
+            compared = _alone_and_together(two_bone_start, frames, start, targets, axis, pole if with_pole else None)
+            assert compared >= frames - frames // 11 - 1
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.integers(3, 5).flatmap(lambda n: st.integers(1, 2 * MANY).flatmap(lambda f: st.tuples(
+    arrays(np.float64, (f, n, 3), elements=st.floats(-2.0, 2.0)), arrays(np.float64, (f, 3), elements=st.floats(-5, 5)),
+    arrays(np.float64, (f, 3), elements=st.floats(-1, 1)),
+    arrays(np.float64, (f, 3), elements=st.floats(-1, 1) | st.just(np.nan))))))
+def test_two_bone_start_random(problem):
+    with np.errstate(invalid="ignore", divide="ignore"):
+        _alone_and_together(two_bone_start, len(problem[0]), *problem)
+
+
+def _trunks(rng, b, segments):
+    """Spines near upright, some straight; targets about the end, some straight along the spine's chord."""
+    steps = np.array([0.0, 0.0, 0.12]) + 0.04 * rng.normal(size=(b, segments, 3))
+    steps[::10] = [0.0, 0.0, 0.12]
+    chains = np.concatenate([np.zeros((b, 1, 3)), np.cumsum(steps, axis=1)], axis=1)
+    targets = chains[:, -1] + rng.normal(size=(b, 3)) * 0.2
+    targets[2::5] = 1.3 * chains[2::5, -1]
+    return chains, targets
+
+
+@pytest.mark.parametrize("segments", [3, 4])
+@pytest.mark.parametrize("fn", [curl_chord, curl_start])
+def test_trunk_curl_captured(segments, fn):
+    rng = np.random.default_rng(segments)
+    for frames in (MANY, 60):
+        chains, targets = _trunks(rng, frames, segments)
+        for shares in (rng.uniform(0.2, 1.0, segments), rng.uniform(0.2, 1.0, (frames, segments))):
+            per_frame = shares if shares.ndim == 1 else None
+            call = (lambda c, t, s=None: fn(c, t, per_frame if s is None else s))  # noqa: E731
+            args = (chains, targets) if per_frame is not None else (chains, targets, shares)
+            assert _alone_and_together(call, frames, *args) == frames
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.integers(2, 5).flatmap(lambda m: st.integers(1, 2 * MANY).flatmap(lambda f: st.tuples(
+    arrays(np.float64, (f, m + 1, 3), elements=st.floats(-1.0, 1.0)), arrays(np.float64, (f, 3), elements=st.floats(-2, 2)),
+    arrays(np.float64, (f, m), elements=st.floats(0.0, 1.0))))))
+def test_trunk_curl_random(problem):
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        for fn in (curl_chord, curl_start):
+            _alone_and_together(fn, len(problem[0]), *problem)
+
+
+@pytest.mark.parametrize("kind", [(CONE, HINGE, CONE), (FREE, HINGE, HINGE), (HINGE, CONE, HINGE), None])
+def test_segment_rotations_captured(kind):
+    """Chains with hinges (one, or two in a row), cones and free joints; segments that do not turn, turn right
+    round, fold onto their parent, a hinge axis along its parent; a segment of no length (an error)."""
+    rng = np.random.default_rng(7)
+    for frames in (MANY, 50):
+        n = 4
+        start = np.cumsum(rng.normal(size=(frames, n, 3)) * 0.3, axis=1)
+        joints = start + rng.normal(size=(frames, n, 3)) * rng.choice([0.0, 0.05, 0.5], size=(frames, 1, 1))
+        joints[1::7, 2] = joints[1::7, 1] - (start[1::7, 2] - start[1::7, 1])
+        joints[2::7, 2] = joints[2::7, 1] + 0.7 * (joints[2::7, 1] - joints[2::7, 0])
+        joints[5::19, 3] = joints[5::19, 2]
+        axes = rng.normal(size=(frames, n - 1, 3))
+        axes[3::7, 1] = start[3::7, 1] - start[3::7, 0]
+        k = None if kind is None else np.array(kind)
+        fn = (lambda s, j, a: lr._segment_rotations(s, j, k, None if k is None else a))  # noqa: E731
+        assert _alone_and_together(fn, frames, start, joints, axes) >= frames - frames // 19 - 1
+
+
+def _ball_frames(k, n=400, seed=0):
+    """n frames of k balls: points (n,3), centres (n,k,3), radii (n,k), active (n,k), spheres' centres (n,3) and
+    radii (n,); a quarter random, the rest with one degeneracy each."""
+    rng = np.random.default_rng(seed + 17 * k)
+    points = rng.uniform(-1.5, 1.5, (n, 3))
+    centres = rng.uniform(-1.0, 1.0, (n, k, 3))
+    radii = rng.uniform(0.2, 1.6, (n, k))
+    active = rng.random((n, k)) < 0.8
+    centre = rng.uniform(-1.0, 1.0, (n, 3))
+    radius = rng.uniform(0.3, 1.5, n)
+    kind = np.arange(n) % 8
+    for f in range(n):
+        if k >= 2 and kind[f] == 1:  # concentric balls
+            centres[f, 1] = centres[f, 0]
+        elif k >= 2 and kind[f] == 2:  # tangent spheres: their circle is one point
+            gap = np.linalg.norm(centres[f, 1] - centres[f, 0])
+            radii[f, 1] = gap - radii[f, 0] if gap > radii[f, 0] else radii[f, 0] - gap
+        elif k >= 2 and kind[f] == 3:  # the point on the line through two centres (their circle's axis)
+            points[f] = centres[f, 0] + 0.3 * (centres[f, 1] - centres[f, 0])
+            centre[f] = centres[f, 0] + 0.7 * (centres[f, 1] - centres[f, 0])
+        elif k >= 3 and kind[f] == 4:  # collinear centres: no three-sphere points
+            centres[f, 2] = centres[f, 0] + 2.0 * (centres[f, 1] - centres[f, 0])
+        elif kind[f] == 5:  # the point at the sphere's centre, in every ball
+            centre[f] = points[f]
+            if k:
+                centres[f] = points[f] + rng.uniform(-0.1, 0.1, (k, 3))
+        elif k and kind[f] == 6:  # balls far apart: no common point
+            centres[f] *= 6.0
+            radii[f] *= 0.3
+        elif k and kind[f] == 7:  # the point exactly on a ball's boundary
+            d = points[f] - centres[f, 0]
+            radii[f, 0] = np.sqrt(d @ d)
+    return points, centres, radii, active, centre, radius
+
+
+@pytest.mark.parametrize("k", [0, 1, 2, 3, 4, 5])
+def test_reach_balls_captured(k):
+    """Concentric balls, tangent spheres, a point on a circle's axis, collinear centres, a point at the sphere's
+    centre, no common point, a point on a boundary."""
+    points, centres, radii, active, centre, radius = _ball_frames(k)
+    x_all, ok_all = nearest_in_balls(points, centres, radii, active)
+    s_all, found_all = nearest_on_sphere_in_balls(points, centre, radius, centres, radii, active)
+    assert ok_all.any() and found_all.any()
+    if k >= 2:  # the cases reach every kind of answer: inside, infeasible, moved
+        assert not ok_all.all() and not found_all.all()
+        assert np.any(ok_all & np.any(x_all != points, axis=1))
+    for f in range(len(points)):
+        one = slice(f, f + 1)
+        x, ok = nearest_in_balls(points[one], centres[one], radii[one], active[one])
+        assert ok.dtype == bool and x.shape == (1, 3)
+        np.testing.assert_array_equal(x[0], x_all[f], err_msg=f"nearest_in_balls, frame {f}")
+        assert ok[0] == ok_all[f]
+        s, found = nearest_on_sphere_in_balls(points[one], centre[one], radius[one], centres[one], radii[one],
+                                              active[one])
+        np.testing.assert_array_equal(s[0], s_all[f], err_msg=f"nearest_on_sphere_in_balls, frame {f}")
+        assert found[0] == found_all[f]
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 4, 5])
+@pytest.mark.parametrize("variant", ["priority", "weighted", "fabrik"])
+def test_sub_base_point_captured(k, variant):
+    points, centres, radii, active, _, _ = _ball_frames(k, seed=1)
+    rng = np.random.default_rng(k)
+    for priorities in (rng.choice([0.0, 1.0, 2.0], k), np.append(rng.random(k - 1), -np.inf)):
+        if variant == "weighted" and np.isinf(priorities).any():
+            continue
+        x_all, ok_all = sub_base_point(points, centres, radii, active, priorities, variant)
+        if k >= 2:  # some frames have balls without a common point: the priorities decide there
+            assert not ok_all.all()
+        for f in range(len(points)):
+            one = slice(f, f + 1)
+            x, ok = sub_base_point(points[one], centres[one], radii[one], active[one], priorities, variant)
+            np.testing.assert_array_equal(x[0], x_all[f], err_msg=f"frame {f}, priorities {priorities}")
+            assert ok[0] == ok_all[f]
+
+
+@given(st.floats(allow_nan=True, allow_infinity=True), st.floats(allow_nan=True, allow_infinity=True))
+def test_primitives_on_one_value_as_numpy_on_many(a, b):
+    arr_a, arr_b = np.array([a, a]), np.array([b, b])
+    with np.errstate(invalid="ignore"):
+        pairs = [(lanes.divide(a, b), lanes.divide(arr_a, arr_b)), (lanes.sqrt(a), lanes.sqrt(arr_a)),
+                 (lanes.arctan2(a, b), lanes.arctan2(arr_a, arr_b)), (lanes.cos(a), lanes.cos(arr_a)),
+                 (lanes.sin(a), lanes.sin(arr_a))]
+    for one, many in pairs:
+        assert isinstance(one, float)
+        np.testing.assert_array_equal(_bits(one), _bits(many[0]))
