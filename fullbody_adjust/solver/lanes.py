@@ -68,9 +68,9 @@ def sqrt(x):
 
 
 def divide(a, b):
-    """a / b, as numpy divides (inf or NaN where b is zero, never an exception)."""
+    """a / b, as numpy divides (inf or NaN where b is zero or the quotient overflows, never an exception)."""
     if isinstance(a, _ARRAY) or isinstance(b, _ARRAY):
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             return np.divide(a, b)
     if b != 0.0:
         return a / b
