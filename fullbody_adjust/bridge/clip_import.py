@@ -80,7 +80,11 @@ def _carry_longest_take(source, actions):
 
     longest = max(actions, key=length, default=current)
     if longest is not current and length(longest) > length(current):
-        anim.action = longest  # on Blender 4.4 and later the action's slot for the object is taken with it
+        anim.action = longest
+        # Blender 4.4+ keeps a slot only where the new action has one named as the old one was: 5.0's FBX importer
+        # names every take's slot alike, 4.5's after its take, so the new take was left with no slot (unanimated)
+        if bpy.app.version >= (4, 4, 0) and anim.action_slot is None and len(anim.action_suitable_slots):
+            anim.action_slot = anim.action_suitable_slots[0]
 
 
 def remove_ids(ids):

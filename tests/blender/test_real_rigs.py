@@ -226,4 +226,5 @@ def test_an_fbx_clip_pops_no_more_than_itself(rig, cli):
     where a hips, arm or leg bone turns over 30 degrees than the clip itself has on the same frames."""
     found = figures(rig, "clip", cli)
     assert found["exit_code"] == 0 and found["source_action"].endswith("Run"), found
+    assert found["largest_step_deg"] > 0.5 * found["source_largest_step_deg"], found  # it runs, as the clip does
     assert found["pop_frames"] <= found["source_pop_frames"], found
