@@ -4,7 +4,7 @@ Scene: the CMU clip 02_06 (bend and pick up, planted feet) imported with Blender
 the Rigify basic human metarig (another skeleton: 29 bones, A-pose, other proportions) scaled 1.2.
 Frames 2-1001 (frame 1 is the conversion's T-pose).
 
-  ours         fullbody_adjust.bridge.retarget.retarget(): read the source's F-Curves, transfer the
+  ours         fullbody_adjust.bridge.retarget.run.retarget(): read the source's F-Curves, transfer the
                rotations, plan the targets (scaled trajectories, planted feet held, the body shifted where a
                limb cannot reach), one vectorised adjust_frames over all frames, write a new action.
                Timed end to end.
@@ -47,8 +47,10 @@ from mathutils import Matrix  # noqa: E402
 import fullbody_adjust  # noqa: E402
 from bench.command_line import print_report, whole_number_options  # noqa: E402
 from fullbody_adjust.bpy_exit import leave  # noqa: E402
-from fullbody_adjust.bridge import keyframes, mapping, retarget  # noqa: E402
-from fullbody_adjust.solver import retarget as rt  # noqa: E402
+from fullbody_adjust.bridge.writing import keyframes  # noqa: E402
+from fullbody_adjust.bridge.rig import mapping  # noqa: E402
+from fullbody_adjust.bridge.retarget import run as retarget  # noqa: E402
+from fullbody_adjust.solver.retarget import motion as rt  # noqa: E402
 from tests.helpers.bvh import CMU_SCALE, MOCAP_DIR  # noqa: E402
 
 CLIP = "cmu_02_06_pickup_f0-1349.bvh"

@@ -43,7 +43,9 @@ from bench.batch import copy_target, reach_errors, remove_run, run_constraints, 
 from bench.command_line import print_report, whole_number_options  # noqa: E402
 import fullbody_adjust  # noqa: E402
 from fullbody_adjust.bpy_exit import leave  # noqa: E402
-from fullbody_adjust.bridge import clip_import, mapping, retarget  # noqa: E402
+from fullbody_adjust.bridge.retarget import clip_import  # noqa: E402
+from fullbody_adjust.bridge.rig import mapping  # noqa: E402
+from fullbody_adjust.bridge.retarget import run as retarget  # noqa: E402
 from tests.helpers.bvh import CMU_CLIPS, MOCAP_DIR, cut_bvh  # noqa: E402
 
 FPS = 120

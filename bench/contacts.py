@@ -58,8 +58,9 @@ import numpy as np  # noqa: E402
 
 import fullbody_adjust  # noqa: E402
 from fullbody_adjust.bpy_exit import leave  # noqa: E402
-from fullbody_adjust.bridge import mapping, retarget  # noqa: E402
-from fullbody_adjust.bridge.pose import read_pose_frames  # noqa: E402
+from fullbody_adjust.bridge.rig import mapping  # noqa: E402
+from fullbody_adjust.bridge.retarget import run as retarget  # noqa: E402
+from fullbody_adjust.bridge.reading.pose import read_pose_frames  # noqa: E402
 from tests.helpers.bvh import CMU_SCALE, MOCAP_DIR  # noqa: E402
 from tests.helpers.climb_bar import add_bar  # noqa: E402
 
@@ -132,7 +133,7 @@ def _saved_points(rig, heads, tails, effector):
 def angles_of(rig, heads, tails):
     """(F,A) joint angles of bench/fullbody.py's Table 1 of a rig's world heads and tails (F,J,3)."""
     from fullbody import body_chains, joint_angles
-    from fullbody_adjust.solver import retarget as rt
+    from fullbody_adjust.solver.retarget import motion as rt
     model, bones = rt.body_model(rig)
     heads, tails = heads[:, bones], tails[:, bones]
     return joint_angles(model, body_chains(model, heads, tails), heads, tails)
@@ -148,8 +149,8 @@ def angle_errors(angles, source_angles, hang):
 
 
 def measure(dirs):
-    from fullbody_adjust.bridge.retarget_read import rig_of
-    from fullbody_adjust.solver import retarget as rt
+    from fullbody_adjust.bridge.retarget.read import rig_of
+    from fullbody_adjust.solver.retarget import motion as rt
     results = {}
     for clip in sorted(p.name for p in MOCAP_DIR.glob("*.bvh")):
         for scale in SCALES:

@@ -47,9 +47,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from fullbody_adjust.solver.adjust import AdjustSettings, adjust_frames, adjust_pose  # noqa: E402
-from fullbody_adjust.solver.body import HumanLimits, default_limits  # noqa: E402
-from fullbody_adjust.solver.geometry import swing_rotation  # noqa: E402
+from fullbody_adjust.solver.fullbody.adjust import AdjustSettings, adjust_frames, adjust_pose  # noqa: E402
+from fullbody_adjust.solver.body.model import HumanLimits, default_limits  # noqa: E402
+from fullbody_adjust.solver.maths.geometry import swing_rotation  # noqa: E402
 from command_line import whole_number_options  # noqa: E402
 from limits_fit import DAZ_CLIP, fit_limits, load_clip  # noqa: E402
 from plain_fabrik import BODY_CHAINS, plain_fabrik  # noqa: E402

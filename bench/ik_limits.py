@@ -1,5 +1,5 @@
-"""What reading the rig's own joint limits (bridge/ik_limits.py: IK locks and ranges, LOCAL Limit Rotation
-constraints, turned into hinge limits by solver/rig_limits.py) adds to one Adjust Pose.
+"""What reading the rig's own joint limits (bridge/reading/ik_limits.py: IK locks and ranges, LOCAL Limit Rotation
+constraints, turned into hinge limits by solver/limits/rig_limits.py) adds to one Adjust Pose.
 
 Scene: the Rigify full human metarig (159 bones), targets at the wrists and ankles, the left hand's moved up
 and forward so the arm solves. Timed in this one process, --repeat times each, pose reset (not timed) between:
@@ -33,8 +33,11 @@ import numpy as np  # noqa: E402
 import fullbody_adjust  # noqa: E402
 from bench.command_line import print_report, whole_number_options  # noqa: E402
 from fullbody_adjust.bpy_exit import leave  # noqa: E402
-from fullbody_adjust.bridge import adjustment, ik_limits, pose, rig_cache  # noqa: E402
-from fullbody_adjust.solver.body import default_limits  # noqa: E402
+from fullbody_adjust.bridge import adjustment  # noqa: E402
+from fullbody_adjust.bridge.reading import ik_limits  # noqa: E402
+from fullbody_adjust.bridge.reading import pose  # noqa: E402
+from fullbody_adjust.bridge.rig import rig_cache  # noqa: E402
+from fullbody_adjust.solver.body.model import default_limits  # noqa: E402
 
 
 def build_scene():

@@ -52,7 +52,10 @@ from mathutils import Matrix, Vector  # noqa: E402
 import fullbody_adjust  # noqa: E402
 from bench.command_line import stdout_to_stderr, whole_number_options  # noqa: E402
 from fullbody_adjust.bpy_exit import leave  # noqa: E402
-from fullbody_adjust.bridge import adjustment, control_match, live, pose, rig_cache  # noqa: E402
+from fullbody_adjust.bridge import adjustment, live  # noqa: E402
+from fullbody_adjust.bridge.rig import control_match  # noqa: E402
+from fullbody_adjust.bridge.reading import pose  # noqa: E402
+from fullbody_adjust.bridge.rig import rig_cache  # noqa: E402
 
 RIGS = ("basic", "full", "generated")
 CASES = ("near", "far", "obstacle")

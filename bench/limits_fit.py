@@ -34,7 +34,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from fullbody_adjust.solver.body import BodyModel, HumanLimits, default_limits  # noqa: E402
+from fullbody_adjust.solver.body.model import BodyModel, HumanLimits, default_limits  # noqa: E402
 from tests.helpers.bvh import CMU_CLIPS, CMU_GROUPS, DAZ_GROUPS, MOCAP_DIR, read_bvh, read_cmu  # noqa: E402
 
 DAZ_CLIP = "cmu_daz_02_01_walk.bvh"

@@ -50,9 +50,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from command_line import whole_number_options  # noqa: E402
 from fullbody_adjust.solver import Boxes, penetrations  # noqa: E402
-from fullbody_adjust.solver.chain import solve_chain_batch  # noqa: E402
-from fullbody_adjust.solver.adjust import AdjustSettings, adjust_frames  # noqa: E402
-from fullbody_adjust.solver.body import BodyModel  # noqa: E402
+from fullbody_adjust.solver.chain.fabrik import solve_chain_batch  # noqa: E402
+from fullbody_adjust.solver.fullbody.adjust import AdjustSettings, adjust_frames  # noqa: E402
+from fullbody_adjust.solver.body.model import BodyModel  # noqa: E402
 from fullbody_adjust.solver.vocabulary import VARIANTS  # noqa: E402
 from plain_fabrik import plain_fabrik  # noqa: E402
 from timing import best_time  # noqa: E402

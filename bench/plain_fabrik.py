@@ -14,7 +14,7 @@ target is carried along by the SC's displacement.
 
 import numpy as np
 
-from fullbody_adjust.solver.body import LIMB_OF_EFFECTOR
+from fullbody_adjust.solver.body.model import LIMB_OF_EFFECTOR
 
 BODY_CHAINS = ("trunk", "arm.L", "arm.R", "leg.L", "leg.R")
 

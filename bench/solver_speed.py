@@ -3,7 +3,7 @@
 Cases (tests/helpers/metarig.py): 'near' (both hands within their arms' reach), 'far' (the left hand's target
 beyond any reach), 'obstacle' (a box where the left forearm would go). For each case, in the same run:
   - single_pose_us: median µs of solver.adjust.adjust_pose (one pose, what Adjust Pose and Live call) from a
-    start pose prepared before (solver/prepared.py: what every Live update after the first one costs);
+    start pose prepared before (solver/fullbody/prepared.py: what every Live update after the first one costs);
   - single_pose_cold_us: the same by a copy of the model made before each call, which has kept nothing (the
     first Adjust Pose click on a rig), and ratio_prepared_to_cold = single_pose_us / that;
   - single_pose_new_start_us: from a start pose seen for the first time whose limbs but the right arm are as in
@@ -31,7 +31,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.command_line import whole_number_options  # noqa: E402
-from fullbody_adjust.solver.adjust import adjust_frames, adjust_pose  # noqa: E402
+from fullbody_adjust.solver.fullbody.adjust import adjust_frames, adjust_pose  # noqa: E402
 from tests.helpers import metarig  # noqa: E402
 
 

@@ -6,7 +6,10 @@ is SKIP_SAVE, so a run starts from its defaults and the stored settings, never f
 import bpy
 from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
-from .bridge import adjustment, batch, live, mapping, retarget
+from .bridge import adjustment, live
+from .bridge import files as batch
+from .bridge.rig import mapping
+from .bridge.retarget import run as retarget
 from .bridge.errors import AdjustError
 from .properties import FULLBODY_ADJUST_PG_settings
 

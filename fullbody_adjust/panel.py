@@ -4,7 +4,8 @@ obstacles and settings, and the buttons that run the operators."""
 
 import bpy
 
-from .bridge import live, start_checks
+from .bridge import live
+from .bridge.reading import start_checks
 from .bone_mapping import GROUP_LABELS
 
 

@@ -1,5 +1,5 @@
 """Bone mapping without Blender: which bones of a rig, given as plain data, form each group of the five-group body
-model. Imports no bpy (tests/test_mapping_no_bpy.py proves it); bridge/mapping.py reads an armature into a
+model. Imports no bpy (tests/test_mapping_no_bpy.py proves it); bridge/rig/mapping.py reads an armature into a
 RigDescription and keeps the map on it.
 
 Modules, each importing only those listed before it (and solver/ for the group names and joint ends):

@@ -1,6 +1,6 @@
 """Which limbs are on the character's own left, from its skeleton (no bpy).
 
-The facing comes from the body, never from the object's axes (solver/facing.py, the one calculation the
+The facing comes from the body, never from the object's axes (solver/body/facing.py, the one calculation the
 retarget's heading and the rest hinges use too): up is world z (the rig's orientation applied); the two hip
 joints give the lateral line; forward is across it, on the side the toes point to (the heads of the foot's
 descendants, seen from the ankle), else the side the knees bend to (a knee's offset from the line hip joint -
@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..solver.facing import UP, skeleton_facing
-from ..solver.facing import lateral as lateral_across
+from ..solver.body.facing import UP, skeleton_facing
+from ..solver.body.facing import lateral as lateral_across
 
 
 @dataclass(frozen=True)
@@ -58,7 +58,7 @@ def _joint(sk, leg, k):
 
 def facing(sk, legs):
     """(sign, clear): the body faces sign * (up x lat) (0: no sign of it), lat = lateral(sk, *legs); clear when
-    the toes of both feet agree, or both knees and both foot bones do (solver/facing.py)."""
+    the toes of both feet agree, or both knees and both foot bones do (solver/body/facing.py)."""
     joints = [[_joint(sk, leg, k) for leg in legs] for k in range(3)]
     below = [sk.heads[[c for c in sk.subtree(leg.end).tolist() if c != leg.end]] for leg in legs]
     feet = [sk.tails[leg.end] - sk.heads[leg.end] for leg in legs]

@@ -4,7 +4,7 @@
 heads and tails; no bpy): the name presets first (``preset_matching`` over ``presets``), then detection
 from the shape of the hierarchy (``detection``); the result is a ``bone_map.BoneMap``, or a one-line
 ``MappingError`` naming what is missing. The Blender side (reading an armature's bones into a RigDescription,
-storing and loading the map on the armature object) is bridge/mapping.py.
+storing and loading the map on the armature object) is bridge/rig/mapping.py.
 
 Conventions. Positions are compared in the rig's world orientation (``RigDescription.orientation``, the
 object's rotation: an FBX import keeps Y-up bones under a rotated object): z is up. Joints are bone heads, never
@@ -16,9 +16,9 @@ Arms without a hand bone (a robot's forearm ending in a fist, fingers fanning st
 Quaternius' characters): the arm is mapped and its hand group left empty; the wrist, the hand's effector, is then
 where the arm's last bone ends as a joint (solver.joint_ends), whatever hangs there rides on the forearm, and the
 map's source says so ("no hand bones: the left wrist is the end of ..."). Stored, such a hand is a row with no
-bone (bridge/mapping.py); a hand row emptied by the user means the same.
+bone (bridge/rig/mapping.py); a hand row emptied by the user means the same.
 
-Rigify: a generated rig (bridge/control_rig.py) is described in its metarig's hierarchy and mapped to its ORG- bones,
+Rigify: a generated rig (bridge/rig/control_rig.py) is described in its metarig's hierarchy and mapped to its ORG- bones,
 which the solve moves and its controls follow. A rig with only DEF- bones (a game export) maps to those:
 
 * DEF- limbs are split in two, ``DEF-upper_arm.L`` + ``DEF-upper_arm.L.001`` (a child continuing it). The

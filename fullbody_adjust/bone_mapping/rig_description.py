@@ -17,7 +17,7 @@ import re
 
 import numpy as np
 
-from ..solver.joint_ends import joint_ends
+from ..solver.body.joint_ends import joint_ends
 
 MIDLINE = 0.01  # a bone whose head is this close (fraction of the height) to the body's middle plane is at it
 

@@ -1,10 +1,10 @@
 """The one way through: active armature → bone mapping → targets and obstacles → the solver → bone channels
 → keyframes. Operators and the command line call only ``adjust_pose`` and ``adjust_frames`` here.
 
-The solve runs in the armature's own space (its object transform undone) scaled to world units (solve_space.py):
+The solve runs in the armature's own space (its object transform undone) scaled to world units (reading/solve_space.py):
 bone lengths are rigid there even under non-uniform object scale, targets map into it exactly, every distance
 the solver reports is in world units, and each obstacle is its mesh's bounding box with the mesh's rotation (an
-oriented box) carried into it. What is checked before anything changes is start_checks.py's; what a run did,
+oriented box) carried into it. What is checked before anything changes is reading/start_checks.py's; what a run did,
 outcome.py's.
 """
 
@@ -15,16 +15,17 @@ import bpy
 import numpy as np
 
 from ..solver import ChainSettings, SolverInputError
-from ..solver.adjust import AdjustSettings, adjust_frames as solve_frames
-from ..solver.adjust_types import UNCONSTRAINED
-from ..solver.body import LIMB_OF_EFFECTOR
-from ..solver.geometry import norm
-from ..solver.joint_ends import end_points
-from ..solver.obstacle_reach import body_reach, skeleton_reach
-from ..solver.obstacles import penetrations
-from . import (control_rig, frames as frames_module, ik_limits, keyframes, limb_thickness, obstacles, pose,
-               rig_cache, solve_space, start_checks, targets)
-from .control_match import control_channels
+from ..solver.fullbody.adjust import AdjustSettings, adjust_frames as solve_frames
+from ..solver.fullbody.settings import UNCONSTRAINED
+from ..solver.body.model import LIMB_OF_EFFECTOR
+from ..solver.maths.geometry import norm
+from ..solver.body.joint_ends import end_points
+from ..solver.obstacles.reach import body_reach, skeleton_reach
+from ..solver.obstacles.boxes import penetrations
+from .rig import control_rig, rig_cache, targets
+from .reading import frames as frames_module, ik_limits, limb_thickness, obstacles, pose, solve_space, start_checks
+from .writing import keyframes
+from .rig.control_match import control_channels
 from .errors import AdjustError
 from .outcome import Outcome
 

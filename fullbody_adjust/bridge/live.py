@@ -30,7 +30,10 @@ import bpy
 import numpy as np
 from bpy.app.handlers import persistent
 
-from . import adjustment, frames, keyframes, obstacles, pose, rig_cache, start_checks, targets
+from . import adjustment
+from .reading import frames, obstacles, pose, start_checks
+from .writing import keyframes
+from .rig import rig_cache, targets
 from .errors import AdjustError
 
 # How a live solve differs from Adjust Pose: no keys, a deleted target's slot is left out, and no residuals

@@ -6,7 +6,9 @@ import time
 
 import numpy as np
 
-from ..bridge import adjustment, batch, start_checks
+from ..bridge import adjustment
+from ..bridge import files as batch
+from ..bridge.reading import start_checks
 from ..reporting import preview
 from .files import WorkResult, progress_line
 from .parser import VARIANT_ENUMS

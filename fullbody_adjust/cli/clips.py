@@ -18,7 +18,8 @@ import time
 
 import bpy
 
-from ..bridge import batch, clip_import
+from ..bridge import files as batch
+from ..bridge.retarget import clip_import
 from ..reporting import batch_report
 from ..reporting.progress import ConsoleProgress, NoProgress
 from .files import CommandError, check_writable, checked_outputs, input_path, same_file, write_text

@@ -12,14 +12,14 @@ import traceback
 
 import bpy
 
-from ..bridge import batch
+from ..bridge import files as batch
 from ..bridge.errors import AdjustError
 from ..reporting import preview, summary
 from . import clips
 from .adjust import adjust
 from .files import CommandError, checked_outputs, input_path, one_line, same_file, write_png, write_text
 from .parser import (COMMAND, EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_OK, EXIT_TARGETS_MISSED, ParserExit, UsageError,
-                     build_parser)
+    build_parser)
 from .retarget import retarget
 
 _WORK = {"adjust": adjust, "retarget": retarget}

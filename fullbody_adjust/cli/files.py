@@ -5,7 +5,7 @@ and the picture, the progress line, and the one-line error (CommandError) every 
 from dataclasses import dataclass
 import os
 
-from ..bridge import batch
+from ..bridge import files as batch
 from ..reporting import preview
 from ..reporting.progress import ConsoleProgress, NoProgress
 

@@ -6,8 +6,9 @@ import time
 
 import numpy as np
 
-from ..bridge import batch, start_checks
-from ..bridge.retarget import retarget as retarget_motion
+from ..bridge import files as batch
+from ..bridge.reading import start_checks
+from ..bridge.retarget.run import retarget as retarget_motion
 from ..reporting import preview
 from .files import CommandError, WorkResult, progress_line
 

@@ -17,9 +17,10 @@ import traceback
 import bpy
 import numpy as np
 
-from ..bridge import batch, clip_import
+from ..bridge import files as batch
+from ..bridge.retarget import clip_import
 from ..bridge.errors import AdjustError
-from ..bridge.retarget import retarget
+from ..bridge.retarget.run import retarget
 from ..reporting import summary
 from ..reporting.batch_report import DONE, FAILED
 

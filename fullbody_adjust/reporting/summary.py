@@ -14,7 +14,7 @@ import numpy as np
 
 REPORT_VERSION = 1
 
-# Solver statuses (solver/chain.py) and the one the body solve uses for an effector without a target.
+# Solver statuses (solver/chain/fabrik.py) and the one the body solve uses for an effector without a target.
 REACHED = "reached"
 UNREACHABLE = "unreachable"
 UNCONSTRAINED = "unconstrained"

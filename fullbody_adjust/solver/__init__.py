@@ -5,12 +5,12 @@ Pure Python + numpy (no bpy, no mathutils), so it runs and is tested outside Ble
 exported here; the parts (chains, limits, geometry) are imported from their modules.
 """
 
-from .adjust import adjust_frames, adjust_pose
-from .adjust_types import UNCONSTRAINED, AdjustBatchResult, AdjustResult, AdjustSettings
-from .body import BodyModel, default_limits
-from .chain_types import ChainSettings
+from .fullbody.adjust import adjust_frames, adjust_pose
+from .fullbody.settings import UNCONSTRAINED, AdjustBatchResult, AdjustResult, AdjustSettings
+from .body.model import BodyModel, default_limits
+from .chain.settings import ChainSettings
 from .errors import SolverInputError
-from .obstacles import Boxes, penetrations
+from .obstacles.boxes import Boxes, penetrations
 
 __all__ = [
     "adjust_frames", "adjust_pose", "UNCONSTRAINED", "AdjustBatchResult", "AdjustResult", "AdjustSettings",

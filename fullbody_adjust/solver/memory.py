@@ -1,7 +1,7 @@
 """What solves of one body model keep for the solves after them, held by the model (BodyModel.memory): the caller
 that holds the model (the bridge keeps one per armature) holds this too, and a new model starts with nothing kept.
 
-Nothing here can be stale: every entry is keyed on all it was computed from (prepared.py, body.py), or depends
+Nothing here can be stale: every entry is keyed on all it was computed from (fullbody/prepared.py, body/model.py), or depends
 on the model alone.
 """
 
@@ -9,7 +9,7 @@ from collections import OrderedDict
 
 
 class SolveMemory:
-    """The work a model's solves share (see prepared.py for what each holds and how long)."""
+    """The work a model's solves share (see fullbody/prepared.py for what each holds and how long)."""
 
     def __init__(self):
         self.starts = OrderedDict()  # prepared start poses (prepared.prepare), least recently used first

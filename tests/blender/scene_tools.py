@@ -124,7 +124,7 @@ def effector_bone(obj, effector):
 
 
 def chain_joints(obj, pose, group):
-    """Armature-space joints of a chain group (as solver/body.py builds them): the heads of its bones plus the wrist or ankle (head
+    """Armature-space joints of a chain group (as solver/body/model.py builds them): the heads of its bones plus the wrist or ankle (head
     of the hand/foot bone) for a limb, the tail of the last bone (the SC) for the trunk."""
     groups = bone_map(obj)
     bones = groups[group]
@@ -294,7 +294,7 @@ def key_bones(obj, bone_names, frame, channels=("location", "rotation"), *, acti
     """Key the current values of ``channels`` ('location', 'rotation' — the property of each bone's rotation
     mode —, 'scale') of the pose bones ``bone_names`` at scene ``frame`` through the extension's keyframes
     module; returns the action written to."""
-    from fullbody_adjust.bridge.keyframes import key_bones_frames
+    from fullbody_adjust.bridge.writing.keyframes import key_bones_frames
     from fullbody_adjust.solver.vocabulary import ROTATION_PROPERTY
 
     values = {}
@@ -312,7 +312,7 @@ def swing_world_matrices(snapshot, bones, old_dirs, new_dirs, new_heads):
     minimal swing taking its segment's old direction to the new one (twist kept), its head moved to
     ``new_heads``, its scale unchanged; the swing taken in armature space, so the result is reachable under any
     object scale. old_dirs, new_dirs, new_heads: (k,3), or (F,k,3) for a batched snapshot."""
-    from fullbody_adjust.solver.geometry import swing_rotation
+    from fullbody_adjust.solver.maths.geometry import swing_rotation
 
     idx = snapshot.indices(bones)
     to_armature = np.linalg.inv(snapshot.matrix_world)[..., None, :, :]

@@ -387,7 +387,7 @@ def test_cli_command_registers_and_unregisters(cli):
 # --- retarget -------------------------------------------------------------------------------------------------
 
 def test_retarget_sample_has_mappable_armatures_and_an_object(tmp_path, extension_module_name):
-    batch = importlib.import_module(f"{extension_module_name}.bridge.batch")
+    batch = importlib.import_module(f"{extension_module_name}.bridge.files")
     reopen(sample(tmp_path, "retarget_cmu"))
     source, large, small = (bpy.data.objects[n] for n in ("Source", "Large", "Small"))
     for obj in (source, large, small):

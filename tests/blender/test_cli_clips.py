@@ -139,7 +139,7 @@ def test_an_fbx_clip_through_blenders_fbx_importer_and_kept_sources(cli, capsys,
     # An FBX of a clip, written by Blender's FBX exporter from the imported BVH.
     import addon_utils
 
-    clip_import = importlib.import_module(f"{extension_module_name}.bridge.clip_import")
+    clip_import = importlib.import_module(f"{extension_module_name}.bridge.retarget.clip_import")
     source, _ = clip_import.import_clip(bpy.context, str(clips / "jump.bvh"))
     addon_utils.enable("io_scene_fbx", default_set=False)
     bpy.ops.object.select_all(action='DESELECT')
@@ -205,7 +205,7 @@ def test_workers_run_openblas_on_one_thread_unless_the_user_chose(monkeypatch, e
 def test_an_interrupted_batch_keeps_the_clips_done_and_resumes(cli, capsys, tmp_path, clips, character,
                                                                monkeypatch, extension_module_name):
     os.remove(clips / "broken.bvh")
-    batch = importlib.import_module(f"{extension_module_name}.bridge.batch")
+    batch = importlib.import_module(f"{extension_module_name}.bridge.files")
     append = batch.append_datablocks
 
     def append_then_interrupt(context, path):  # Ctrl+C right after the first clip joined the file
@@ -267,7 +267,7 @@ def test_a_frame_range_far_beyond_the_animation_is_refused_in_one_line(cli, caps
 
 def test_a_frame_range_too_large_for_memory_is_refused_in_one_line(cli, capsys, tmp_path, character, monkeypatch,
                                                                    extension_module_name):
-    batch = importlib.import_module(f"{extension_module_name}.bridge.batch")
+    batch = importlib.import_module(f"{extension_module_name}.bridge.files")
     bones = 29  # the basic metarig
     need = 10 * bones * batch.BYTES_PER_BONE_FRAME  # frames 1..10
     monkeypatch.setattr(batch, "available_memory", lambda: 2 * need - 1)
@@ -296,8 +296,8 @@ def test_retarget_frames_default_to_the_source_action_within_the_scene_range(cli
 
 
 def test_floor_puts_the_ground_contacts_at_its_height(tmp_path, clips, character, extension_module_name):
-    clip_import = importlib.import_module(f"{extension_module_name}.bridge.clip_import")
-    retarget = importlib.import_module(f"{extension_module_name}.bridge.retarget")
+    clip_import = importlib.import_module(f"{extension_module_name}.bridge.retarget.clip_import")
+    retarget = importlib.import_module(f"{extension_module_name}.bridge.retarget.run")
     reopen(character)
     source, _ = clip_import.import_clip(bpy.context, str(clips / "walk_a.bvh"))
     hero = bpy.data.objects["Hero"]
@@ -313,7 +313,7 @@ def test_floor_puts_the_ground_contacts_at_its_height(tmp_path, clips, character
 def test_a_clip_lands_on_the_scenes_frames(clips, extension_module_name, scene_fps, step):
     # CMU's frame time '.0083333' is 120.0005 fps: at 120 fps the keys sit exactly on the frames (not drifting off
     # them); at 24 fps they are resampled, 1/5 frame apart.
-    clip_import = importlib.import_module(f"{extension_module_name}.bridge.clip_import")
+    clip_import = importlib.import_module(f"{extension_module_name}.bridge.retarget.clip_import")
     assert clip_import.bvh_frame_rate(clips / "walk_a.bvh") == pytest.approx(1 / 0.0083333)
     bpy.context.scene.render.fps = scene_fps
     source, _ = clip_import.import_clip(bpy.context, str(clips / "walk_a.bvh"))
@@ -323,7 +323,7 @@ def test_a_clip_lands_on_the_scenes_frames(clips, extension_module_name, scene_f
 
 
 def test_floor_with_a_source_in_the_file_raises_the_retargeted_motion(cli, capsys, tmp_path, extension_module_name):
-    retarget = importlib.import_module(f"{extension_module_name}.bridge.retarget")
+    retarget = importlib.import_module(f"{extension_module_name}.bridge.retarget.run")
     samples = Path(__file__).resolve().parents[2] / "sample_scenes"
     reopen(samples / "retarget_cmu.blend")
     ground = retarget.prepare(bpy.context, bpy.data.objects["Source"], bpy.data.objects["Small"], 20, 22).plan.ground

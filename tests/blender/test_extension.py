@@ -98,7 +98,7 @@ def test_built_zip_holds_the_entry_point_manifest_licence_and_package_only(built
     with zipfile.ZipFile(zip_path) as archive:
         names = {name for name in archive.namelist() if not name.endswith("/")}
     assert {"__init__.py", "blender_manifest.toml", "LICENSE", "fullbody_adjust/__init__.py",
-            "fullbody_adjust/solver/adjust.py"} <= expected
+            "fullbody_adjust/solver/fullbody/adjust.py"} <= expected
     assert names == expected
 
 

@@ -180,7 +180,7 @@ def test_settings_that_limit_no_direction_change_nothing():
 
 
 def test_bone_limits_reads_ik_settings_and_local_limit_rotations(extension_module_name):
-    ik_limits = importlib.import_module(f"{extension_module_name}.bridge.ik_limits")
+    ik_limits = importlib.import_module(f"{extension_module_name}.bridge.reading.ik_limits")
     obj = add_rig("basic")
     pb = obj.pose.bones["shin.L"]
     assert not ik_limits.bone_limits(pb).limits_direction  # nothing set
@@ -224,7 +224,7 @@ def test_empty_constraint_range_is_one_clear_error():
 
 def test_retargeting_keeps_the_target_rigs_range():
     """The source walk's elbows bend beyond the target metarig's forearm range: the retargeted keys stay in it."""
-    from fullbody_adjust.bridge import retarget
+    from fullbody_adjust.bridge.retarget import run as retarget
 
     from .test_retarget import add_metarig, import_clip
 

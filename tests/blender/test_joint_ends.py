@@ -98,7 +98,7 @@ def test_units_and_object_scale_give_world_figures(capfd):
 def test_preview_draws_bones_to_their_joints(extension_module_name):
     """The command line's preview draws each bone from its head to where it ends as a joint: on a rig whose tails
     lie 100 times past the next joint, to its child's head (a leaf no longer than its parent)."""
-    batch = importlib.import_module(f"{extension_module_name}.bridge.batch")
+    batch = importlib.import_module(f"{extension_module_name}.bridge.files")
     obj = add_rig("basic")
     _far_tails(obj, 100.0)
     segments = batch.skeleton_segments(obj, [1])[0]  # every bone deforms

@@ -1,4 +1,4 @@
-"""Keyframes for pose bones (bridge/keyframes.py), through the bpy wheel: the same tests pass on 4.2
+"""Keyframes for pose bones (bridge/writing/keyframes.py), through the bpy wheel: the same tests pass on 4.2
 (legacy F-Curves), 4.5 (slots) and 5.x (channelbags)."""
 
 import bpy
@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from fullbody_adjust.bridge.errors import AdjustError
-from fullbody_adjust.bridge.keyframes import key_bones_frames
-from fullbody_adjust.bridge.pose import apply_channels, read_pose, world_rotations_to_channels
+from fullbody_adjust.bridge.writing.keyframes import key_bones_frames
+from fullbody_adjust.bridge.reading.pose import apply_channels, read_pose, world_rotations_to_channels
 
 from .scene_tools import key_bones
 

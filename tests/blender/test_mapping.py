@@ -1,4 +1,4 @@
-"""Bone mapping on real Blender rigs (bone_mapping/, read and stored by bridge/mapping.py), through the bpy wheel: the Rigify metarigs and a
+"""Bone mapping on real Blender rigs (bone_mapping/, read and stored by bridge/rig/mapping.py), through the bpy wheel: the Rigify metarigs and a
 generated Rigify rig, the shared BVH clips imported with io_anim_bvh, Mixamo and Unreal armatures built with
 their real names; describing armatures, and storing the map on the armature object."""
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from fullbody_adjust.bone_mapping import BoneMap, MappingError, RigDescription, detect_map, map_rig
-from fullbody_adjust.bridge.mapping import describe_armature, ensure_map, is_typed, load_map, read_map, store_map
+from fullbody_adjust.bridge.rig.mapping import describe_armature, ensure_map, is_typed, load_map, read_map, store_map
 from tests.helpers.bvh import CMU_GROUPS, MOCAP_DIR
 from tests.test_mapping_rules import (
     daz_bvh_groups,

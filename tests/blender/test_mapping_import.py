@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from fullbody_adjust.bone_mapping import map_rig
-from fullbody_adjust.bridge.mapping import describe_armature
+from fullbody_adjust.bridge.rig.mapping import describe_armature
 
 from .test_mapping import rigify_groups, rigify_metarig
 from tests.test_mapping_rules import rename_map

@@ -83,7 +83,7 @@ def test_create_targets_puts_the_hand_target_on_the_wrist(rig, extension_module_
     obj.pose.bones["forearm.L"].rotation_mode = 'XYZ'
     obj.pose.bones["forearm.L"].rotation_euler = (0.4, 0.0, 0.3)  # the wrist is carried by the posed forearm
     bpy.ops.fullbody_adjust.create_targets()
-    batch = importlib.import_module(f"{extension_module_name}.bridge.batch")
+    batch = importlib.import_module(f"{extension_module_name}.bridge.files")
     effectors = batch.effector_positions(obj, [bpy.context.scene.frame_current])[0]  # the command line's preview
     for k, s in enumerate(SIDES):
         slot = next(t for t in obj.fullbody_adjust.targets if t.effector == f"hand.{s}")

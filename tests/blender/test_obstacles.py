@@ -1,4 +1,4 @@
-"""Which meshes are obstacles and their world-space boxes (bridge/obstacles.py), through the bpy wheel."""
+"""Which meshes are obstacles and their world-space boxes (bridge/reading/obstacles.py), through the bpy wheel."""
 
 import math
 
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from fullbody_adjust.bridge.errors import AdjustError
-from fullbody_adjust.bridge.obstacles import obstacle_box_frames, obstacle_boxes, obstacle_meshes
-from fullbody_adjust.solver.obstacles import Boxes
+from fullbody_adjust.bridge.reading.obstacles import obstacle_box_frames, obstacle_boxes, obstacle_meshes
+from fullbody_adjust.solver.obstacles.boxes import Boxes
 from tests.helpers.rotations import euler_xyz
 
 # A cube of half-size 1 around its origin: the same 8 corners as its bound_box, in any order.

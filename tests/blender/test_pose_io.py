@@ -1,4 +1,4 @@
-"""Pose in (world space), rotations out (bridge/pose.py), through the bpy wheel.
+"""Pose in (world space), rotations out (bridge/reading/pose.py), through the bpy wheel.
 
 Each test asks for new world matrices, converts and applies them, lets Blender evaluate the pose and
 reads the result back: the bones land where asked, bones outside the request keep their local channels
@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 from mathutils import Euler, Matrix, Quaternion
 
-from fullbody_adjust.bridge import pose as pose_module
+from fullbody_adjust.bridge.reading import pose as pose_module
 from fullbody_adjust.bridge.errors import AdjustError
-from fullbody_adjust.bridge.keyframes import key_bones_frames
-from fullbody_adjust.solver.geometry import affine_inverse
+from fullbody_adjust.bridge.writing.keyframes import key_bones_frames
+from fullbody_adjust.solver.maths.geometry import affine_inverse
 from fullbody_adjust.solver.vocabulary import EULER_ORDERS
-from fullbody_adjust.bridge.pose import (
+from fullbody_adjust.bridge.reading.pose import (
     apply_channels,
     armature_rotations_to_channels,
     as_batch,

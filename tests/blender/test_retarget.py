@@ -1,4 +1,4 @@
-"""Retargeting through the bpy wheel (bridge/retarget.py and the fullbody_adjust.retarget operator).
+"""Retargeting through the bpy wheel (bridge/retarget/run.py and the fullbody_adjust.retarget operator).
 
 A CMU clip imported with Blender's own BVH importer is the source; targets are the Rigify basic metarig
 (another skeleton, A-pose, its object scaled) and a copy of the BVH armature with its bones scaled in Edit
@@ -12,11 +12,13 @@ import bpy
 import numpy as np
 import pytest
 
-from fullbody_adjust.bridge import keyframes, mapping, retarget
+from fullbody_adjust.bridge.writing import keyframes
+from fullbody_adjust.bridge.rig import mapping
+from fullbody_adjust.bridge.retarget import run as retarget
 from fullbody_adjust.bridge.errors import AdjustError
-from fullbody_adjust.bridge.pose import read_pose_frames
-from fullbody_adjust.bridge.retarget_read import read_motion, rig_of, source_map
-from fullbody_adjust.solver import retarget as rt
+from fullbody_adjust.bridge.reading.pose import read_pose_frames
+from fullbody_adjust.bridge.retarget.read import read_motion, rig_of, source_map
+from fullbody_adjust.solver.retarget import motion as rt
 from tests.helpers.bvh import CMU_SCALE, MOCAP_DIR
 from tests.helpers.climb_bar import add_bar
 

@@ -4,9 +4,10 @@ evaluation of the deform bones follows the plan (wrists and ankles on their targ
 import bpy
 import numpy as np
 
-from fullbody_adjust.bridge import mapping, retarget
-from fullbody_adjust.bridge.retarget_read import rig_of
-from fullbody_adjust.solver import retarget as rt
+from fullbody_adjust.bridge.rig import mapping
+from fullbody_adjust.bridge.retarget import run as retarget
+from fullbody_adjust.bridge.retarget.read import rig_of
+from fullbody_adjust.solver.retarget import motion as rt
 
 from .test_retarget import enable_addon, import_clip
 from .test_rigify import INTERNAL, keyed_bones

@@ -1,4 +1,4 @@
-"""Soles on the floor, measured on the mesh (bridge/retarget_soles.py): a character's mesh feet stand on the
+"""Soles on the floor, measured on the mesh (bridge/retarget/soles.py): a character's mesh feet stand on the
 floor after a retarget, neither sinking nor floating, and the report's contact and floor figures are the ones
 measured here on the written file's evaluated mesh vertices.
 
@@ -12,7 +12,9 @@ import bpy
 import numpy as np
 import pytest
 
-from fullbody_adjust.bridge import keyframes, mapping, retarget
+from fullbody_adjust.bridge.writing import keyframes
+from fullbody_adjust.bridge.rig import mapping
+from fullbody_adjust.bridge.retarget import run as retarget
 
 from .test_retarget import FRAMES, add_metarig, import_clip, select_only, source_foot_points
 

@@ -9,8 +9,9 @@ import bpy
 import numpy as np
 import pytest
 
-from fullbody_adjust.bridge import keyframes, retarget
-from fullbody_adjust.bridge.pose import read_pose_frames
+from fullbody_adjust.bridge.writing import keyframes
+from fullbody_adjust.bridge.retarget import run as retarget
+from fullbody_adjust.bridge.reading.pose import read_pose_frames
 from tests.helpers.bvh import CMU_SCALE, MOCAP_DIR
 
 from .test_retarget import FRAMES, WALK, add_metarig, enable_addon, select_only

@@ -10,7 +10,7 @@ import pytest
 
 @pytest.fixture
 def rig_cache(extension_module_name):
-    return importlib.import_module(f"{extension_module_name}.bridge.rig_cache")
+    return importlib.import_module(f"{extension_module_name}.bridge.rig.rig_cache")
 
 
 def model_bones(rig, group):
@@ -107,7 +107,7 @@ def test_map_that_no_longer_fits_is_mapped_again_unless_typed(rig, rig_cache):
 
 
 def test_rest_data_is_the_rigs_and_rotation_modes_are_read_each_time(rig, rig_cache, extension_module_name):
-    pose = importlib.import_module(f"{extension_module_name}.bridge.pose")
+    pose = importlib.import_module(f"{extension_module_name}.bridge.reading.pose")
     cached = rig_cache.rig_of(rig)
     fresh = pose.read_static(rig)
     static = cached.static(rig)

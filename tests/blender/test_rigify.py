@@ -63,7 +63,7 @@ def move_rotate_scale(rig):
 def test_turning_an_ik_chain_keeps_its_base_controls_scale(extension_module_name):
     # A bend step turns the IK base control about the chain's axis; Blender re-derives its channels from the
     # matrix written, which moved its scale (the chain's stretch) by up to 3e-3 on this rig.
-    control_match = importlib.import_module(f"{extension_module_name}.bridge.control_match")
+    control_match = importlib.import_module(f"{extension_module_name}.bridge.rig.control_match")
     rig = generated_rig("basic", "IK")
     base = rig.pose.bones["upper_arm_ik.L"]
     base.scale = (1.02, 0.97, 1.01)  # as a scale step leaves a stretchy chain's base
@@ -93,7 +93,7 @@ def test_turning_an_ik_chain_keeps_its_base_controls_scale(extension_module_name
 def test_control_matching_ends_on_its_best_sweep(extension_module_name, capfd, monkeypatch):
     # Near the precision of Blender's IK solver a sweep over an IK arm's pole and stretch can land farther off
     # than the one before: the controls are left as the best sweep had them, and the evaluated rig agrees.
-    control_match = importlib.import_module(f"{extension_module_name}.bridge.control_match")
+    control_match = importlib.import_module(f"{extension_module_name}.bridge.rig.control_match")
     rig = generated_rig("basic", "IK")
     pose = Pose(rig)
     arm = chain_joints(rig, pose, "arm.L")
@@ -157,8 +157,8 @@ def test_an_ik_hand_control_is_placed_without_evaluating_the_trunk_move(extensio
     such move is evaluated first (the pairs told not to follow their controls). Also where Rigify's IK parent
     switch makes the hand control follow the torso (2; 1, the default, is the root): the torso's move then carries
     it, which the sweep's closing evaluation finds."""
-    control_match = importlib.import_module(f"{extension_module_name}.bridge.control_match")
-    control_rig = importlib.import_module(f"{extension_module_name}.bridge.control_rig")
+    control_match = importlib.import_module(f"{extension_module_name}.bridge.rig.control_match")
+    control_rig = importlib.import_module(f"{extension_module_name}.bridge.rig.control_rig")
     pairs_of, match, pair_error = control_rig.control_pairs, control_match.match_controls, control_match._pair_error
     evaluations, swept = [], []
 
@@ -376,7 +376,7 @@ def test_undo_restores_controls(capfd):
 
 
 def test_description_names_the_limb_modes(extension_module_name):
-    control_rig = importlib.import_module(f"{extension_module_name}.bridge.control_rig")
+    control_rig = importlib.import_module(f"{extension_module_name}.bridge.rig.control_rig")
     rig = generated_rig("basic", "IK")
     assert control_rig.describe(rig) == "Rigify rig (IK arms, IK legs): keys controls"
     rig.pose.bones["upper_arm_parent.L"]["IK_FK"] = 1.0

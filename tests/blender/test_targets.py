@@ -1,4 +1,4 @@
-"""Target slots, target empties and reading them back (bridge/targets.py), through the bpy wheel."""
+"""Target slots, target empties and reading them back (bridge/rig/targets.py), through the bpy wheel."""
 
 import math
 
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from fullbody_adjust.bridge.errors import AdjustError
-from fullbody_adjust.bridge.targets import (
+from fullbody_adjust.bridge.rig.targets import (
     DEFAULT_PRIORITY,
     EFFECTORS,
     NO_ENABLED_TARGET,

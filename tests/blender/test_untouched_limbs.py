@@ -187,7 +187,9 @@ def test_the_metarigs_own_hinge_axes_agree_with_the_rest_ones():
     rest, carried by the upper bones) agree with them on the metarig at rest, the shins' exactly, the forearms'
     within the 11.6 degrees their roll sits off the arm's rest plane, posed as at rest or turned at the shoulder
     and hip."""
-    from fullbody_adjust.bridge import ik_limits, pose, rig_cache
+    from fullbody_adjust.bridge.reading import ik_limits
+    from fullbody_adjust.bridge.reading import pose
+    from fullbody_adjust.bridge.rig import rig_cache
 
     obj = add_rig("basic")
     bpy.ops.fullbody_adjust.map_bones()

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fullbody_adjust.solver.body import BodyModel
-from fullbody_adjust.solver.obstacles import Boxes
+from fullbody_adjust.solver.body.model import BodyModel
+from fullbody_adjust.solver.obstacles.boxes import Boxes
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "human_metarig.npz"
 EFFECTORS = ("hand.L", "hand.R", "foot.L", "foot.R", "head")

@@ -16,7 +16,7 @@ import bpy
 import numpy as np
 
 from tests.helpers import real_rigs, rig_measures as rm
-from fullbody_adjust.solver.joint_ends import joint_ends
+from fullbody_adjust.solver.body.joint_ends import joint_ends
 from tests.helpers.blender_data import bone_map, evaluated
 from tests.helpers.bvh import CMU_SCALE, MOCAP_DIR
 

@@ -8,7 +8,7 @@ from hypothesis import assume
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from fullbody_adjust.solver.chain_types import _reach_bounds
+from fullbody_adjust.solver.chain.settings import _reach_bounds
 
 coords = st.floats(-2.0, 2.0, allow_nan=False, allow_infinity=False)
 

@@ -7,13 +7,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from fullbody_adjust.solver.adjust import (AdjustSettings, adjust_frames, adjust_pose, nearest_in_balls,
+from fullbody_adjust.solver.fullbody.adjust import (AdjustSettings, adjust_frames, adjust_pose, nearest_in_balls,
                                            project_onto_balls, sub_base_point)
-from fullbody_adjust.solver.body import END, BodyModel, default_limits
+from fullbody_adjust.solver.body.model import END, BodyModel, default_limits
 from fullbody_adjust.solver.errors import SolverInputError
-from fullbody_adjust.solver.geometry import swing_rotation
-from fullbody_adjust.solver.limits import CONE, HINGE
-from fullbody_adjust.solver.obstacles import Boxes, points_inside, segments_cross
+from fullbody_adjust.solver.maths.geometry import swing_rotation
+from fullbody_adjust.solver.limits.joint_limits import CONE, HINGE
+from fullbody_adjust.solver.obstacles.boxes import Boxes, points_inside, segments_cross
 from tests.helpers.bvh import CMU_GROUPS, read_cmu
 
 EFFECTORS = ("hand.L", "hand.R", "foot.L", "foot.R")

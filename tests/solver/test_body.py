@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from fullbody_adjust.solver.body import BodyModel, HumanLimits, default_limits
+from fullbody_adjust.solver.body.model import BodyModel, HumanLimits, default_limits
 from fullbody_adjust.solver.errors import SolverInputError
-from fullbody_adjust.solver.geometry import swing_rotation
-from fullbody_adjust.solver.limits import CONE, HINGE, JointLimits, hinge_twist_angle
+from fullbody_adjust.solver.maths.geometry import swing_rotation
+from fullbody_adjust.solver.limits.joint_limits import CONE, HINGE, JointLimits, hinge_twist_angle
 from tests.helpers.bvh import CMU_CLIPS, CMU_GROUPS, read_bvh, read_cmu
 
 

@@ -7,11 +7,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fullbody_adjust.solver import Boxes, ChainSettings, SolverInputError, penetrations
-from fullbody_adjust.solver.chain import solve_chain, solve_chain_batch
-from fullbody_adjust.solver.limits import JointLimits, carry_axis, hinge_axis_from_bend
-from fullbody_adjust.solver.obstacles import points_inside
-from fullbody_adjust.solver.geometry import any_perpendicular
-from fullbody_adjust.solver.limits import CONE, HINGE
+from fullbody_adjust.solver.chain.fabrik import solve_chain, solve_chain_batch
+from fullbody_adjust.solver.limits.joint_limits import JointLimits, carry_axis, hinge_axis_from_bend
+from fullbody_adjust.solver.obstacles.boxes import points_inside
+from fullbody_adjust.solver.maths.geometry import any_perpendicular
+from fullbody_adjust.solver.limits.joint_limits import CONE, HINGE
 
 from .strategies import (boxes_corners, chains, lengths_of, reachable_targets, unit_vectors, unreachable_targets,
                          well_conditioned_targets)

@@ -1,13 +1,13 @@
 """The chain solver's two-segment finish checks a few chains' limits in plain floats first, on each chain's first
-candidate clear of the boxes (solver/chain_finish.py, _first_clear_holds): chain solves with joint limits, with and
+candidate clear of the boxes (solver/chain/finish.py, _first_clear_holds): chain solves with joint limits, with and
 without boxes in the way, give the very same positions, iterations and statuses as when numpy checks every
 candidate."""
 
 import numpy as np
 import pytest
 
-from fullbody_adjust.solver.chain import solve_chain_batch
-from fullbody_adjust.solver import chain_finish
+from fullbody_adjust.solver.chain.fabrik import solve_chain_batch
+from fullbody_adjust.solver.chain import finish as chain_finish
 
 from .test_obstacle_response import _problems
 

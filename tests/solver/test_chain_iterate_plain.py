@@ -1,19 +1,19 @@
-"""A few limited or obstructed chains iterate in plain floats (solver/chain_iterate_plain.py): chain solves and
+"""A few limited or obstructed chains iterate in plain floats (solver/chain/iterate_plain.py): chain solves and
 whole-body solves give the very same positions, iterations, residuals and statuses as numpy's iterations."""
 
 import numpy as np
 import pytest
 
-from fullbody_adjust.solver.chain import solve_chain_batch
-from fullbody_adjust.solver.adjust import adjust_frames
-from fullbody_adjust.solver.body import default_limits
-from fullbody_adjust.solver.chain_iterate_plain import PlainIterations
-from fullbody_adjust.solver.chain_model import ChainModel
-from fullbody_adjust.solver.chain_obstacles import ObstacleResponse
-from fullbody_adjust.solver.chain_types import ChainSettings
-from fullbody_adjust.solver.limits import JointLimits
-from fullbody_adjust.solver.obstacles import Boxes
-from fullbody_adjust.solver.rig_limits import rig_limits
+from fullbody_adjust.solver.chain.fabrik import solve_chain_batch
+from fullbody_adjust.solver.fullbody.adjust import adjust_frames
+from fullbody_adjust.solver.body.model import default_limits
+from fullbody_adjust.solver.chain.iterate_plain import PlainIterations
+from fullbody_adjust.solver.chain.model import ChainModel
+from fullbody_adjust.solver.obstacles.response import ObstacleResponse
+from fullbody_adjust.solver.chain.settings import ChainSettings
+from fullbody_adjust.solver.limits.joint_limits import JointLimits
+from fullbody_adjust.solver.obstacles.boxes import Boxes
+from fullbody_adjust.solver.limits.rig_limits import rig_limits
 
 from .test_adjust import EFFECTORS
 from .test_obstacle_response import _problems

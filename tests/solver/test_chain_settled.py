@@ -1,4 +1,4 @@
-"""The chain solves that need no iteration, in plain floats (solver/chain_settled.py), against the numpy path of
+"""The chain solves that need no iteration, in plain floats (solver/chain/settled.py), against the numpy path of
 ChainModel.solve: a target beyond reach (one stretched pass, limits applied) and a start already at its target
 (untouched when within its limits). Every field of the result is equal bit for bit, on 1-4 chains at once, with
 cones, hinges (with and without twist) and free joints; problems the plain path cannot settle (a target within
@@ -7,9 +7,9 @@ reach and not met, a start that breaks a limit) are left to the numpy path and c
 import numpy as np
 import pytest
 
-from fullbody_adjust.solver.chain_model import ChainModel
-from fullbody_adjust.solver.chain_types import ChainSettings
-from fullbody_adjust.solver.limits import CONE, FREE, HINGE, JointLimits, apply_cone, apply_hinge
+from fullbody_adjust.solver.chain.model import ChainModel
+from fullbody_adjust.solver.chain.settings import ChainSettings
+from fullbody_adjust.solver.limits.joint_limits import CONE, FREE, HINGE, JointLimits, apply_cone, apply_hinge
 
 SETTINGS = ChainSettings()
 

@@ -3,8 +3,8 @@ orientation within its cone) and two_bone_start with a pole."""
 
 import numpy as np
 
-from fullbody_adjust.solver.limb_rotations import END_SWING, end_rotation
-from fullbody_adjust.solver.two_bone_start import two_bone_start
+from fullbody_adjust.solver.fullbody.limb_rotations import END_SWING, end_rotation
+from fullbody_adjust.solver.chain.two_bone_start import two_bone_start
 from tests.helpers.rotations import about_axis
 
 

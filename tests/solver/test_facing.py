@@ -1,4 +1,4 @@
-"""Where a skeleton faces at rest (solver/facing.py), the one calculation the bone mapping's sides, the retarget's
+"""Where a skeleton faces at rest (solver/body/facing.py), the one calculation the bone mapping's sides, the retarget's
 heading and the rest hinges read: two legs built here (hips, knees, ankles, a toe joint below each ankle) facing
 -Y, then turned, their hips yawed, their toes or knees taken away; every expectation is the turn applied to -Y or
 the direction computed here from the joints."""
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from fullbody_adjust.bone_mapping import body_sides, map_rig
-from fullbody_adjust.solver.body import BodyModel
-from fullbody_adjust.solver.facing import UP, skeleton_facing
-from fullbody_adjust.solver.rest_hinges import rest_facing
+from fullbody_adjust.solver.body.model import BodyModel
+from fullbody_adjust.solver.body.facing import UP, skeleton_facing
+from fullbody_adjust.solver.body.rest_hinges import rest_facing
 from tests.test_mapping_rules import NAMED_RIGS
 from tests.test_mapping_sides import turned
 

@@ -1,10 +1,10 @@
-"""solver/foot_pivots.py: which point of a planted foot stays put from one frame to the next."""
+"""solver/retarget/foot_pivots.py: which point of a planted foot stays put from one frame to the next."""
 
 from types import SimpleNamespace
 
 import numpy as np
 
-from fullbody_adjust.solver import foot_pivots as fp
+from fullbody_adjust.solver.retarget import foot_pivots as fp
 
 
 def _turned(points, angle, about):

@@ -6,8 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fullbody_adjust.solver import SolverInputError
-from fullbody_adjust.solver.geometry import normalize, rotate_about_axis, swing_rotation
-from fullbody_adjust.solver.geometry import affine_inverse, any_perpendicular, cross
+from fullbody_adjust.solver.maths.geometry import normalize, rotate_about_axis, swing_rotation
+from fullbody_adjust.solver.maths.geometry import affine_inverse, any_perpendicular, cross
 
 from .strategies import unit_vectors
 

@@ -1,4 +1,4 @@
-"""The plain-float matrix helpers (solver/geometry_plain.py) against the numpy calls they stand in for, bit for
+"""The plain-float matrix helpers (solver/maths/geometry_plain.py) against the numpy calls they stand in for, bit for
 bit, the sign of zero included: matrix times vector and times points (einsum along contiguous rows), matrix
 products (einsum down strided columns) and the minimal rotation between two directions. Inputs span many orders
 of magnitude and include signed zeros, where the order of the three additions shows."""
@@ -6,8 +6,8 @@ of magnitude and include signed zeros, where the order of the three additions sh
 import numpy as np
 import pytest
 
-from fullbody_adjust.solver import geometry as g
-from fullbody_adjust.solver import geometry_plain as gp
+from fullbody_adjust.solver.maths import geometry as g
+from fullbody_adjust.solver.maths import geometry_plain as gp
 
 
 def _values(rng, shape):

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from fullbody_adjust.solver.joint_ends import chain_successors, end_points, joint_ends
+from fullbody_adjust.solver.body.joint_ends import chain_successors, end_points, joint_ends
 
 
 def _rest(heads, rotations=None):

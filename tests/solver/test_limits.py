@@ -6,8 +6,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fullbody_adjust.solver import SolverInputError
-from fullbody_adjust.solver.limits import CONE, FREE, HINGE, JointLimits, carry_axis, hinge_axis_from_bend
-from fullbody_adjust.solver.limits import apply_cone, apply_hinge, hinge_twist_angle
+from fullbody_adjust.solver.limits.joint_limits import CONE, FREE, HINGE, JointLimits, carry_axis, hinge_axis_from_bend
+from fullbody_adjust.solver.limits.joint_limits import apply_cone, apply_hinge, hinge_twist_angle
 
 from .strategies import unit_vectors
 

@@ -1,4 +1,4 @@
-"""Joint limits on one direction in plain floats (solver/limits_plain.py) against the numpy path (solver/limits.py)
+"""Joint limits on one direction in plain floats (solver/limits/limits_plain.py) against the numpy path (solver/limits/joint_limits.py)
 on many at once: the same directions and binding flags for hinges with and without twist (directions along the
 axis or against the parent, degenerate fallbacks, bends beyond either bound) and cones; and the chain solver's
 limit check of a few chains (plain) against its numpy check."""
@@ -6,10 +6,11 @@ limit check of a few chains (plain) against its numpy check."""
 import numpy as np
 import pytest
 
-from fullbody_adjust.solver import chain_model, limits_plain
-from fullbody_adjust.solver.chain_model import ChainModel
-from fullbody_adjust.solver.chain_types import ChainSettings
-from fullbody_adjust.solver.limits import CONE, FREE, HINGE, JointLimits, apply_cone, apply_hinge, carry_axis
+from fullbody_adjust.solver.chain import model as chain_model
+from fullbody_adjust.solver.limits import limits_plain
+from fullbody_adjust.solver.chain.model import ChainModel
+from fullbody_adjust.solver.chain.settings import ChainSettings
+from fullbody_adjust.solver.limits.joint_limits import CONE, FREE, HINGE, JointLimits, apply_cone, apply_hinge, carry_axis
 
 
 def _unit(rng, n):
@@ -133,7 +134,7 @@ def test_the_chain_limit_check_of_a_few_chains_as_its_numpy_check(monkeypatch, k
 def test_carrying_a_few_hinge_axes_gives_the_bits_of_carrying_many():
     """limits.carry_axis on up to four rows (plain floats) against the same rows among many (numpy), also for
     parents that did not turn, turned right round, or nearly so."""
-    from fullbody_adjust.solver import limits
+    from fullbody_adjust.solver.limits import joint_limits as limits
     rng = np.random.default_rng(21)
     n = 400
     axis, ref, parent = _unit(rng, n), _unit(rng, n), _unit(rng, n)

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from fullbody_adjust.solver import Boxes, SolverInputError
-from fullbody_adjust.solver.adjust import AdjustSettings, adjust_frames, adjust_pose
-from fullbody_adjust.solver.obstacles import distances_to_boxes, grown_clear_of, points_inside
+from fullbody_adjust.solver.fullbody.adjust import AdjustSettings, adjust_frames, adjust_pose
+from fullbody_adjust.solver.obstacles.boxes import distances_to_boxes, grown_clear_of, points_inside
 from tests.helpers import metarig
 
 

@@ -1,4 +1,4 @@
-"""Which obstacles a solve can meet (solver/obstacle_reach.py) on the Rigify full human metarig: the skeleton's
+"""Which obstacles a solve can meet (solver/obstacles/reach.py) on the Rigify full human metarig: the skeleton's
 reach is the longest path from the root along the bones, every solved bone stays inside the ball body_reach gives,
 boxes outside it are left out, and a solve with far boxes added is the solve without them, bit for bit."""
 
@@ -9,9 +9,9 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from fullbody_adjust.solver import Boxes
-from fullbody_adjust.solver.adjust import adjust_frames, adjust_pose
-from fullbody_adjust.solver.body import FIXED
-from fullbody_adjust.solver.obstacle_reach import body_reach, reachable_boxes, skeleton_reach
+from fullbody_adjust.solver.fullbody.adjust import adjust_frames, adjust_pose
+from fullbody_adjust.solver.body.model import FIXED
+from fullbody_adjust.solver.obstacles.reach import body_reach, reachable_boxes, skeleton_reach
 from tests.helpers import metarig
 
 

@@ -1,4 +1,4 @@
-"""The obstacle response's shortcut (solver/chain_obstacles.py): a joint inside a box takes the first clear point of
+"""The obstacle response's shortcut (solver/obstacles/response.py): a joint inside a box takes the first clear point of
 the paper's circle without the sphere's samples being tested. Chain solves with boxes across the chains' way, with
 and without joint limits, give the very same results as when every candidate is tested."""
 
@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from fullbody_adjust.solver import Boxes
-from fullbody_adjust.solver.chain import solve_chain_batch
-from fullbody_adjust.solver.limits import JointLimits
-from fullbody_adjust.solver import chain_obstacles
-from fullbody_adjust.solver.chain_iterate_plain import PlainIterations
-from fullbody_adjust.solver.geometry import any_perpendicular
+from fullbody_adjust.solver.chain.fabrik import solve_chain_batch
+from fullbody_adjust.solver.limits.joint_limits import JointLimits
+from fullbody_adjust.solver.obstacles import response as chain_obstacles
+from fullbody_adjust.solver.chain.iterate_plain import PlainIterations
+from fullbody_adjust.solver.maths.geometry import any_perpendicular
 
 
 def _problems(seed, count=40):

@@ -1,4 +1,4 @@
-"""The swivelled starts a limb's eased retries begin from (solver/obstacle_swivel.py): every start meets the target
+"""The swivelled starts a limb's eased retries begin from (solver/obstacles/swivel.py): every start meets the target
 with the segments' lengths and the joints before the two kept, the elbow going round the circle about the line
 from the two segments' root to the target; and the intrusion that picks among them against distances sampled
 independently."""
@@ -6,7 +6,7 @@ independently."""
 import numpy as np
 
 from fullbody_adjust.solver import Boxes
-from fullbody_adjust.solver.obstacle_swivel import ANGLES, intrusion, swivel_starts
+from fullbody_adjust.solver.obstacles.swivel import ANGLES, intrusion, swivel_starts
 
 
 def _arm():

@@ -1,11 +1,11 @@
-"""The collision tests on a few points or segments (solver/obstacles.py, plain floats) against the numpy path on
+"""The collision tests on a few points or segments (solver/obstacles/boxes.py, plain floats) against the numpy path on
 many at once: the same answers, also on a box's faces, for segments along a face or an axis, with per-problem
 boxes and with NaN coordinates."""
 
 import numpy as np
 import pytest
 
-from fullbody_adjust.solver.obstacles import _FEW_TESTS, Boxes, penetrates_few, points_inside, segments_cross
+from fullbody_adjust.solver.obstacles.boxes import _FEW_TESTS, Boxes, penetrates_few, points_inside, segments_cross
 
 
 def _points(rng, n, mins, maxs):
@@ -96,9 +96,9 @@ def test_chain_penetration_counts_of_a_few_chains_as_the_numpy_path(monkeypatch,
     """ChainModel.penetration_counts of 1-4 chains (count_penetrations_few, plain floats) against the numpy
     path: the same counts, with the boxes the end and the base ignore (a target or the base inside a box)
     left out, for 2- to 5-joint chains around one or two boxes, shared or per problem."""
-    from fullbody_adjust.solver import obstacles
-    from fullbody_adjust.solver.chain_model import ChainModel
-    from fullbody_adjust.solver.chain_types import ChainSettings
+    from fullbody_adjust.solver.obstacles import boxes as obstacles
+    from fullbody_adjust.solver.chain.model import ChainModel
+    from fullbody_adjust.solver.chain.settings import ChainSettings
     rng = np.random.default_rng(3 + batched)
     counted = 0
     for trial in range(300):

@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from fullbody_adjust.solver import Boxes, SolverInputError, penetrations
-from fullbody_adjust.solver.obstacles import as_boxes, points_inside, segments_cross
+from fullbody_adjust.solver.obstacles.boxes import as_boxes, points_inside, segments_cross
 
 from .strategies import boxes_corners
 

@@ -1,4 +1,4 @@
-"""Every calculation written once on components (solver/lanes.py): F frames solved together against each frame
+"""Every calculation written once on components (solver/maths/lanes.py): F frames solved together against each frame
 solved alone, bit for bit, on random problems (hypothesis) and on captured degenerate ones; and the lanes'
 primitives on one float against numpy on many."""
 
@@ -8,12 +8,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from fullbody_adjust.solver import body, lanes
-from fullbody_adjust.solver import limb_rotations as lr
-from fullbody_adjust.solver.limits import CONE, FREE, HINGE
-from fullbody_adjust.solver.reach_balls import nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point
-from fullbody_adjust.solver.trunk_curl import curl_chord, curl_start
-from fullbody_adjust.solver.two_bone_start import two_bone_start
+from fullbody_adjust.solver.body import model as body
+from fullbody_adjust.solver.maths import lanes
+from fullbody_adjust.solver.fullbody import limb_rotations as lr
+from fullbody_adjust.solver.limits.joint_limits import CONE, FREE, HINGE
+from fullbody_adjust.solver.fullbody.reach_balls import nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point
+from fullbody_adjust.solver.fullbody.trunk_curl import curl_chord, curl_start
+from fullbody_adjust.solver.chain.two_bone_start import two_bone_start
 from fullbody_adjust.solver.errors import SolverInputError
 
 BENT = np.radians(15.0)

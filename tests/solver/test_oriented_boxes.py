@@ -8,8 +8,8 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from fullbody_adjust.solver import Boxes, SolverInputError, penetrations
-from fullbody_adjust.solver.obstacles import points_inside, segments_cross
-from fullbody_adjust.solver.chain import solve_chain
+from fullbody_adjust.solver.obstacles.boxes import points_inside, segments_cross
+from fullbody_adjust.solver.chain.fabrik import solve_chain
 from tests.helpers.rotations import about_axis
 
 # Corner i of Blender's bound_box: x from bit 2, y from (i in 2,3,6,7), z from (i in 1,2,5,6).

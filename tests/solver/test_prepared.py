@@ -1,4 +1,4 @@
-"""The prepared start pose (solver/prepared.py): the target-independent work kept per start pose changes no
+"""The prepared start pose (solver/fullbody/prepared.py): the target-independent work kept per start pose changes no
 result, is never stale, and its default limits hold the start chains.
 
 Expectations come from solves that keep nothing from before (a fresh copy of the model, which holds what is kept,
@@ -12,11 +12,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from fullbody_adjust.solver import prepared
-from fullbody_adjust.solver.adjust import AdjustSettings, adjust_frames, adjust_pose
-from fullbody_adjust.solver.body import HumanLimits, default_limits
-from fullbody_adjust.solver.chain import solve_chain_batch
-from fullbody_adjust.solver.limits import CONE
+from fullbody_adjust.solver.fullbody import prepared
+from fullbody_adjust.solver.fullbody.adjust import AdjustSettings, adjust_frames, adjust_pose
+from fullbody_adjust.solver.body.model import HumanLimits, default_limits
+from fullbody_adjust.solver.chain.fabrik import solve_chain_batch
+from fullbody_adjust.solver.limits.joint_limits import CONE
 from tests.helpers import metarig
 
 FIELDS = ("heads", "tails", "rotations", "residuals", "status", "reasons", "iterations")

@@ -5,8 +5,8 @@ beyond reach, a foot held short by its limits, poles, and hands and feet turned 
 import numpy as np
 import pytest
 
-from fullbody_adjust.solver.adjust import adjust_frames
-from fullbody_adjust.solver.limb_placement import LimbPlacement
+from fullbody_adjust.solver.fullbody.adjust import adjust_frames
+from fullbody_adjust.solver.fullbody.limb_placement import LimbPlacement
 from tests.helpers import metarig
 from tests.solver.test_stacked_limbs import FIELDS, _four_limbs_case
 

@@ -1,4 +1,4 @@
-"""Sub-base geometry (solver/reach_balls.py) against brute force: the nearest point of a sphere inside every
+"""Sub-base geometry (solver/fullbody/reach_balls.py) against brute force: the nearest point of a sphere inside every
 active ball, checked on dense samples of the sphere; and frames without rows."""
 
 import numpy as np
@@ -7,7 +7,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from fullbody_adjust.solver.reach_balls import nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point
+from fullbody_adjust.solver.fullbody.reach_balls import nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point
 
 
 def _sphere_samples(n=20000):

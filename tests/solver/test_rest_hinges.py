@@ -1,4 +1,4 @@
-"""Elbow and knee hinge axes from the rest pose's joints and the body's facing (solver/rest_hinges.py), not from
+"""Elbow and knee hinge axes from the rest pose's joints and the body's facing (solver/body/rest_hinges.py), not from
 bone roll: they agree with the Rigify metarig's own X axes, ignore any roll, turn with the body, and on a far
 reach keep straight-legged knees from swinging sideways where arbitrary X axes swing them. Expectations are
 computed here from the joints."""
@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from fullbody_adjust.solver.adjust import adjust_pose
-from fullbody_adjust.solver.body import HumanLimits
-from fullbody_adjust.solver.rest_hinges import REST_BENT, rest_facing, rest_hinge_axes
+from fullbody_adjust.solver.fullbody.adjust import adjust_pose
+from fullbody_adjust.solver.body.model import HumanLimits
+from fullbody_adjust.solver.body.rest_hinges import REST_BENT, rest_facing, rest_hinge_axes
 from tests.helpers import metarig
 from tests.helpers.rotations import about_axis
 
@@ -108,7 +108,7 @@ def test_straight_limbs_take_the_facing_rule(rig):
 def test_a_slight_rest_bend_gives_its_plane_only_near_the_facing_rule(rig):
     """A knee bent 1.5 REST_BENT at rest (still below HumanLimits.bent) in the rule's plane (backward) gives that
     plane; bent as much sideways, the facing rule; bent less than REST_BENT, the rule too. The rule is the bent
-    rest pose's own: its foot's toes turned with the shin turn the facing (solver/facing.py) a little."""
+    rest pose's own: its foot's toes turned with the shin turn the facing (solver/body/facing.py) a little."""
     model, h, t, _x = rig
     heads, tails = _straightened(model, h, t)
     _up, left, forward = rest_facing(model, heads)

@@ -1,4 +1,4 @@
-"""Motion retargeting, numpy side (solver/retarget.py): rotation channels, kinematics, the rotation transfer
+"""Motion retargeting, numpy side (solver/retarget/motion.py): rotation channels, kinematics, the rotation transfer
 between two bone mappings, contacts and effector targets, and the whole plan -> adjust_frames -> channels
 path on CMU clips, with targets built from the same clips (scaled, A-posed, rolled, re-proportioned,
 another trunk).
@@ -14,8 +14,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from fullbody_adjust.solver import retarget as rt
-from fullbody_adjust.solver.adjust import adjust_frames
+from fullbody_adjust.solver.retarget import motion as rt
+from fullbody_adjust.solver.fullbody.adjust import adjust_frames
 from fullbody_adjust.solver.errors import SolverInputError
 from tests.helpers.bvh import CMU_GROUPS, read_cmu
 
@@ -563,7 +563,7 @@ def test_a_raised_foot_is_let_down_no_faster_than_the_blend(lift, step):
     """The foot's lift over the floor after _let_go: at least what the floor asks on every frame, falling by at
     most ``step`` a frame, and the least such lift (on each frame some earlier frame's lift, less ``step`` per
     frame since, is exactly it)."""
-    from fullbody_adjust.solver.retarget_plan import _let_go
+    from fullbody_adjust.solver.retarget.plan import _let_go
 
     out = _let_go(lift, step)
     assert np.all(out >= lift - 1e-12)

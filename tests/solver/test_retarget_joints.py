@@ -1,5 +1,5 @@
 """Retargeting measures joints and soles, never the tails an importer left, and takes the heading from the
-skeletons (solver/retarget_rig.py, retarget_soles.py, retarget_plan.py).
+skeletons (solver/retarget/rig.py, retarget_soles.py, retarget_plan.py).
 
 Rigs are the CMU skeletons of tests/solver/test_retarget.py: the same rig with its tails a hundred times as
 long (as Blender's glTF importer leaves them), turned in its data to face ±X/±Y, and with a skinned sole below
@@ -8,7 +8,7 @@ its joints; every expectation is computed here from the tidy rig's own plan or g
 import numpy as np
 import pytest
 
-from fullbody_adjust.solver import retarget as rt
+from fullbody_adjust.solver.retarget import motion as rt
 
 from .test_retarget import FPS, WALK, _rotation_about, cmu_rig, source_pose
 

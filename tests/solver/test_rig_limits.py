@@ -12,13 +12,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from fullbody_adjust.solver import adjust
-from fullbody_adjust.solver.adjust import adjust_frames
-from fullbody_adjust.solver.adjust_types import AdjustSettings
-from fullbody_adjust.solver.body import default_limits
+from fullbody_adjust.solver.fullbody import adjust
+from fullbody_adjust.solver.fullbody.adjust import adjust_frames
+from fullbody_adjust.solver.fullbody.settings import AdjustSettings
+from fullbody_adjust.solver.body.model import default_limits
 from fullbody_adjust.solver.errors import SolverInputError
-from fullbody_adjust.solver.limits import HINGE
-from fullbody_adjust.solver.rig_limits import BoneLimitSpec, rig_limits
+from fullbody_adjust.solver.limits.joint_limits import HINGE
+from fullbody_adjust.solver.limits.rig_limits import BoneLimitSpec, rig_limits
 
 from .test_adjust import EFFECTORS, _descendants, synthetic_humanoid
 

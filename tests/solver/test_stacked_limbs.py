@@ -5,11 +5,11 @@ whose limits differ must not be stacked."""
 import numpy as np
 import pytest
 
-from fullbody_adjust.solver import limb_placement
-from fullbody_adjust.solver.adjust import adjust_frames
-from fullbody_adjust.solver.body import LimbLimits, default_limits
-from fullbody_adjust.solver.limits import HINGE
-from fullbody_adjust.solver.obstacles import Boxes
+from fullbody_adjust.solver.fullbody import limb_placement
+from fullbody_adjust.solver.fullbody.adjust import adjust_frames
+from fullbody_adjust.solver.body.model import LimbLimits, default_limits
+from fullbody_adjust.solver.limits.joint_limits import HINGE
+from fullbody_adjust.solver.obstacles.boxes import Boxes
 from tests.helpers import metarig
 
 FIELDS = ("heads", "tails", "rotations", "residuals", "status", "reasons", "moved", "iterations",

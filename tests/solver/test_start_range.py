@@ -1,4 +1,4 @@
-"""A start pose outside the default joint ranges is the rig's own range there (solver/start_range.py): a limb that
+"""A start pose outside the default joint ranges is the rig's own range there (solver/limits/start_range.py): a limb that
 need not move keeps it bit for bit, with joint limits on as with them off, and a limb that moves is not pulled
 back into the default range. Poses are the Rigify metarig's rest with a leg raised past the default hip cone
 and elbows folded past the default hinge range; expectations are computed here from the joints."""
@@ -12,10 +12,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from fullbody_adjust.solver.adjust import AdjustSettings, adjust_pose
-from fullbody_adjust.solver.body import HumanLimits, default_limits
-from fullbody_adjust.solver.limits import CONE, FREE, HINGE
-from fullbody_adjust.solver.start_range import widened_ranges
+from fullbody_adjust.solver.fullbody.adjust import AdjustSettings, adjust_pose
+from fullbody_adjust.solver.body.model import HumanLimits, default_limits
+from fullbody_adjust.solver.limits.joint_limits import CONE, FREE, HINGE
+from fullbody_adjust.solver.limits.start_range import widened_ranges
 from tests.helpers import metarig
 from tests.helpers.rotations import about_axis
 

@@ -1,9 +1,9 @@
-"""The trunk's curl (solver/trunk_curl.py): the spine bent about one axis, each joint by its share of one angle,
+"""The trunk's curl (solver/fullbody/trunk_curl.py): the spine bent about one axis, each joint by its share of one angle,
 so that its end meets a target; the warm start of the trunk's chain solve and the lean's radius."""
 
 import numpy as np
 
-from fullbody_adjust.solver.trunk_curl import curl_chord, curl_start
+from fullbody_adjust.solver.fullbody.trunk_curl import curl_chord, curl_start
 
 SHARES = np.array([1.0, 0.5, 0.25])
 

@@ -1,8 +1,8 @@
-"""The two-bone warm start of hinged limbs (solver/two_bone_start.py), on a batch of chains."""
+"""The two-bone warm start of hinged limbs (solver/chain/two_bone_start.py), on a batch of chains."""
 
 import numpy as np
 
-from fullbody_adjust.solver.two_bone_start import two_bone_start
+from fullbody_adjust.solver.chain.two_bone_start import two_bone_start
 
 
 def test_the_end_lands_on_a_reachable_target_bending_to_the_hinge_axis_side():

@@ -1,0 +1,350 @@
+"""Posing a control rig through its controls: the controls an animator keys are placed so that the bones they
+drive (through constraints, IK and helper bones) reach the solved matrices.
+
+Each control is paired with one bone it drives, in one of two ways:
+
+- rigid: the control's new armature-space matrix is its current one carried by its bone's error,
+  ``C <- D @ inv(B) @ C`` (D: the bone's desired matrix, B: its evaluated one); exact in one step when the bone
+  follows the control rigidly (FK controls, an IK hand or foot control), a fixed-point step otherwise (a spine
+  whose controls pivot in its middle);
+- bend: the control sets the bend plane of a two-bone IK chain (its pole, or the chain's base control when the
+  rig uses no pole). Turning it about the chain's axis (first bone's head to the end bone's head) turns the IK
+  solution about that axis by the same angle, so the step is the angle from the evaluated middle joint to the
+  desired one about that axis, and the pair's error is that angle (as an arc at the middle joint). How far the
+  middle joint lies from the axis is the chain's stretch, not its bend: a stretchy IK shares its stretch between
+  its two bones as its solver finds (on a generated Rigify leg bent 30 degrees, the shin 0.17 % shorter than the
+  thigh, the knee 1.4 mm off), which no control sets; counted as the bend's error, it stalled every sweep and
+  chose the best one by the knee, not by the hands and feet;
+- scale: the control is the first bone of a stretchy IK chain (Rigify's IK shrinks or stretches its bones to
+  reach), scaled by the ratio of the chain's desired to its evaluated length (first bone's head, middle joint,
+  end bone's head), as Rigify's own IK-to-FK snapping scales it by its first bone's. The chain's length, not
+  the first bone's: the IK shares its stretch between the two bones as its solver finds, and matching the first
+  bone's length alone left the whole error on the second (a Rigify shin 0.67 % short with the thigh exact).
+Pairs are applied level by level, parents' controls first, and the sweep is repeated until every driven bone is within
+tolerance or a sweep stops helping; the controls are left as the best sweep placed them. An evaluation of the rig costs
+about as much as Blender's own IK on it, so a level is evaluated only when the moves since the last evaluation leave its
+pairs' matrices unknown: a rigid pair whose control hangs (in the pose hierarchy) below a control moved since, or below
+the bone that control drives, is carried by that move, control and bone alike, and is placed from the carried matrices;
+pairs of other limbs are unaffected (limbs are independent given the trunk, which carries them all); the bone of an IK
+chain's end control stays with that control when a control it does not hang below moved (a clavicle, the trunk: the
+chain still reaches the control; where that does not hold, a chain that cannot reach or a control that follows a moved
+one through a constraint, as a Rigify IK parent switch makes it, the sweep's closing evaluation finds the error and the
+next sweep corrects it); anything else (a bend or scale pair after a move of its limb, a control not below what moved, a
+limb between IK and FK) is evaluated first. Nothing here knows a rig's names: the rig module (``control_rig``) says
+which control drives which bone.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from mathutils import Matrix
+
+from ...solver.maths import geometry_plain as g
+from ...solver.maths.geometry import affine_inverse
+from ..reading.pose import ROTATION_PROPERTY, continuous_rotation
+
+
+# A control counts as moved when an entry of its local matrix changed by more than this: its channels are
+# float32, so an untouched control reads back bit for bit.
+_CONTROL_MOVED = 1e-7
+
+# A sweep that leaves the largest error above this fraction of the previous sweep's is the last one.
+_STALLED = 0.7
+
+
+# A scale step is taken against the slope its last step measured when that step moved the control's scale by
+# more than this (in logs; float32 channels); under _SLOPE_MIN the control no longer sets the chain's length.
+_SLOPE_STEP = 1e-5
+_SLOPE_MIN = 0.2
+
+# The group of the trunk's pairs: a move of the trunk carries every limb.
+TRUNK_GROUP = "trunk"
+
+
+@dataclass(frozen=True)
+class ControlPair:
+    """``control`` drives ``bone``; controls of lower ``level`` are placed first."""
+
+    control: str
+    bone: str
+    level: int
+    end: str = None  # bend and scale pairs: the bone whose head ends the chain (hand, foot)
+    kind: str = "rigid"  # 'rigid' | 'bend' | 'scale'
+    # The limb (or TRUNK_GROUP) whose bones the pair poses; pairs of different limbs do not affect each other.
+    # None: unknown, every move is evaluated before the pair is placed.
+    group: str = None
+    # A rigid pair whose bone goes where its control goes, whatever else moves (an IK chain's end control: the
+    # chain reaches it): a move of a control it does not hang below is taken to leave the control, and so the bone,
+    # where they were (module notes: the sweep's closing evaluation catches where that is wrong).
+    follows_control: bool = False
+
+    @property
+    def bends(self):
+        return self.kind == "bend"
+
+
+def _matrix(pose_bone):
+    return np.array(pose_bone.matrix, dtype=np.float64)
+
+
+def _head(m):
+    """A bone's head from its 4x4 matrix ``m`` as nested lists. Plain floats: with numpy's per-call cost on each
+    4x4 matrix, these errors took half the matching's time outside Blender's evaluations."""
+    return (m[0][3], m[1][3], m[2][3])
+
+
+def _tail(m, length):
+    """A bone's tail (the chain's middle joint for a chain's first bone): head + length * its Y axis."""
+    return (m[0][1] * length + m[0][3], m[1][1] * length + m[1][3], m[2][1] * length + m[2][3])
+
+
+def _pair_error(pose_bones, pair, desired, lengths):
+    return _error(_matrix(pose_bones[pair.bone]), pair, pose_bones, desired, lengths)
+
+
+def _bend_plane(pose_bones, pair, desired, lengths):
+    """(base, axis, now, want) of a bend pair: the chain's first joint, its unit axis (to the end bone's head)
+    and the evaluated and desired middle joints' offsets from that axis, or None when the axis or either offset
+    is degenerate (a straight chain has no bend plane to turn). Plain floats (numpy's per-call cost on
+    3-vectors made a bend step cost 0.15 ms)."""
+    length = lengths[pair.bone]
+    bone = _matrix(pose_bones[pair.bone]).tolist()
+    base = _head(bone)
+    axis = g.sub(_head(_matrix(pose_bones[pair.end]).tolist()), base)
+    size = g.norm(axis)
+    if size <= 1e-9 * length:
+        return None
+    axis = g.divided(axis, size)
+    now = g.sub(_tail(bone, length), base)
+    want = g.sub(_tail(desired[pair.bone].tolist(), length), base)
+    now = g.sub(now, g.scaled(axis, g.dot(now, axis)))
+    want = g.sub(want, g.scaled(axis, g.dot(want, axis)))
+    if min(g.norm(now), g.norm(want)) <= 1e-9 * length:
+        return None
+    return base, axis, now, want
+
+
+def _bend_angle(plane):
+    _base, axis, now, want = plane
+    return math.atan2(g.dot(g.cross(now, want), axis), g.dot(now, want))
+
+
+def _bend_error(pose_bones, pair, desired, lengths):
+    """How far a bend pair's middle joint is turned from the desired one about the chain's axis: the arc at the
+    desired joint's distance from the axis (what a bend step removes). Its distance from the axis and along
+    it are not the bend's: a stretchy IK (Rigify's) shares its stretch between its two bones as its solver
+    finds, and no control sets that share (the first bone's scale is the scale pair's)."""
+    plane = _bend_plane(pose_bones, pair, desired, lengths)
+    return 0.0 if plane is None else abs(_bend_angle(plane)) * g.norm(plane[3])
+
+
+def _bend_step(pose_bones, pair, desired, lengths):
+    """The rotation (4x4, about the chain's axis through its first joint) taking the evaluated middle joint
+    towards the desired one, or None when the axis is degenerate."""
+    plane = _bend_plane(pose_bones, pair, desired, lengths)
+    if plane is None:
+        return None
+    base, axis = plane[0], plane[1]
+    turn = g.rotation_about(axis, _bend_angle(plane))  # about the base: x -> R (x - base) + base
+    shift = [b - g.dot(row, base) for row, b in zip(turn, base)]
+    return np.array([[*turn[0], shift[0]], [*turn[1], shift[1]], [*turn[2], shift[2]], [0.0, 0.0, 0.0, 1.0]])
+
+
+def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
+    """Place the controls of ``pairs`` so each pair's bone reaches ``desired[bone]`` (4x4 armature-space
+    matrices). Evaluates the rig (``view_layer.update()``) where the moves since the last evaluation leave a
+    level's matrices unknown (module notes), and after each sweep. Returns the largest remaining bone error
+    (armature units) of the best sweep, whose channels the controls are left holding."""
+    pose_bones = obj.pose.bones
+    levels = sorted({p.level for p in pairs})
+    by_level = [[p for p in pairs if p.level == level] for level in levels]
+    lengths = {p.bone: pose_bones[p.bone].bone.length for p in pairs}
+    controls = list(dict.fromkeys(p.control for p in pairs))
+    above = {c: {b.name for b in pose_bones[c].parent_recursive} for c in controls}
+    view_layer.update()
+    error = best_error = np.inf
+    best = None
+    scaled = {}  # scale pairs: (control's Y scale, chain length) at their last step (None: left as they are)
+    for _sweep in range(max_sweeps):
+        pending = []  # (pair, armature-space step) of the controls moved since the last evaluation
+        for level_pairs in by_level:
+            carries = [_carried_or_apart(pair, pending, above) if pending else None for pair in level_pairs]
+            if pending and any(carry is None for carry in carries):
+                view_layer.update()
+                pending = []
+                carries = [None] * len(level_pairs)
+            moves, scales = [], []
+            for pair, carry in zip(level_pairs, carries):
+                bone = _matrix(pose_bones[pair.bone])
+                if carry is not None:
+                    bone = carry @ bone
+                if _error(bone, pair, pose_bones, desired, lengths) <= tolerance:
+                    continue
+                control = pose_bones[pair.control]
+                if pair.kind == "scale":
+                    scale = _scale_step(pair, control, pose_bones, desired, lengths, scaled)
+                    if scale is not None:
+                        scales.append((control, scale))
+                    continue
+                if pair.bends:
+                    step = _bend_step(pose_bones, pair, desired, lengths)
+                    if step is None:
+                        continue
+                else:
+                    step = desired[pair.bone] @ affine_inverse(bone)
+                if carry is None:
+                    moves.append((pair, control, step, step @ _matrix(control)))
+                else:
+                    # Blender turns an armature-space matrix into channels against the parent's evaluated
+                    # matrix, which the carry has not reached yet: hand it the matrix relative to that.
+                    new = step @ carry @ _matrix(control)
+                    moves.append((pair, control, step @ carry, affine_inverse(carry) @ new))
+            if not moves and not scales:
+                continue
+            for pair, control, step, new in moves:
+                # A bend step only turns its control, but Blender re-derives every channel from the matrix
+                # written, which lost an IK base's scale (a stretchy chain's length): that is kept as it was.
+                kept = tuple(control.scale) if pair.bends else None
+                control.matrix = Matrix(new.tolist())
+                if kept is not None:
+                    control.scale = kept
+                pending.append((pair, step))
+            for control, scale in scales:
+                control.scale = scale.tolist()
+            if scales:
+                view_layer.update()
+                pending = []
+        if pending:
+            view_layer.update()
+        previous, error = error, max(_pair_error(pose_bones, p, desired, lengths) for p in pairs)
+        if error < best_error:
+            best_error, best = error, read_channels(obj, controls)
+        if error <= tolerance or error > _STALLED * previous:
+            break  # met, or a sweep no longer helps (an IK chain's own solver tolerance, a stretchy chain)
+    if error > best_error:
+        # A sweep can still land farther off than one before it (a stretchy chain near its IK's precision):
+        # the controls go back to the best one.
+        _set_channels(obj, best)
+    return best_error
+
+
+def _chain_length(bone, end, length):
+    """A two-bone chain's length from its first bone's matrix ``bone`` (its head, and its tail: the middle joint)
+    and its end bone's ``end`` (its head), as nested lists."""
+    middle = _tail(bone, length)
+    return math.dist(_head(bone), middle) + math.dist(middle, _head(end))
+
+
+def _scale_lengths(pose_bones, pair, desired, lengths):
+    """A scale pair's chain length (_chain_length) as evaluated and as desired."""
+    length = lengths[pair.bone]
+    now = _chain_length(_matrix(pose_bones[pair.bone]).tolist(), _matrix(pose_bones[pair.end]).tolist(), length)
+    return now, _chain_length(desired[pair.bone].tolist(), desired[pair.end].tolist(), length)
+
+
+def _scale_step(pair, control, pose_bones, desired, lengths, scaled):
+    """A scale pair's new control scale (3,): its current one times the chain's desired over its evaluated length,
+    that ratio raised to 1 / the slope the last step measured (how much of a control's scaling reached the chain,
+    in logs: a stretchy IK undoes part of it, on Rigify's limbs about two thirds, which left 0.65 of the error
+    after each step), at most 1. None once a step measured a slope under _SLOPE_MIN: near full stretch the IK
+    stretches the chain to its end whatever its base's scale (a straight arm's length stayed 0.1 mm long over
+    six sweeps, the control's scaling reaching it less each time), and the control is left as it is.
+    ``scaled`` keeps each pair's last step (None: left)."""
+    last = scaled.get(pair, ())
+    if last is None:
+        return None
+    now, want = _scale_lengths(pose_bones, pair, desired, lengths)
+    current = np.array(control.scale, dtype=np.float64)
+    ratio = math.log(want / now)
+    scaled[pair] = (current[1], now)
+    if last:
+        moved = math.log(current[1] / last[0])
+        if abs(moved) > _SLOPE_STEP:
+            slope = math.log(now / last[1]) / moved
+            if slope < _SLOPE_MIN:
+                scaled[pair] = None
+                return None
+            ratio /= min(slope, 1.0)
+    return current * math.exp(ratio)
+
+
+def _set_channels(obj, channels):
+    """Put back channels as read_channels read them (RNA sets: Blender evaluates the rig again)."""
+    for name, props in channels.items():
+        pose_bone = obj.pose.bones[name]
+        for prop, value in props.items():
+            setattr(pose_bone, prop, value.tolist())
+
+
+def _carried_or_apart(pair, pending, above):
+    """How the moves ``pending`` (pair, step) since the last evaluation move ``pair``'s control and bone: the
+    armature-space motion of the nearest moved control above it (the last one: levels are placed parents
+    first, and a recorded step is the control's whole motion since the evaluation), the identity when only
+    other limbs moved, or None when a move may move it in a way not known without evaluating the rig (a move
+    of its own limb, or of the trunk, by a control it does not hang below)."""
+    carry = np.eye(4)
+    for moved, step in pending:
+        groups = (moved.group, pair.group)
+        if None not in groups and TRUNK_GROUP not in groups and moved.group != pair.group:
+            continue  # another limb
+        if None in groups or pair.kind != "rigid":
+            return None
+        if not {moved.control, moved.bone} & above[pair.control]:
+            if pair.follows_control:
+                continue  # its control stays, and its bone with it
+            return None
+        carry = step
+    return carry
+
+
+def _error(bone, pair, pose_bones, desired, lengths):
+    """_pair_error from the bone's (possibly carried) matrix ``bone``: a scale pair's chain length error, a bend
+    pair's turn as _bend_error measures it (both from the evaluated rig: they are never carried), else the larger
+    of the head's and the tail's distances."""
+    if pair.bends:
+        return _bend_error(pose_bones, pair, desired, lengths)
+    b, d, length = bone.tolist(), desired[pair.bone].tolist(), lengths[pair.bone]
+    if pair.kind == "scale":
+        now, want = _scale_lengths(pose_bones, pair, desired, lengths)
+        return abs(now - want)
+    return max(math.dist(_head(b), _head(d)), math.dist(_tail(b, length), _tail(d, length)))
+
+
+def control_channels(obj, view_layer, pairs, bones, desired, tolerance, rows, start=None):
+    """The controls' channels that pose ``bones`` at ``desired`` (F,k,4,4 armature space) on each frame:
+    {control: {property: (F,n)}} for the controls that moved on some frame, rotations continuous over frames.
+    ``rows`` yields the frame rows in order (the caller may step the scene to each frame as it yields); the
+    controls are left as placed for the last row. A control counts as moved when it ends a frame away from where
+    it was before that frame's matching or, given ``start`` (the PoseSnapshot the solve started from), from where
+    it was in that pose: Live matches from the controls it placed on the update before, and one that needs no
+    further move is still part of the pose it shows."""
+    controls = list(dict.fromkeys(pair.control for pair in pairs))
+    out, moved = [], np.zeros(len(controls), dtype=bool)
+    start_bases = None if start is None else start.channels["matrix_basis"][:, start.indices(controls)]
+    for row in rows:
+        before = _bases(obj, controls) if start_bases is None else start_bases[row]
+        match_controls(obj, view_layer, pairs, dict(zip(bones, desired[row])), tolerance)
+        moved |= np.abs(_bases(obj, controls) - before).max(axis=(1, 2)) > _CONTROL_MOVED
+        out.append(read_channels(obj, controls, previous=out[-1] if out else None))
+    return {c: {prop: np.stack([row[c][prop] for row in out]) for prop in out[0][c]}
+            for c, m in zip(controls, moved) if m}
+
+
+def _bases(obj, controls):
+    return np.array([obj.pose.bones[c].matrix_basis for c in controls], dtype=np.float64)
+
+
+def read_channels(obj, controls, previous=None):
+    """{control: {property: (k,) values}}: the location and the rotation (in each control's rotation mode) the
+    controls hold now, the rotation made continuous with ``previous`` (same layout) or the control's own value."""
+    out = {}
+    for name in controls:
+        pose_bone = obj.pose.bones[name]
+        prop = ROTATION_PROPERTY[pose_bone.rotation_mode]
+        value = np.array(getattr(pose_bone, prop), dtype=np.float64)
+        if previous is not None and name in previous:
+            value = continuous_rotation(prop, pose_bone.rotation_mode, value, previous[name][prop])
+        out[name] = {"location": np.array(pose_bone.location, dtype=np.float64), prop: value,
+                     "scale": np.array(pose_bone.scale, dtype=np.float64)}
+    return out

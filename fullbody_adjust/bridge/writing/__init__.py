@@ -1,0 +1,1 @@
+"""Writing Blender data: keyframes straight into F-Curves."""

@@ -1,0 +1,496 @@
+"""The batch-first numpy chain solver: B chains (B, n, 3) with joint limits and obstacles, each problem leaving
+the active set when it converges, so a problem's result does not depend on what else is in the batch. A few
+problems' joint limits are applied in plain floats (limits/limits_plain.py), and a few limited or obstructed chains
+iterate in plain floats (chain/iterate_plain.py), with the same bits."""
+
+import numpy as np
+
+from ..maths import geometry_plain as g
+from ..limits import limits_plain
+from .finish import _MIN_FINISH_TWIST, TwoBoneFinish
+from .iterate_plain import PlainIterations
+from ..obstacles.response import ObstacleResponse
+from .settled import SettledChains
+from .settings import (_COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL, ChainBatchResult, _final_status,
+    _reach_bounds, _segment_lengths)
+from ..errors import SolverInputError
+from ..maths.geometry import all_set, any_perpendicular, any_set, cross, norm
+from ..limits.joint_limits import (CONE, FREE, HINGE, JointLimits, apply_cone, apply_hinge, carry_axis,
+    carry_axis_plain)
+from ..obstacles.boxes import as_boxes, count_penetrations_few, points_inside, segments_cross
+
+# Up to this many problems, the limit steps (of the passes and of the limit check) run in plain floats
+# (limits/limits_plain.py).
+_FEW_CHAINS = 4
+# Up to this many axis-aligned boxes, a few chains iterate in plain floats among them too (each joint is tested
+# against every box in plain floats: beyond a few, numpy's one test of all of them costs less).
+_FEW_BOXES = 16
+
+
+def _nudge_directions(v, first, k):
+    """Directions for the nudge k (0 or 1) of rows v (b,3): perpendicular to v (to `first` where v is zero),
+    the second perpendicular to the first; a stalled chain aimed straight at its target is bent along them."""
+    zero = ~(norm(v) > 0.0)
+    v = np.where(zero[:, None], first, v)
+    v = v / norm(v)[:, None]
+    p = any_perpendicular(v)
+    if k == 0:
+        return p
+    q = cross(v, p)
+    return q / norm(q)[:, None]
+
+
+def _per_problem(a, b, m):
+    """Per-joint vectors a (m,3) or (b,m,3) as (b,m,3); as they are when they are so already (a solver's own
+    limits carry per-problem arrays), without numpy's broadcast_to cost on every chain solve."""
+    return a if a.shape == (b, m, 3) else np.broadcast_to(a, (b, m, 3))
+
+
+class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations):
+    """Per-solve constant data of B chains and the two FABRIK passes on any subset of them.
+
+    Built from the start positions: segment lengths and directions, limits (per joint), obstacles, and the
+    boxes each problem ignores (those containing its target for the end joint and last segment, those
+    containing its base for segment 0 — unavoidable, reported in the reason)."""
+
+    def __init__(self, start, targets, settings, limits, obstacles, parent_directions):
+        self.B, self.n = start.shape[0], start.shape[1]
+        self.settings = settings
+        self.targets = targets
+        self.base = start[:, 0].copy()
+        self.lengths = _segment_lengths(start)
+        self.start_dirs = (start[:, 1:] - start[:, :-1]) / self.lengths[..., None]
+        m = self.n - 1
+
+        if limits is not None and not isinstance(limits, JointLimits):
+            raise SolverInputError("limits must be a JointLimits")
+        if limits is not None and len(limits) != m:
+            raise SolverInputError(f"limits cover {len(limits)} joints but the chain has {m} limitable joints")
+        self.limits = limits if limits is not None and limits.any_active else None
+        self._finishes = False
+        if self.limits is not None:
+            axes = self.limits.hinge_axis
+            if axes.ndim == 3 and axes.shape[0] != self.B:
+                raise SolverInputError(f"per-problem hinge axes have batch size {axes.shape[0]}, expected {self.B}")
+            self.hinge_axes = _per_problem(axes, self.B, m)
+            # The analytic two-segment finish needs a swivel range to pick from: not a hinge whose plane is fixed.
+            self._finishes = self.n >= 3 and (self.limits.kind[m - 1] != HINGE
+                                              or self.limits.hinge_twist[m - 1] >= _MIN_FINISH_TWIST)
+            # Where each hinge axis is given: its parent direction at the start pose, or the caller's.
+            ref = self.limits.hinge_reference
+            if ref is None:
+                self.hinge_refs = np.concatenate([self.start_dirs[:, :1], self.start_dirs[:, :-1]], axis=1)
+            else:
+                if ref.ndim == 3 and ref.shape[0] != self.B:
+                    raise SolverInputError(
+                        f"per-problem hinge references have batch size {ref.shape[0]}, expected {self.B}")
+                ref = _per_problem(ref, self.B, m)
+                self.hinge_refs = ref / np.maximum(norm(ref), 1e-300)[..., None]
+        self.parent_dirs = None
+        if parent_directions is not None:
+            pd = np.asarray(parent_directions, dtype=np.float64)
+            if pd.shape != (self.B, 3):
+                raise SolverInputError(f"parent_directions must have shape ({self.B},3), got {pd.shape}")
+            if not all_set(np.isfinite(pd)):
+                raise SolverInputError("parent_direction has NaN/inf")
+            pn = norm(pd)
+            if any_set(pn <= 1e-12):
+                raise SolverInputError("parent_direction has zero length")
+            self.parent_dirs = pd / pn[:, None]
+        if self.limits is not None and self.limits.kind[0] != FREE and self.parent_dirs is None:
+            raise SolverInputError("joint 0 has a limit but no parent_direction was given")
+
+        obstacles = as_boxes(obstacles)
+        self.boxes = obstacles if obstacles is not None and len(obstacles) > 0 else None
+        if self.boxes is not None:
+            if self.boxes.batched and self.boxes.mins.shape[0] != self.B:
+                raise SolverInputError(
+                    f"per-problem boxes have batch size {self.boxes.mins.shape[0]}, expected {self.B}")
+            self.ignore_end = points_inside(targets, self.boxes)  # (B,K)
+            self.ignore_base = points_inside(self.base, self.boxes)
+            self.corners = self.boxes.corners()
+
+    # -- limits -----------------------------------------------------------------------------------------------
+
+    def _limit(self, i, rows, parent, dirs, fallback):
+        """Apply joint i's limit to unit dirs (b,3) or (b,c,3). Returns (dirs, binding (b,...))."""
+        if dirs.ndim == 2 and len(rows) <= _FEW_CHAINS:
+            out = self._plain_limit(i, rows, parent, dirs, fallback)
+            if out is not None:
+                return out
+        kind = self.limits.kind[i]
+        extra = dirs.ndim - 2
+        expand = (lambda a: a.reshape(a.shape[:1] + (1,) * extra + a.shape[1:]))
+        if kind == CONE:
+            return apply_cone(expand(parent), dirs, self.limits.cone_angle[i], expand(fallback))
+        axis = self.hinge_axes[rows, i]
+        if i > 0:
+            axis = carry_axis(axis, self.hinge_refs[rows, i], parent)
+        return apply_hinge(expand(parent), dirs, expand(axis), self.limits.hinge_min[i], self.limits.hinge_max[i],
+                           expand(fallback), self.limits.hinge_twist[i])
+
+    def _limit_reverse(self, j, rows, child, dirs, fallback):
+        """Forward-pass counterpart of joint j's limit (FABRIK 2011 applies limits in both passes): segment j
+        is placed, so bend the parent direction dirs (b,3) of segment j-1 until segment j is a valid child of
+        it. A cone is symmetric; for a hinge the angle from child to parent is clamped to [-max, -min], about
+        the axis carried by the proposed parent direction. Only steers the proposal the backward pass starts
+        from: the backward pass enforces the limits exactly."""
+        if len(rows) <= _FEW_CHAINS:
+            out = self._plain_limit(j, rows, child, dirs, fallback, reverse=True)
+            if out is not None:
+                return out[0]
+        if self.limits.kind[j] == CONE:
+            return apply_cone(child, dirs, self.limits.cone_angle[j], fallback)[0]
+        axis = carry_axis(self.hinge_axes[rows, j], self.hinge_refs[rows, j], dirs)
+        return apply_hinge(child, dirs, axis, -self.limits.hinge_max[j], -self.limits.hinge_min[j], fallback,
+                           self.limits.hinge_twist[j])[0]
+
+    def _plain_limit(self, i, rows, parent, dirs, fallback, reverse=False):
+        """_limit (reverse: _limit_reverse) of a few rows' directions (b,3) in plain floats (limits/limits_plain.py: the
+        same bits); None where plain floats cannot take a row (the numpy path answers then)."""
+        out, binding = [], []
+        try:
+            for r, p, v, fb in zip(rows.tolist(), parent.tolist(), dirs.tolist(), fallback.tolist()):
+                u, bind = self._plain_limit_one(i, r, p, v, fb, reverse)
+                out.append(u)
+                binding.append(bind)
+        except ZeroDivisionError:
+            return None
+        return np.array(out, dtype=np.float64).reshape(dirs.shape), np.array(binding, dtype=bool)
+
+    def _plain_limit_one(self, i, r, parent, v, fallback, reverse=False):
+        """_plain_limit of problem r's one direction v (3-vectors as lists). ZeroDivisionError where numpy would
+        divide by zero."""
+        axis = None
+        if self.limits.kind[i] == HINGE:
+            axis = self.hinge_axes[r, i].tolist()
+            if reverse or i > 0:  # carried by the proposed parent direction, or by the parent
+                axis = carry_axis_plain(axis, self.hinge_refs[r, i].tolist(), v if reverse else parent)
+        return limits_plain.limit(self.limits, i, parent, v, fallback, axis, reverse)
+
+    def _plain_binding(self, P, rows):
+        """violations' limit test of a few problems `rows` with poses P (b,n,3) in plain floats (the same bits as
+        the numpy path); None where plain floats cannot take a row."""
+        limited = np.nonzero(self.limits.kind != FREE)[0].tolist()
+        parents = None if self.parent_dirs is None else self.parent_dirs.tolist()
+        try:
+            return np.array([self._breaks_limits(r, chain, lengths, parents, limited) for r, chain, lengths
+                             in zip(rows.tolist(), P.tolist(), self.lengths[rows].tolist())], dtype=bool)
+        except ZeroDivisionError:
+            return None
+
+    def _breaks_limits(self, r, chain, lengths, parents, limited):
+        """The limit test of problem r's pose ``chain`` (lists) in plain floats: segment directions as violations
+        computes them, each limited joint's binding (ZeroDivisionError where numpy would divide by zero)."""
+        dirs = [g.divided(g.sub(b, a), length) for a, b, length in zip(chain, chain[1:], lengths)]
+        dirs = [g.divided(d, g.norm(d)) for d in dirs]
+        return any(self._plain_limit_one(i, r, parents[r] if i == 0 else dirs[i - 1], dirs[i], dirs[i])[1]
+                   for i in limited)
+
+    # -- passes -----------------------------------------------------------------------------------------
+
+    def forward(self, P, rows, prev, ref, tip=None):
+        """Forward pass in place on P (b,n,3) of problems `rows`: effector to the target (or to `tip` (b,3)),
+        joints toward the base. prev: positions at the start of the iteration (fallback directions); ref:
+        obstacle-response reference."""
+        lengths = self.lengths[rows]
+        P[:, -1] = self.targets[rows] if tip is None else tip
+        responded = np.zeros(len(rows), dtype=bool)
+        failed = np.zeros(len(rows), dtype=bool)
+        for i in range(self.n - 2, -1, -1):
+            anchor = P[:, i + 1]
+            d = P[:, i] - anchor
+            L = lengths[:, i]
+            dn = norm(d)
+            bad = ~(dn > L * _COINCIDENT)
+            if any_set(bad):
+                d = np.where(bad[:, None], prev[:, i] - prev[:, i + 1], d)
+                dn = norm(d)
+            if self.limits is not None and i < self.n - 2 and self.limits.kind[i + 1] != FREE:
+                child = (P[:, i + 2] - anchor) / lengths[:, i + 1, None]
+                child = child / norm(child)[:, None]
+                fallback = prev[:, i + 1] - prev[:, i]
+                fallback = fallback / norm(fallback)[:, None]
+                u = self._limit_reverse(i + 1, rows, child, -d / dn[:, None], fallback)
+                cand = anchor - u * L[:, None]
+            else:
+                cand = anchor + d * (L / dn)[:, None]
+            if self.boxes is not None and i > 0:  # joint 0 is re-pinned by the backward pass anyway
+                cand, resp, fail = self._avoid(rows, anchor, cand, L, ref[:, i], i, i, None)
+                responded |= resp
+                failed |= fail
+            P[:, i] = cand
+        return responded, failed
+
+    def backward(self, P, rows, aims, prev, ref, root=None, stretch=False):
+        """Backward pass in place on P (b,n,3): base pinned (to `root` (b,3) if given), joint i+1 placed toward
+        aims[:, i+1] (the forward-pass positions, or with `stretch` the target for every joint), limits then
+        obstacles applied. Returns (limit binding, obstacle responded, obstacle failed), each (b,)."""
+        lengths = self.lengths[rows]
+        P[:, 0] = self.base[rows] if root is None else root
+        b = len(rows)
+        binding = np.zeros(b, dtype=bool)
+        responded = np.zeros(b, dtype=bool)
+        failed = np.zeros(b, dtype=bool)
+        pivot = self.n - 3 if not stretch and root is None and self._finishes else -1
+        finished = None
+        for i in range(self.n - 1):
+            if i == pivot:
+                finished, elbow, wrist = self._two_bone_finish(P, rows, aims)
+            anchor = P[:, i]
+            d = aims[:, i + 1] - anchor
+            if not stretch and self.limits is not None and i + 1 < self.n - 1 and self.limits.kind[i + 1] == HINGE:
+                # The parent segment of a hinge keeps its forward-pass direction instead of aiming at the
+                # forward-pass joint from the moved anchor: the hinge plane is carried by this direction, and
+                # the forward pass fitted that plane to the child (_limit_reverse). Re-aiming would turn the
+                # plane away from the target every iteration (measured: a limb with an elbow hinge and
+                # perturbed targets went from about 1 in 3 reached to nearly all).
+                d = aims[:, i + 1] - aims[:, i]
+            L = lengths[:, i]
+            dn = norm(d)
+            bad = ~(dn > L * _COINCIDENT)
+            if any_set(bad):
+                d = np.where(bad[:, None], prev[:, i + 1] - prev[:, i], d)
+                dn = norm(d)
+            limit_fn = None
+            if self.limits is not None and self.limits.kind[i] != FREE:
+                if i == 0:
+                    parent = self.parent_dirs[rows]
+                else:
+                    parent = (P[:, i] - P[:, i - 1]) / lengths[:, i - 1, None]
+                    parent = parent / norm(parent)[:, None]
+                fallback = prev[:, i + 1] - prev[:, i]
+                fallback = fallback / norm(fallback)[:, None]
+                u, bind = self._limit(i, rows, parent, d / dn[:, None], fallback)
+                binding |= bind
+                cand = anchor + u * L[:, None]
+
+                def limit_fn(h, dirs, i=i, rows=rows, parent=parent, fallback=fallback):
+                    return self._limit(i, rows[h], parent[h], dirs, fallback[h])[0]
+            else:
+                cand = anchor + d * (L / dn)[:, None]
+            if self.boxes is not None:
+                cand, resp, fail = self._avoid(rows, anchor, cand, L, ref[:, i + 1], i + 1, i, limit_fn)
+                responded |= resp
+                failed |= fail
+            if finished is not None and i >= pivot:
+                cand[finished] = (elbow if i == pivot else wrist)[finished]
+                binding &= ~finished
+                responded &= ~finished
+                failed &= ~finished
+            P[:, i + 1] = cand
+        return binding, responded, failed
+
+    # -- solve ------------------------------------------------------------------------------------------
+
+    def penetration_counts(self, P, rows=None):
+        """(joints inside, segments crossing) per problem (b,) of P (b,n,3) = problems `rows` (default all),
+        ignoring what each problem must ignore."""
+        rows = np.arange(self.B) if rows is None else rows
+        if self.boxes is None:
+            z = np.zeros(P.shape[0], dtype=np.int64)
+            return z, z.copy()
+        boxes = self.boxes.select(rows)
+        few = count_penetrations_few(P, boxes, self.ignore_end[rows], self.ignore_base[rows])
+        if few is not None:
+            return np.array(few[0], dtype=np.int64), np.array(few[1], dtype=np.int64)
+        inside = points_inside(P[:, 1:], boxes)  # (b,n-1,K): joint 0 is fixed, reported separately
+        inside[:, -1] &= ~self.ignore_end[rows]
+        crossing = segments_cross(P[:, :-1], P[:, 1:], boxes)  # (b,n-1,K)
+        crossing[:, -1] &= ~self.ignore_end[rows]
+        crossing[:, 0] &= ~self.ignore_base[rows]
+        return inside.any(axis=-1).sum(axis=-1), crossing.any(axis=-1).sum(axis=-1)
+
+    def _nudge(self, P, rows, nudges, slots):
+        """Push the interior joints of stalled problems `rows` sideways (see _NUDGES), in place; nudges[slots]
+        counts the nudges each has had."""
+        for k in range(_NUDGES):
+            pick = nudges[slots] == k
+            sel = rows[pick]
+            if sel.size == 0:
+                continue
+            u = _nudge_directions(self.targets[sel] - self.base[sel], P[sel, 1] - self.base[sel], k)
+            shift = self.lengths[sel, :-1] * _NUDGE  # joint i moves by _NUDGE of segment i-1
+            P[sel, 1:-1] = P[sel, 1:-1] + u[:, None, :] * shift[:, :, None]
+        nudges[slots] += 1
+
+    def violations(self, P, rows):
+        """(b,) problems `rows` whose pose P (b,n,3) breaks a joint limit (beyond rounding) or penetrates a box
+        it does not ignore."""
+        bad = np.zeros(len(rows), dtype=bool)
+        if self.limits is not None:
+            plain = self._plain_binding(P, rows) if len(rows) <= _FEW_CHAINS else None
+            if plain is not None:
+                bad |= plain
+            else:
+                lengths = self.lengths[rows]
+                dirs = (P[:, 1:] - P[:, :-1]) / lengths[..., None]
+                dirs = dirs / norm(dirs)[..., None]
+                for i in np.nonzero(self.limits.kind != FREE)[0]:
+                    parent = self.parent_dirs[rows] if i == 0 else dirs[:, i - 1]
+                    bad |= self._limit(i, rows, parent, dirs[:, i], dirs[:, i])[1]
+        if self.boxes is not None:
+            inside, crossing = self.penetration_counts(P, rows)
+            bad |= (inside + crossing) > 0
+        return bad
+
+    def _iterate(self, P, rows, force):
+        """FABRIK iterations on problems `rows`, in place on P (B,n,3). Rows whose end is already within
+        tolerance only iterate if `force` (bool or per row (b,)). Returns per-row (iterations, residual,
+        stalled, limit binding, obstacle responses in the returned iterate, penetrations of the returned
+        iterate)."""
+        few_boxes = self.boxes is None or (self.boxes.axes is None and len(self.boxes) <= _FEW_BOXES)
+        if (self.limits is not None or self.boxes is not None) and few_boxes and rows.size <= _FEW_CHAINS:
+            plain = self._iterate_plain(P, rows, force)  # the same bits (chain/iterate_plain.py)
+            if plain is not None:
+                return plain
+        s = self.settings
+        tol = s.tolerance
+        stall = tol * _STALL
+        b = rows.size
+        constrained = self.limits is not None or self.boxes is not None
+        iterations = np.zeros(b, dtype=np.int64)
+        stalled = np.zeros(b, dtype=bool)
+        binding_out = np.zeros(b, dtype=bool)
+        obstacle_out = np.zeros(b, dtype=bool)
+        nudges = np.zeros(b, dtype=np.int64)
+        residual = norm(P[rows, -1] - self.targets[rows])
+        if constrained:
+            best_P = P[rows].copy()
+            best_pen = np.full(b, np.iinfo(np.int64).max)
+            best_res = np.full(b, np.inf)
+            best_iter = np.zeros(b, dtype=np.int64)  # iteration of the last real improvement
+        act = np.nonzero((residual > tol) | force)[0]  # positions within `rows`
+        while act.size:
+            active = rows[act]
+            Pa = P[active]
+            prev = Pa.copy()
+            resp_f, _ = self.forward(Pa, active, prev, prev)
+            aims = Pa.copy()
+            binding, resp_b, _ = self.backward(Pa, active, aims, prev, prev)
+            responded = resp_f | resp_b
+            P[active] = Pa
+            iterations[act] += 1
+            res = norm(Pa[:, -1] - self.targets[active])
+            moved = norm(Pa[:, -1] - prev[:, -1])
+            residual[act] = res
+            binding_out[act] = binding
+            obstacle_out[act] = responded
+            now_stalled = (res > tol) & (moved < stall)
+            free = now_stalled & (nudges[act] < _NUDGES) & (iterations[act] < s.max_iterations) \
+                & ~binding & ~responded
+            if any_set(free):
+                self._nudge(P, active[free], nudges, act[free])
+                now_stalled &= ~free
+            if constrained:
+                pen = sum(self.penetration_counts(Pa, active))
+                better = (pen < best_pen[act]) | ((pen == best_pen[act]) & (res < best_res[act]))
+                improved = (pen < best_pen[act]) | (res < best_res[act] - stall)
+                up = act[better]
+                best_P[up], best_pen[up], best_res[up] = Pa[better], pen[better], res[better]
+                binding_out[act] = np.where(better, binding, binding_out[act])
+                obstacle_out[act] = np.where(better, responded, obstacle_out[act])
+                best_iter[act[improved]] = iterations[act[improved]]
+                now_stalled |= (res > tol) & (iterations[act] - best_iter[act] >= _PATIENCE)
+            stalled[act] = now_stalled
+            done = (res <= tol) | now_stalled | (iterations[act] >= s.max_iterations)
+            act = act[~done]
+        if constrained:
+            ran = iterations > 0
+            P[rows[ran]] = best_P[ran]
+            residual[ran] = best_res[ran]
+            pen = np.where(ran, best_pen, sum(self.penetration_counts(P[rows], rows)))
+        else:
+            pen = np.zeros(b, dtype=np.int64)
+        return iterations, residual, stalled, binding_out, obstacle_out, pen
+
+    def solve(self, start):
+        if self.boxes is None and self.B <= _FEW_CHAINS:
+            settled = self._solve_settled(start)  # no iteration needed: plain floats, the same bits
+            if settled is not None:
+                return settled
+        B = self.B
+        tol = self.settings.tolerance
+        P = start.copy()
+        total, inner = _reach_bounds(self.lengths)
+        dist = norm(self.targets - self.base)
+        beyond = dist > total
+        reachable = ~beyond & (dist >= inner)
+        iterations = np.zeros(B, dtype=np.int64)
+        residual = np.zeros(B)
+        stalled = np.zeros(B, dtype=bool)
+        obstacle_active = np.zeros(B, dtype=bool)
+        limit_binding = np.zeros(B, dtype=bool)
+
+        rows = np.nonzero(beyond)[0]
+        if rows.size:
+            Pa = P[rows]
+            prev = Pa.copy()
+            aims = np.broadcast_to(self.targets[rows][:, None, :], Pa.shape)
+            binding, responded, _ = self.backward(Pa, rows, aims, prev, prev, stretch=True)
+            P[rows] = Pa
+            iterations[rows] = 1
+            residual[rows] = norm(Pa[:, -1] - self.targets[rows])
+            limit_binding[rows] = binding
+            obstacle_active[rows] = responded
+
+        # A start pose already at its target is returned untouched (bit-exact, 0 iterations) unless it breaks a
+        # limit or penetrates a box: then at least one iteration runs, so it is never returned unchecked.
+        constrained = self.limits is not None or self.boxes is not None
+        rows = np.nonzero(~beyond)[0]
+        if rows.size:
+            force = False
+            if constrained:
+                force = np.zeros(rows.size, dtype=bool)
+                met = norm(P[rows, -1] - self.targets[rows]) <= tol
+                force[met] = self.violations(P[rows[met]], rows[met])
+            its, res, stl, bind, obst, pen = self._iterate(P, rows, force)
+            iterations[rows], residual[rows], stalled[rows] = its, res, stl
+            limit_binding[rows], obstacle_active[rows] = bind, obst
+            # FABRIK's obstacle response is local: the chain can wrap around the wrong side of a box and stay
+            # trapped there. A problem that is not reached gets a second start from the pose plain FABRIK
+            # finds (no obstacles, no limits; the constrained iterations then push that pose out of the boxes
+            # and into the limits), and keeps the better outcome: fewer penetrations, then the smaller residual.
+            # Where plain FABRIK leaves the start as it is (e.g. a start already at its target), the second start
+            # is the first one: its iterations would repeat the first attempt exactly, so it is skipped.
+            retry = rows[(res > tol) & reachable[rows]] if self.boxes is not None else rows[:0]
+            if retry.size:
+                free = ChainModel(start[retry], self.targets[retry], self.settings, None, None, None)
+                unobstructed = free.solve(start[retry])
+                fresh = ~np.all(unobstructed.positions == start[retry], axis=(1, 2))
+                retry, free_positions = retry[fresh], unobstructed.positions[fresh]
+                free_iterations = unobstructed.iterations[fresh]
+            if retry.size:
+                Q = P.copy()
+                Q[retry] = free_positions
+                its2, res2, stl2, bind2, obst2, pen2 = self._iterate(Q, retry, True)
+                old_pen = pen[np.searchsorted(rows, retry)]
+                better = (pen2 < old_pen) | ((pen2 == old_pen) & (res2 < residual[retry]))
+                iterations[retry] += free_iterations + its2
+                keep = retry[better]
+                P[keep], residual[keep], stalled[keep] = Q[keep], res2[better], stl2[better]
+                limit_binding[keep], obstacle_active[keep] = bind2[better], obst2[better]
+
+        inside, crossing = self.penetration_counts(P)
+        status = np.empty(B, dtype=object)
+        reason = np.empty(B, dtype=object)
+        # Plain Python values: indexing numpy arrays element by element costs more than the status logic.
+        per_problem = zip((residual <= tol).tolist(), reachable.tolist(), dist.tolist(), total.tolist(),
+                          inner.tolist(), stalled.tolist(), iterations.tolist(), obstacle_active.tolist(),
+                          limit_binding.tolist())
+        for j, args in enumerate(per_problem):
+            st, why = _final_status(*args)
+            if self.boxes is not None:
+                notes = []
+                if inside[j] or crossing[j]:
+                    notes.append(f"could not avoid obstacles: {inside[j]} joints inside, "
+                                 f"{crossing[j]} segments crossing")
+                if any_set(self.ignore_end[j]):
+                    notes.append("target inside obstacle")
+                if any_set(self.ignore_base[j]):
+                    notes.append("base inside obstacle")
+                if notes:
+                    st, why = "blocked", "; ".join(notes + [why])
+            status[j], reason[j] = st, why
+        return ChainBatchResult(P, iterations, residual, reachable, status.astype(str), reason.astype(str))
+

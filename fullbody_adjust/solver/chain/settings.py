@@ -1,0 +1,122 @@
+"""Settings, results, statuses and iteration constants shared by the chain solver (chain/fabrik.py, chain/model.py and its parts)."""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import SolverInputError
+from ..maths.geometry import any_set, norm
+
+STATUSES = ("reached", "unreachable", "blocked", "limited", "max_iterations")
+
+# Segments shorter than this (scene units) are rejected: their direction is meaningless.
+MIN_SEGMENT_LENGTH = 1e-12
+# A joint closer than this fraction of the segment length to its anchor has no usable direction toward it:
+# the segment keeps its previous direction instead (coincident joints never produce NaN).
+_COINCIDENT = 1e-12
+# An iteration that moves the end effector less than tolerance * _STALL has stalled.
+_STALL = 1e-3
+# With limits or obstacles FABRIK is no longer a descent method: it can creep away from the target or cycle
+# (the forward pass proposes poses the constrained backward pass cannot keep). Such a problem also stops when
+# its best residual has not improved by tolerance * _STALL for _PATIENCE iterations, and returns its best
+# iterate (fewest penetrations, then smallest residual; every iterate ends on a backward pass, so each one
+# satisfies the limits).
+_PATIENCE = 20
+# A stall with no limit or obstacle in play is a symmetric fixed point of FABRIK: a straight chain whose
+# target lies on its own line (every direction toward the old joints is along the line, or undefined and
+# falling back to the previous one). Up to _NUDGES times such a chain gets its interior joints pushed
+# sideways by _NUDGE of their segment length (first perpendicular to base->target, then perpendicular to
+# both) and iterates on; the next passes restore the segment lengths.
+_NUDGES = 2
+_NUDGE = 0.05
+
+
+@dataclass(frozen=True)
+class ChainSettings:
+    """tolerance: residual (scene units) at which the target counts as met; max_iterations: iteration cap;
+    margin: the paper's Δd, clearance added around an obstacle when a joint is pushed out of it."""
+
+    tolerance: float = 1e-5
+    max_iterations: int = 200
+    margin: float = 0.01
+
+    def __post_init__(self):
+        if not (isinstance(self.tolerance, (int, float)) and math.isfinite(self.tolerance) and self.tolerance > 0):
+            raise SolverInputError("tolerance must be a finite number > 0")
+        if isinstance(self.max_iterations, bool) or not isinstance(self.max_iterations, (int, np.integer)) \
+                or self.max_iterations < 1:
+            raise SolverInputError("max_iterations must be an integer >= 1")
+        if not (isinstance(self.margin, (int, float)) and math.isfinite(self.margin) and self.margin >= 0):
+            raise SolverInputError("margin must be a finite number >= 0")
+
+
+@dataclass
+class ChainResult:
+    positions: np.ndarray  # (n,3)
+    iterations: int
+    residual: float  # distance end effector -> target
+    reachable: bool  # the target lies within the chain's reach (ignoring limits and obstacles)
+    status: str  # one of STATUSES
+    reason: str  # a human-readable explanation of the status
+
+
+@dataclass
+class ChainBatchResult:
+    positions: np.ndarray  # (B,n,3)
+    iterations: np.ndarray  # (B,) int
+    residual: np.ndarray  # (B,)
+    reachable: np.ndarray  # (B,) bool
+    status: np.ndarray  # (B,) str
+    reason: np.ndarray  # (B,) str
+
+    def __len__(self):
+        return self.positions.shape[0]
+
+    def __getitem__(self, i):
+        return ChainResult(self.positions[i].copy(), int(self.iterations[i]), float(self.residual[i]),
+                           bool(self.reachable[i]), str(self.status[i]), str(self.reason[i]))
+
+
+def _segment_lengths(p):
+    """(..., n, 3) -> (..., n-1); raises for a zero-length segment."""
+    seg = p[..., 1:, :] - p[..., :-1, :]
+    lengths = norm(seg)
+    short = lengths <= MIN_SEGMENT_LENGTH
+    if any_set(short):
+        raise SolverInputError(f"segment {int(np.nonzero(short)[-1][0])} has zero length")
+    return lengths
+
+
+def _reach_bounds(lengths):
+    """(total reach, inner radius): targets closer to the base than the inner radius are out of reach too
+    (a segment longer than all others together cannot fold back onto the base). Summed left to right, as
+    the plain path does."""
+    total = lengths[..., 0].copy()
+    for i in range(1, lengths.shape[-1]):
+        total = total + lengths[..., i]
+    inner = np.maximum(2.0 * lengths.max(axis=-1) - total, 0.0)
+    return total, inner
+
+
+def _unreachable_reason(dist, total, inner):
+    if dist > total:
+        return f"target is {dist - total:.6g} beyond the chain's reach {total:.6g}: stretched toward it"
+    return f"target is closer to the base ({dist:.6g}) than the chain can fold ({inner:.6g})"
+
+
+def _final_status(reached, reachable, dist, total, inner, stalled, iterations, obstacle_active, limit_binding):
+    """Status of a problem without penetrations (those are settled by the caller)."""
+    if dist > total:  # the reachability test decides, even if the stretched chain ends within tolerance
+        return "unreachable", _unreachable_reason(dist, total, inner)
+    if reached:
+        return "reached", f"reached in {iterations} iterations"
+    if not reachable:
+        return "unreachable", _unreachable_reason(dist, total, inner)
+    how = f"stalled after {iterations} iterations" if stalled else f"iteration cap {iterations} reached"
+    if obstacle_active:
+        return "blocked", f"an obstacle kept the chain from the target ({how})"
+    if limit_binding:
+        return "limited", f"joint limits kept the chain from the target ({how})"
+    return "max_iterations", how
+

@@ -1,0 +1,351 @@
+"""Steps 2-4 of Algorithm 1 (paper §5): the top-down pass that places every bone once the sub-bases are known,
+solving each limb from its base riding on its parent (LimbPlacement, mixed into adjust._Problem; it uses the
+problem's chains, targets, limits, obstacles and settings)."""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..maths import geometry_plain as gp
+from ..body.model import CHAIN, ROOT
+from ..chain.fabrik import solve_chain_batch
+from ..chain.settings import ChainBatchResult, _final_status
+from ..maths.geometry import any_set, apply_matrix, norm, stack_rows
+from ..obstacles.easing import ClearanceEasing
+from .limb_rotations import _EYE, LimbSolve, end_rotation, set_segment_rotations
+from ..limits.joint_limits import HINGE, JointLimits, carry_axis
+from ..obstacles.boxes import grown_clear_of, points_inside, segments_cross
+from ..chain.two_bone_start import two_bone_start
+
+_EYE_ROWS = _EYE.tolist()
+
+
+class LimbPlacement(ClearanceEasing):
+    """The limbs' chain solves and the pass that places every bone from them."""
+
+    def _solve(self, name, rows, start, targets, carry=None):
+        """solve_chain_batch on frames `rows` of limb `name` from chains `start` (b,n,3) to `targets` (b,3):
+        _solve_stacked on this one limb."""
+        return self._solve_stacked([ChainTask(name, rows, start, targets, carry)])[0]
+
+    def _solve_stacked(self, tasks, ease=1.0, retry=False):
+        """One solve_chain_batch for `tasks` (ChainTask), their rows stacked in order, with each limb's limits
+        and its frames' obstacles (grown by `ease` times its clearance: _limb_boxes, _eased); one
+        ChainBatchResult per task. The tasks' limbs share a _stack_key (chain
+        length, per-joint limits): the chain solve treats its rows independently, so a stacked row equals the
+        limb solved alone, and numpy's per-call cost is paid once for all of them. `carry` (b,3,3): the
+        rotation that took the limb's start-pose chain to `start` (its parent's rotation), applied to joint 0's
+        parent direction (and a hinge axis at joint 0), which are given at the start pose. The other hinge
+        axes are carried from the start pose's own chain (hinge_reference; any reference the caller's limits
+        had is replaced), the frame _segment_rotations writes the bones in.
+
+        Warm start for a hinged limb (elbow, knee) whose end is not at its target yet: the last two segments
+        are first placed by the two-bone solution in the plane of the start hinge axis carried to the
+        target (two_bone_start), which keeps the elbow/knee near where it was (measured: without it the
+        mean joint angle error of bench/fullbody.py rises from 0.118 to 0.144 rad); FABRIK and the chain's
+        two-segment finish then settle the twist, the cones, obstacles and the clavicle. A pole (set_end_goals)
+        sets that plane instead, on every frame that has one."""
+        rows = stack_rows([t.rows for t in tasks])
+        start = stack_rows([t.start for t in tasks])
+        targets = stack_rows([t.targets for t in tasks])
+        pole = stack_rows([self.limb_pole[t.name][t.rows] if t.name in self.limb_pole
+                            else np.full((len(t.rows), 3), np.nan) for t in tasks])
+        kwargs = {}
+        pole_placed = False
+        ll = self.limits.get(tasks[0].name)
+        if ll is not None and ll.limits.any_active:
+            parts = [self.limits[t.name].for_chains(self.chain0[t.name][t.rows], t.rows, t.carry) for t in tasks]
+            lim = JointLimits.stack([part[0] for part in parts])
+            pdir = None if parts[0][1] is None else stack_rows([part[1] for part in parts])
+            axes, reference = lim.hinge_axis, lim.hinge_reference
+            m = len(lim)
+            if lim.kind[m - 1] == HINGE and m >= 2:
+                warm = np.nonzero((norm(start[:, -1] - targets) > self.settings.chain.tolerance)
+                                  | np.isfinite(pole[:, 0]))[0]
+                if warm.size:
+                    at_start = carry_axis(axes[warm, m - 1], reference[warm, m - 1],
+                                          start[warm, m - 1] - start[warm, m - 2])
+                    start = start.copy()
+                    start[warm] = two_bone_start(start[warm], targets[warm], at_start, pole[warm])
+                pole_placed = True
+            kwargs["limits"] = lim
+            kwargs["parent_directions"] = pdir
+        pending = np.nonzero(np.isfinite(pole[:, 0]) & (not pole_placed))[0]
+        if pending.size and start.shape[1] >= 3:  # a pole without a hinge limit: the same warm start
+            start = start.copy()
+            start[pending] = two_bone_start(start[pending], targets[pending], np.zeros((pending.size, 3)),
+                                            pole[pending])
+        if self.obstacles is not None:
+            kwargs["obstacles"] = self._limb_boxes([(t.name, t.rows, t.start[:, 0], t.targets) for t in tasks], ease)
+        res = solve_chain_batch(start, targets, settings=self.settings.chain, **kwargs)
+        out = [res] if len(tasks) == 1 else _split(res, [len(t.rows) for t in tasks])
+        for t, r in zip(tasks, out):
+            self.iterations[t.rows] += r.iterations  # per task: two limbs' rows may be the same frames
+        if self.obstacles is not None and not retry:
+            self._eased(tasks, out)
+        return out
+
+    def _limb_boxes(self, parts, ease=1.0):
+        """The obstacle boxes a chain solve of `parts` [(limb, rows (b,), bases (b,3), targets (b,3))], their rows
+        stacked in order, tests against: each limb's frames' boxes grown by its clearance (settings.clearance,
+        obstacles.grown_clear_of: less near its base and target); the frames' boxes as they are where no limb
+        of them has one (the paper's behaviour)."""
+        rows = stack_rows([part[1] for part in parts])
+        boxes = self.obstacles.select(rows)
+        clearance = [ease * self.settings.clearance_of(part[0]) for part in parts]
+        if not any(clearance):
+            return boxes
+        keep_out = np.stack([stack_rows([part[2] for part in parts]), stack_rows([part[3] for part in parts])], 1)
+        return grown_clear_of(boxes, np.repeat(clearance, [len(part[1]) for part in parts]), keep_out)
+
+    def _stack_key(self, task):
+        """What limbs solved in one stacked chain solve must share: the chain length and, when limited, the
+        per-joint limits and whether joint 0 has a parent direction."""
+        ll = self.limits.get(task.name)
+        if ll is None or not ll.limits.any_active:
+            return task.start.shape[1], None
+        return task.start.shape[1], ll.limits.per_joint_key(), ll.parent_direction is None
+
+    def _propagate(self, delta, trunk):
+        """Top-down pass over the bones, one hierarchy level at a time: new heads, tails and world rotation
+        deltas; limbs other than the trunk are solved when their first bone is reached (their base then rides
+        on its parent)."""
+        if self.F == 1:
+            return self._propagate_one_frame(delta, trunk)
+        return self._propagate_frames(delta, trunk)
+
+    def _propagate_frames(self, delta, trunk):
+        """_propagate on F frames at once, numpy on every level."""
+        model, F, H0, T0 = self.model, self.F, self.H0, self.T0
+        J = len(model.names)
+        heads = H0.copy()
+        rot = np.empty((F, J, 3, 3))
+        rot[...] = _EYE
+        moved = np.zeros((F, J), dtype=bool)
+        solves = {"trunk": trunk}
+
+        for rigid, par, limb_bones in self.prepared.levels:
+            # Rigid children of their parents (overridden below for solved chain bones); where the parent did
+            # not move, a bone stays as initialised (its parent's rotation is then the identity).
+            _carry(heads, rot, moved, H0, rigid, par)
+            # The limbs starting on this level ride on parents placed on earlier levels: solved together.
+            starts = {name: (heads[:, j], rot[:, p] if p >= 0 else None,
+                             moved[:, p] if p >= 0 else np.zeros(F, dtype=bool))
+                      for j, p, role, name, k in limb_bones if role == CHAIN and k == 0 and name not in solves}
+            if starts:
+                solves.update(self._solve_limbs(starts))
+            for j, p, role, name, k in limb_bones:
+                if role == ROOT:
+                    heads[:, j] = H0[:, j] + delta  # x + 0.0 == x: an unmoved root stays bit-exact
+                    moved[:, j] = (delta != 0.0).any(axis=1)
+                elif role == CHAIN:
+                    ls = solves[name]
+                    s = ls.solved
+                    if any_set(s):
+                        heads[s, j] = ls.joints[s, k]
+                        rot[s, j] = ls.segment_rotations(self.chain0[name], self.limits.get(name))[s, k]
+                        moved[s, j] = True
+                else:
+                    ls = solves[name]
+                    s = ls.solved
+                    if any_set(s):
+                        # Hands, feet and the head keep their world orientation on a solved limb.
+                        heads[s, j] = ls.joints[s, -1]
+                        rot[s, j] = _EYE
+                        moved[s, j] = True
+                    if name in self.end_turns:  # ... or turn toward a wanted orientation
+                        w = np.nonzero(np.isfinite(self.end_turns[name][:, 0, 0]))[0]
+                        rot[w, j] = end_rotation(self.end_turns[name][w], rot[w, p], T0[w, j] - H0[w, j])
+                        moved[w, j] = True
+        _carry(heads, rot, moved, H0, *self.prepared.leaves)  # fingers, face...: on their nearest placed ancestor
+        tails = np.where(moved[..., None], heads + apply_matrix(rot, T0 - H0), T0) if any_set(moved) else T0.copy()
+        return heads, tails, rot, solves
+
+    def _propagate_one_frame(self, delta, trunk):
+        """_propagate on one frame with its levels' per-bone steps in plain floats (the same operations:
+        geometry_plain's products add as einsum does); the limbs' solves, the leaves (fingers, face: many bones
+        at once) and the tails in numpy as there."""
+        model, H0, T0 = self.model, self.H0, self.T0
+        J = len(model.names)
+        h0 = H0[0].tolist()
+        heads = list(h0)
+        rot = [None] * J  # None: the identity the bone starts with
+        moved = [False] * J
+        solves = {"trunk": trunk}
+        shift = delta[0].tolist()
+        for rigid, par, limb_bones in self.prepared.levels:
+            _carry_one(heads, rot, moved, h0, rigid.tolist(), par.tolist())
+            starts = {name: (np.array([heads[j]]), None if p < 0 else np.array([_EYE if rot[p] is None else rot[p]]),
+                             np.array([p >= 0 and moved[p]]))
+                      for j, p, role, name, k in limb_bones if role == CHAIN and k == 0 and name not in solves}
+            if starts:
+                solves.update(self._solve_limbs(starts))
+            for j, p, role, name, k in limb_bones:
+                if role == ROOT:
+                    heads[j] = [h0[j][0] + shift[0], h0[j][1] + shift[1], h0[j][2] + shift[2]]
+                    moved[j] = shift != [0.0, 0.0, 0.0]
+                    continue
+                ls = solves[name]
+                if ls.solved[0]:
+                    heads[j] = ls.joints[0, k if role == CHAIN else -1].tolist()
+                    rot[j] = (ls.segment_rotations(self.chain0[name], self.limits.get(name))[0, k].tolist()
+                              if role == CHAIN else _EYE_ROWS)
+                    moved[j] = True
+                if role != CHAIN and name in self.end_turns and np.isfinite(self.end_turns[name][0, 0, 0]):
+                    carried = np.array([_EYE if rot[p] is None else rot[p]])
+                    rot[j] = end_rotation(self.end_turns[name], carried, T0[:, j] - H0[:, j])[0].tolist()
+                    moved[j] = True
+        heads = np.array([heads], dtype=np.float64)
+        rotations = np.empty((1, J, 3, 3))
+        rotations[...] = _EYE
+        turned = [j for j in range(J) if rot[j] is not None]
+        if turned:
+            rotations[0, turned] = np.array([rot[j] for j in turned], dtype=np.float64)
+        moved = np.array([moved])
+        _carry(heads, rotations, moved, H0, *self.prepared.leaves)  # many at once: numpy's turn
+        tails = np.where(moved[..., None], heads + apply_matrix(rotations, T0 - H0), T0) if any_set(moved) \
+            else T0.copy()
+        return heads, tails, rotations, solves
+
+    def _solve_limbs(self, starts):
+        """{limb: LimbSolve} for the limbs {name: (base, parent_rot, parent_moved)} (_start_limb); the chain
+        solves of limbs with the same _stack_key (left and right arms, legs) run as one stacked solve, and so
+        do their segment rotations."""
+        solves, tasks = {}, []
+        for name, (base, parent_rot, parent_moved) in starts.items():
+            solves[name], task = self._start_limb(name, base, parent_rot, parent_moved)
+            if task is not None:
+                tasks.append(task)
+        for group in _group_limbs(tasks, self._stack_key):
+            for task, res in zip(group, self._solve_stacked(group)):
+                ls, rows = solves[task.name], task.rows
+                ls.joints[rows] = res.positions
+                ls.status[rows] = res.status
+                ls.reason[rows] = res.reason
+                # The chain returns a valid start pose that meets its target untouched (0 iterations).
+                kept = (res.iterations == 0) & task.still & np.all(res.positions == self.chain0[task.name][rows],
+                                                                   axis=(1, 2))
+                ls.solved[rows[kept]] = False
+            # Their segment rotations too, in one call (_propagate then finds them computed).
+            set_segment_rotations([solves[t.name] for t in group], [self.chain0[t.name] for t in group],
+                                  [self.limits.get(t.name) for t in group])
+        return solves
+
+    def _start_limb(self, name, base, parent_rot, parent_moved):
+        """Limb `name` on the frames where its effector has a target, from its base `base` (F,3) riding on its
+        parent (rotation parent_rot (F,3,3), moved (F,) bool); the start chain is the old one carried rigidly.
+        A limb whose parent did not move and whose start pose already meets its target (clear of the
+        obstacles; within the caller's limits, if given) stays exactly as it was: not solved, so its bones keep
+        their positions bit-exact and their rotations exactly identity ("moves only the joints that need to").
+        Returns its LimbSolve as carried (the caller writes the solved frames in) and the ChainTask of the frames
+        left to solve (None if none)."""
+        F = self.F
+        c0 = self.chain0[name]
+        r = np.broadcast_to(_EYE, (F, 3, 3)) if parent_rot is None else parent_rot
+        if any_set(parent_moved):
+            carried = base[:, None, :] + np.einsum("fij,fkj->fki", r, c0 - c0[:, :1])
+            carried = np.where(parent_moved[:, None, None], carried, c0)  # (c0 - b) + b may differ from c0 by 1 ulp
+        else:
+            carried = c0.copy()
+        solved = self.limb_active[name].copy()
+        status = np.full(F, "", dtype=object)
+        reason = np.full(F, "", dtype=object)
+        rows = np.nonzero(solved)[0]
+        untouched = self._untouched_start(name, rows, parent_moved)
+        if any_set(untouched):
+            # The chain solve's status of a start at its target within reach: reached in 0 iterations.
+            done = rows[untouched]
+            status[done], reason[done] = _final_status(True, True, 0.0, 1.0, 0.0, False, 0, False, False)
+            solved[rows[untouched]] = False
+            rows = rows[~untouched]
+        task = None
+        if rows.size:
+            task = ChainTask(name, rows, carried[rows], self.limb_target[name][rows], r[rows], ~parent_moved[rows])
+        return LimbSolve(carried, solved, status, reason), task
+
+    def _untouched_start(self, name, rows, parent_moved):
+        """(b,) bool over frames `rows`: limb `name` stays exactly as it started, as a chain solve returns a start
+        it finds nothing to do about (0 iterations, status reached): parent not moved, the target within reach
+        and met at the start and, with obstacles, every joint and segment and the target outside every box;
+        known from the prepared start pose without building a chain solve. The default limits do not enter:
+        they bound motion (limits/start_range.py), and a limb that need not move makes none, wherever its start lies.
+        Limits the caller gave are left to the chain solve, which moves a start that breaks them."""
+        keep = ~parent_moved[rows]
+        if not any_set(keep):
+            return keep
+        c0, target = self.chain0[name][rows], self.limb_target[name][rows]
+        tol = self.settings.chain.tolerance  # a straight limb on its target reaches it, however its lengths round
+        if len(rows) == 1:  # one frame: the same two distances in plain floats
+            r, joints, goal = int(rows[0]), c0[0].tolist(), target[0].tolist()
+            keep[0] = (gp.norm(gp.sub(joints[-1], goal)) <= tol
+                       and not gp.norm(gp.sub(goal, joints[0])) > self.reach[name][r] + tol)
+        else:
+            keep &= (norm(c0[:, -1] - target) <= tol) & ~(norm(target - c0[:, 0]) > self.reach[name][rows] + tol)
+        if any_set(keep) and self.obstacles is not None:
+            # Clear of every box, the chain solve finds nothing to respond to and nothing to note.
+            boxes = self._limb_boxes([(name, rows, c0[:, 0], target)])
+            keep &= ~points_inside(c0, boxes).any(axis=(1, 2)) & ~points_inside(target, boxes).any(axis=1) \
+                & ~segments_cross(c0[:, :-1], c0[:, 1:], boxes).any(axis=(1, 2))
+        ll = self.limits.get(name)
+        if any_set(keep) and ll is not None and ll.limits.any_active and not self.default_limits:
+            # The caller's limits (a rig's own ranges, retargeting's): a chain solve checks the start against them.
+            return np.zeros(rows.size, dtype=bool)
+        return keep
+
+
+@dataclass
+class ChainTask:
+    """One limb's chain solve on frames `rows` (b,): start chains (b,n,3), targets (b,3), `carry` (b,3,3) the
+    parent's rotation since the start pose (None: not turned), `still` (b,) bool where the parent did not move
+    (None: unknown)."""
+
+    name: str
+    rows: np.ndarray
+    start: np.ndarray
+    targets: np.ndarray
+    carry: np.ndarray = None
+    still: np.ndarray = None
+
+
+def _group_limbs(tasks, key):
+    """`tasks` in groups solved by one stacked chain solve each: those with equal key(task), in order."""
+    groups = {}
+    for t in tasks:
+        groups.setdefault(key(t), []).append(t)
+    return list(groups.values())
+
+
+def _split(res, sizes):
+    """ChainBatchResult `res` cut into consecutive pieces of `sizes` rows."""
+    out, at = [], 0
+    for size in sizes:
+        cut = slice(at, at + size)
+        out.append(ChainBatchResult(res.positions[cut], res.iterations[cut], res.residual[cut],
+                                    res.reachable[cut], res.status[cut], res.reason[cut]))
+        at += size
+    return out
+
+
+def _carry_one(heads, rot, moved, h0, bones, carriers):
+    """_carry on one frame in plain floats: heads, rot (None: identity) and moved are lists over the bones, h0
+    the start heads; the same operations as _carry's."""
+    for b, c in zip(bones, carriers):
+        if moved[c]:
+            turn = _EYE_ROWS if rot[c] is None else rot[c]
+            offset = [h0[b][0] - h0[c][0], h0[b][1] - h0[c][1], h0[b][2] - h0[c][2]]
+            carried = gp.apply_matrix(turn, offset)
+            heads[b] = [heads[c][0] + carried[0], heads[c][1] + carried[1], heads[c][2] + carried[2]]
+            rot[b] = rot[c]
+            moved[b] = True
+
+
+def _carry(heads, rot, moved, H0, bones, carriers):
+    """Place `bones` (k,) rigidly on `carriers` (k,) already placed, in place: head carried by the carrier's
+    rotation about its head, the same rotation; where a carrier did not move, a bone stays as initialised."""
+    if bones.size:
+        mc = moved[:, carriers]
+        if any_set(mc):
+            h = heads[:, carriers] + apply_matrix(rot[:, carriers], H0[:, bones] - H0[:, carriers])
+            heads[:, bones] = np.where(mc[..., None], h, H0[:, bones])
+            rot[:, bones] = rot[:, carriers]
+            moved[:, bones] = mc

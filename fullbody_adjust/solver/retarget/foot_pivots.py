@@ -1,0 +1,69 @@
+"""Which point of a planted foot stays where it is from one frame to the next.
+
+A viewer sees a plant held when the joint the foot stands on does not slide: the ball of the foot while the heel
+lifts (the foot turns about the joint at the root of the toes, the toes flat on the ground), the ankle on a foot
+without toes. So on the frames where the SOURCE holds that joint still near the floor, the target's own joint is
+the pivot (it keeps its place on the floor, whatever its sole does); elsewhere in a contact the foot rolls about
+the lowest point of its sole (heel strike, toes pushing off: the point on the ground)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..maths.geometry import norm
+
+
+def ball_bone(rig, foot):
+    """The bone at the ball of a foot (its head is the joint at the root of the toes): of the bones whose parent
+    is the foot's ankle bone, the one whose rest head lies farthest from the ankle's (the toes; a heel bone
+    is nearer); None for a foot with no bone below it."""
+    ankle = rig.groups[foot][0]
+    children = np.nonzero(rig.parents == ankle)[0]
+    if not len(children):
+        return None
+    heads = rig.rest[:, :3, 3]
+    distance = norm(heads[children] - heads[ankle])
+    if not distance.max() > 0.0:
+        return None
+    return int(children[int(np.argmax(distance))])
+
+
+def pivot_bone(source, target, foot):
+    """(source bone, target bone) of the joint a planted foot pivots about: the ball where both rigs have one,
+    else the ankle."""
+    balls = ball_bone(source, foot), ball_bone(target, foot)
+    if None in balls:
+        return source.groups[foot][0], target.groups[foot][0]
+    return balls
+
+
+def held_still(points, fps, speed, height):
+    """(F,) bool: the frames where a joint's world track ``points`` (F,3) moves slower than ``speed`` (world units
+    a second, central differences) within ``height`` of its lowest place in the clip (the 2nd percentile of its
+    heights: a stumble below the floor is not where it stands)."""
+    points = np.asarray(points, dtype=np.float64)
+    if len(points) < 2:
+        return np.zeros(len(points), dtype=bool)
+    moving = norm(np.gradient(points, axis=0)) * fps
+    low = points[:, 2] - np.percentile(points[:, 2], 2) <= height
+    return (moving < speed) & low
+
+
+def roll(ankle, sole, pivot, pinned, tolerance):
+    """(n,2) horizontal travel of a planted foot's ankle from its first frame, that keeps its pivot in place:
+    ``ankle`` (n,3), ``sole`` (n,P,3) the foot as posed on each frame; from each frame to the next the foot
+    turns about ``pivot`` (n,3: the joint it stands on) where ``pinned`` (n,) holds on both frames, else about
+    the lowest point of its sole (points within ``tolerance`` of the lowest by their mean: a flat heel's two ends
+    turn it about neither)."""
+    n = len(ankle)
+    if n < 2:
+        return np.zeros((n, 2))
+    rel = ankle[:, None, :2] - sole[..., :2]  # (n,P,2) ankle less each sole point
+    z = sole[:-1, :, 2]
+    weight = (z <= z.min(axis=1, keepdims=True) + tolerance).astype(np.float64)
+    weight /= weight.sum(axis=1, keepdims=True)
+    step = np.einsum("fp,fpi->fi", weight, rel[1:] - rel[:-1])
+    about = ankle[:, :2] - pivot[:, :2]
+    both = np.asarray(pinned[:-1], dtype=bool) & np.asarray(pinned[1:], dtype=bool)
+    step[both] = (about[1:] - about[:-1])[both]
+    return np.concatenate([np.zeros((1, 2)), np.cumsum(step, axis=0)])
