@@ -1,4 +1,4 @@
-"""Limbs have thickness (issue 27 item 7): an arm skinned to a mesh keeps its mesh out of an obstacle box, and
+"""Limbs have thickness: an arm skinned to a mesh keeps its mesh out of an obstacle box, and
 Margin is the distance its surface keeps from the box, measured on the evaluated (deformed) mesh's vertices after
 Adjust Pose (bpy.ops.fullbody_adjust.adjust_pose). Without a mesh, the joints and bones keep out as before."""
 

@@ -1,4 +1,4 @@
-"""Arms without a hand bone (issue 27: "Map Bones maps every group right on any humanoid whose limbs are a chain"),
+"""Arms without a hand bone ("Map Bones maps every group right on any humanoid whose limbs are a chain"),
 through the registered extension on the Rigify basic metarig with its hand bones deleted:
 
 - ``robot``: nothing below the forearms (the Godot platformer robot's arms);

@@ -1,4 +1,4 @@
-"""Issue 27's goals on the characters users bring: the corpus of tests/data/rigs/ (Blender's importers at their
+"""The goals for the characters users bring: the corpus of tests/data/rigs/ (Blender's importers at their
 default settings) and the generated variants of tests/helpers/real_rigs.py, each checked against figures measured
 from Blender's evaluation of what the product wrote (tests/helpers/rig_scenarios.py, rig_measures.py), never
 against the solver's own numbers. The product is driven through its operators and its command-line function.

@@ -1,4 +1,4 @@
-"""Untouched means untouched (issue 27 item 2), through the registered extension on the Rigify basic metarig made
+"""Untouched means untouched, through the registered extension on the Rigify basic metarig made
 to look like an imported character: sent through Blender's FBX exporter and importer, its arm and leg bones rolled
 in edit mode (X axes that say nothing about how the limbs bend), turned to face -Y, +X, -X or +Y (transform
 applied), and posed outside the default joint ranges (a leg raised past the hip cone, an elbow folded past the
