@@ -159,7 +159,7 @@ def _run_tasks(args, tasks, jobs, blend_in, target_name, saved):
 
 
 def clip_paths(patterns):
-    """Absolute paths of the clips that ``patterns`` name: files, folders (their .bvh and .fbx files) and globs,
+    """Absolute paths of the clips that ``patterns`` name: files, folders (their clip files) and globs,
     each clip once, in the order given (a folder's or glob's clips sorted). CommandError when a pattern names no
     clip or two clips have the same name."""
     paths = []
@@ -169,12 +169,12 @@ def clip_paths(patterns):
                            if os.path.splitext(name)[1].lower() in clip_import.FORMATS)
         elif os.path.isfile(pattern):
             if os.path.splitext(pattern)[1].lower() not in clip_import.FORMATS:
-                raise CommandError(f"--source-file {pattern}: not a clip file (use .bvh or .fbx)")
+                raise CommandError(f"--source-file {pattern}: not a clip file (use {clip_import.FORMAT_NAMES})")
             found = [pattern]
         else:
             found = sorted(p for p in glob.glob(pattern) if os.path.splitext(p)[1].lower() in clip_import.FORMATS)
         if not found:
-            raise CommandError(f"--source-file {pattern}: no such file, or no .bvh or .fbx file there")
+            raise CommandError(f"--source-file {pattern}: no such file, or no {clip_import.FORMAT_NAMES} file there")
         paths.extend(os.path.abspath(p) for p in found)
     unique = list(dict.fromkeys(paths))
     names = {}
@@ -202,7 +202,7 @@ def _job(args, input_path, target):
     contacts = [list(contact) for contact in args.contacts or [("ground", None)]]
     return {"file": os.path.abspath(input_path), "target": target,
             "import": {"scale": args.clip_scale, "forward": args.clip_forward, "up": args.clip_up,
-                       "fps": args.clip_fps, "start_frame": args.clip_start_frame},
+                       "fps": args.clip_fps, "start_frame": args.clip_start_frame, "take": args.take},
             "contacts": contacts,
             "floor": _floor(args.floor, contacts), "frame_start": args.frame_start,
             "frame_end": args.frame_end, "keep_sources": args.keep_sources}

@@ -112,7 +112,7 @@ def build_parser(prog=f"blender -b FILE.blend -c {COMMAND}"):
     source = retarget.add_mutually_exclusive_group(required=True)
     source.add_argument("--source", metavar="NAME", help="the armature of FILE.blend whose motion is carried")
     source.add_argument("--source-file", metavar="CLIP", action="append",
-                        help="a motion clip to carry instead: a .bvh or .fbx file, a folder of them or a glob "
+                        help="a motion clip to carry instead: a .bvh, .fbx, .glb or .gltf file, a folder of them or a glob "
                              "(repeatable). Each clip is imported in a worker process and becomes one new action "
                              "on the target named after the clip (or one .blend per clip with --output-dir)")
     retarget.add_argument("--target", metavar="NAME", required=True, help="the armature that receives it")
@@ -124,7 +124,7 @@ def build_parser(prog=f"blender -b FILE.blend -c {COMMAND}"):
                                "ground)")
     clips = retarget.add_argument_group("clips from files (with --source-file)")
     clips.add_argument("--clip-scale", type=_positive, metavar="S",
-                       help="metres per clip unit (default: 0.056444 for BVH, the CMU database's unit; 1 for FBX, "
+                       help="metres per clip unit (default: 0.056444 for BVH, the CMU database's unit; 1 for FBX and glTF, "
                             "whose importer reads the file's own units, as Mixamo's)")
     clips.add_argument("--clip-forward", type=str.upper, choices=AXES, metavar="AXIS",
                        help="the clip's forward axis, one of X Y Z -X -Y -Z (default: -Z for BVH; the file's own "
@@ -135,6 +135,9 @@ def build_parser(prog=f"blender -b FILE.blend -c {COMMAND}"):
                        help="'scene' (default): the clip's time is resampled to the target file's frame rate, "
                             "so the motion keeps its speed; 'clip' (BVH only): one key per clip frame and the "
                             "scene takes the clip's frame rate (one .blend per clip)")
+    clips.add_argument("--take", metavar="NAME",
+                       help="the take to carry from FBX and glTF files that hold several, by the name the file "
+                            "gives it (e.g. Running_A; default: the longest take)")
     clips.add_argument("--clip-start-frame", type=int, default=1, metavar="N",
                        help="the scene frame the clip's first frame lands on (default: 1)")
     clips.add_argument("--jobs", type=_positive_int, metavar="N",

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from tests.helpers.bvh import MOCAP_DIR, cut_bvh
+from tests.helpers.rig_measures import assign_action
 
 from .test_cli import Untouched, keyed_values, reopen, run
 
@@ -369,3 +370,64 @@ def test_a_target_with_a_negative_scale_is_refused_before_any_clip(cli, capsys, 
                        "--output-dir", tmp_path / "out", "--quiet")
     assert code == 2 and len(err.strip().splitlines()) == 1 and "negative or zero scale" in err, err
     assert not (tmp_path / "out").exists()
+
+
+KAYKIT_CLIPS = Path(__file__).resolve().parents[1] / "data" / "rigs" / "kaykit_Med_MovementBasic.glb"
+
+
+def _leg_directions(obj, names, frames):
+    """(F,2,3) world unit directions hip -> knee and knee -> ankle (bone heads ``names``) at float ``frames``."""
+    scene = bpy.context.scene
+    out = []
+    for frame in frames:
+        scene.frame_set(int(np.floor(frame)), subframe=float(frame - np.floor(frame)))
+        heads = [np.array(obj.matrix_world @ obj.pose.bones[n].head) for n in names]
+        segments = np.diff(heads, axis=0)
+        out.append(segments / np.linalg.norm(segments, axis=1, keepdims=True))
+    return np.array(out)
+
+
+def test_a_gltf_clip_carries_the_take_asked_for_or_its_longest(cli, capsys, tmp_path, character):
+    """KayKit's glTF move library (tests/data/rigs, CC0): 11 takes in one .glb, which Blender's glTF importer reads
+    as one action each. `--take Running_A` carries the run, from the scene's frame 1, its legs as the clip moves
+    them; without --take the longest take is carried; a take the file does not hold fails its row in one line
+    naming the file's takes."""
+    import addon_utils
+
+    addon_utils.enable("io_scene_gltf2", default_set=False)
+    bpy.ops.import_scene.gltf(filepath=str(KAYKIT_CLIPS))
+    takes = {a.name.rsplit("|", 1)[-1].removesuffix("_Rig_Medium"): tuple(a.frame_range) for a in bpy.data.actions}
+    assert {"Running_A", "Jump_Full_Long", "Walking_A"} <= set(takes)
+    longest = max(takes, key=lambda t: takes[t][1] - takes[t][0])
+    rows = {}
+    for take in ("Running_A", None, "Nope"):
+        report = tmp_path / f"{take}.json"
+        extra = ("--take", take) if take else ()
+        code, _, err = run(cli, capsys, "retarget", character, "--target", "Hero", "--source-file", KAYKIT_CLIPS,
+                           *extra, "--jobs", 1, "--output", tmp_path / f"{take}.blend", "--report", report, "--quiet")
+        rows[take] = (code, json.loads(report.read_text())["rows"][0])
+    for take, expected in (("Running_A", "Running_A"), (None, longest)):
+        row = rows[take][1]
+        assert row["status"] == "done", row["reason"]
+        start, end = takes[expected]
+        assert row["frame_start"] == 1 and row["frames"] == int(np.floor(1 + end - start)), (take, row)
+    code, row = rows["Nope"]
+    assert code != 0 and row["status"] == "failed"
+    assert row["reason"] == (f"kaykit_Med_MovementBasic.glb has no take 'Nope' (its takes: "
+                             f"{', '.join(sorted(takes))})")
+
+    # The run's legs, in the written file, point where the clip's do (the clip's first key on frame 1).
+    reopen(tmp_path / "Running_A.blend")
+    hero = bpy.data.objects["Hero"]
+    assign_action(hero, bpy.data.actions[rows["Running_A"][1]["action"]])
+    frames = np.arange(1, rows["Running_A"][1]["frames"] + 1, dtype=float)
+    result = _leg_directions(hero, ["thigh.L", "shin.L", "foot.L"], frames)
+    bpy.ops.import_scene.gltf(filepath=str(KAYKIT_CLIPS))
+    clip = next(ob for ob in bpy.data.objects if ob.type == 'ARMATURE' and ob is not hero)
+    run_action = next(a for a in bpy.data.actions if "Running_A" in a.name)
+    assign_action(clip, run_action)
+    source = _leg_directions(clip, ["upperleg.l", "lowerleg.l", "foot.l"], frames - 1.0 + run_action.frame_range[0])
+    angles = np.degrees(np.arccos(np.clip(np.sum(result * source, axis=-1), -1.0, 1.0)))
+    swing = np.degrees(np.arccos(np.clip(np.sum(source[1:] * source[:-1], axis=-1), -1.0, 1.0))).sum(axis=0)
+    assert swing.min() > 60.0  # the clip's legs do swing: a still result would fail below
+    assert np.median(angles) < 10.0, np.round(angles, 1)

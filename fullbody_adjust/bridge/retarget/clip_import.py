@@ -1,36 +1,46 @@
-"""Importing a motion clip file (BVH or FBX) through Blender's own importers as a source armature, and removing
-everything the import made once the clip is carried over. Every problem is an AdjustError with one line."""
+"""Importing a motion clip file (BVH, FBX or glTF) through Blender's own importers as a source armature, and
+removing everything the import made once the clip is carried over. Every problem is an AdjustError with one line.
+
+An FBX or glTF file may hold several takes (actions): the one named by ImportOptions.take is carried, else the
+longest (a one-frame 'Targeting Pose' or 'T-Pose' beside the motion is a pose, not the clip)."""
 
 from dataclasses import dataclass
 import os
 
 import addon_utils
 import bpy
+from mathutils import Matrix
+import numpy as np
 
 from ..errors import AdjustError
+from ..writing import keyframes
 
 CMU_SCALE = 0.056444  # metres per unit of the CMU database's BVH files (the most common free mocap)
-FORMATS = {".bvh": "io_anim_bvh", ".fbx": "io_scene_fbx"}
+FORMATS = {".bvh": "io_anim_bvh", ".fbx": "io_scene_fbx", ".glb": "io_scene_gltf2", ".gltf": "io_scene_gltf2"}
+FORMAT_NAMES = ".bvh, .fbx, .glb or .gltf"
 
 
 @dataclass(frozen=True)
 class ImportOptions:
     """How a clip is read. None: the format's default (BVH: CMU's unit, -Z forward, Y up; FBX: the file's own
-    units and axes, as Mixamo's files need). fps 'scene' resamples the clip's time to the scene's frame rate;
-    'clip' keys one frame per clip frame and gives the scene the clip's rate (BVH only)."""
+    units and axes, as Mixamo's files need; glTF: metres, Y up as the format fixes, its axes not settable).
+    fps 'scene' resamples the clip's time to the scene's frame rate; 'clip' keys one frame per clip frame and
+    gives the scene the clip's rate (BVH only). take: the name of the take to carry (FBX, glTF; None: the
+    longest)."""
 
     scale: float = None
     forward: str = None
     up: str = None
     fps: str = "scene"
     start_frame: int = 1
+    take: str = None
 
 
 def clip_format(path):
-    """'.bvh' or '.fbx' (lower case); AdjustError for anything else."""
+    """'.bvh', '.fbx', '.glb' or '.gltf' (lower case); AdjustError for anything else."""
     suffix = os.path.splitext(path)[1].lower()
     if suffix not in FORMATS:
-        raise AdjustError(f"{path}: not a clip file (use .bvh or .fbx)")
+        raise AdjustError(f"{path}: not a clip file (use {FORMAT_NAMES})")
     return suffix
 
 
@@ -40,13 +50,17 @@ def import_clip(context, path, options=ImportOptions()):
     suffix = clip_format(path)
     if not os.path.isfile(path):
         raise AdjustError(f"No such clip file: {path}")
+    if suffix == ".bvh" and options.take is not None:
+        raise AdjustError(f"{os.path.basename(path)}: a BVH file holds one take (--take is for FBX and glTF)")
     _enable(FORMATS[suffix])
     before = _ids()
     try:
         if suffix == ".bvh":
             _import_bvh(path, options)
-        else:
+        elif suffix == ".fbx":
             _import_fbx(path, options)
+        else:
+            _import_gltf(path, options)
     except Exception as ex:  # the importers raise anything on a corrupt file: report it, keep the batch going
         remove_ids(_ids() - before)
         raise AdjustError(f"Cannot import {os.path.basename(path)}: {_importer_message(ex)}") from None
@@ -59,18 +73,26 @@ def import_clip(context, path, options=ImportOptions()):
     if source.animation_data is None or source.animation_data.action is None:
         remove_ids(added)
         raise AdjustError(f"{os.path.basename(path)} has no motion")
-    _carry_longest_take(source, [i for i in added if isinstance(i, bpy.types.Action)])
+    try:
+        _carry_take(source, [i for i in added if isinstance(i, bpy.types.Action)], options.take, path)
+        if suffix in (".glb", ".gltf"):
+            _place_gltf(source, added, options)
+    except AdjustError:
+        remove_ids(added)
+        raise
     for action in (i for i in added if isinstance(i, bpy.types.Action)):
         action.name = f"{action.name} (source)"  # the clip's own name is for the action the retarget makes
     context.view_layer.update()
     return source, added
 
 
-def _carry_longest_take(source, actions):
-    """Make the longest of the clip's takes the armature's action. An FBX file may hold several (Kenney's and
-    Mixamo's add a one-frame 'Targeting Pose' beside the motion) and Blender's importer leaves the first one active,
-    which would carry a still pose instead of the clip. A take of one frame is a pose, not a clip; between takes of
-    the same length the importer's choice stands."""
+def _carry_take(source, actions, take, path):
+    """Make the take named ``take`` the armature's action, else the longest of the clip's takes. An FBX or glTF
+    file may hold several (Kenney's and Mixamo's FBX add a one-frame 'Targeting Pose' beside the motion, KayKit's
+    glTF a library of moves) and Blender's importers leave the first one active, which may carry a still pose
+    instead of the clip. A take of one frame is a pose, not a clip; between takes of the same length the
+    importer's choice stands. A take is named as the file names it: the importers prefix the object's name
+    ('Root|Root|Run', 'Rig_Medium|Running_A') and Blender 4.2's glTF importer suffixes it ('..._Rig_Medium')."""
     anim = source.animation_data
     current = anim.action
 
@@ -78,13 +100,30 @@ def _carry_longest_take(source, actions):
         start, end = action.frame_range
         return end - start
 
-    longest = max(actions, key=length, default=current)
-    if longest is not current and length(longest) > length(current):
-        anim.action = longest
+    if take is not None:
+        named = [a for a in actions if take in (a.name, _take_name(a.name, source.name))]
+        if not named:
+            found = ", ".join(sorted(_take_name(a.name, source.name) for a in actions)) or "none"
+            raise AdjustError(f"{os.path.basename(path)} has no take '{take}' (its takes: {found})")
+        chosen = named[0]
+    else:
+        chosen = max(actions, key=length, default=current)
+        if length(chosen) <= length(current):
+            chosen = current
+    if chosen is not current:
+        anim.action = chosen
         # Blender 4.4+ keeps a slot only where the new action has one named as the old one was: 5.0's FBX importer
         # names every take's slot alike, 4.5's after its take, so the new take was left with no slot (unanimated)
         if bpy.app.version >= (4, 4, 0) and anim.action_slot is None and len(anim.action_suitable_slots):
             anim.action_slot = anim.action_suitable_slots[0]
+
+
+def _take_name(action_name, object_name):
+    """A take's own name from its action's: the part after the importer's last '|', without the '_<object>'
+    Blender 4.2's glTF importer appends."""
+    name = action_name.rsplit("|", 1)[-1]
+    suffix = f"_{object_name}"
+    return name[:-len(suffix)] if name.endswith(suffix) and len(name) > len(suffix) else name
 
 
 def remove_ids(ids):
@@ -131,6 +170,35 @@ def _import_fbx(path, options):
         filepath=os.path.abspath(path), global_scale=options.scale or 1.0, use_anim=True,
         anim_offset=float(options.start_frame), use_manual_orientation=manual,
         axis_forward=options.forward or '-Z', axis_up=options.up or 'Y')
+
+
+def _import_gltf(path, options):
+    name = os.path.basename(path)
+    if options.fps == "clip":
+        raise AdjustError(f"{name}: --clip-fps clip is for BVH files (glTF keys land on the scene's frame rate)")
+    if options.forward is not None or options.up is not None:
+        raise AdjustError(f"{name}: a glTF file's axes are fixed by the format (Y up, metres): --clip-forward and "
+                          f"--clip-up are for BVH and FBX files")
+    bpy.ops.import_scene.gltf(filepath=os.path.abspath(path))
+
+
+def _place_gltf(source, added, options):
+    """A glTF clip as the FBX importer would leave it: scaled by ``options.scale`` about the origin, and its
+    take's first key on ``options.start_frame`` (Blender's glTF importer keys a take from about frame 0)."""
+    if options.scale is not None and options.scale != 1.0:
+        top = source
+        while top.parent is not None and top.parent in added:
+            top = top.parent
+        top.matrix_world = Matrix.Scale(options.scale, 4) @ top.matrix_world
+    shift = float(options.start_frame) - float(source.animation_data.action.frame_range[0])
+    if shift:
+        for fcurve in keyframes.animating_fcurves(source):
+            for prop in ("co", "handle_left", "handle_right"):
+                values = np.empty(2 * len(fcurve.keyframe_points))
+                fcurve.keyframe_points.foreach_get(prop, values)
+                values[0::2] += shift
+                fcurve.keyframe_points.foreach_set(prop, values)
+            fcurve.update()
 
 
 def _enable(module):
