@@ -130,8 +130,9 @@ class SubBasePlacement:
         """Root translation for frames `rows`: nearest to `pref` (b,3) where every constrained foot reaches its
         target and (where trunk_active) the trunk reaches the SC target (trunk_centre = sc* - trunk base).
         across (b,3): where non-zero, the translation keeps to the plane through `pref` with that normal
-        (_across) as long as the plane meets every ball and holds a point of their intersection when 3-d
-        space does."""
+        (_across) wherever the plane meets every ball (the trunk's only off the plane is one whose SC target
+        lies farther to the side than the trunk reaches): the nearest such point, or the priorities' best
+        effort in the plane. The trunk's curl takes the sideways part then, as far as it can."""
         legs = self._legs()
         hips = {n: self.chain0[n][rows, 0] for n in legs}
         centres, radii, active, prio = self._balls(legs, rows, hips)
@@ -145,12 +146,14 @@ class SubBasePlacement:
         else:
             prio = np.append(prio, upper_prio)
             variant = self.settings.variant
-        delta, feasible = sub_base_point(pref, centres, radii, active, prio, variant)
-        if across is None or not any_set(across != 0.0):
-            return delta
-        flat, flat_ok, meets = sub_base_point_in_plane(pref, across, centres, radii, active, prio, variant)
-        use = (across != 0.0).any(axis=1) & meets
-        return np.where(use[:, None], flat, delta)
+        use = np.zeros(len(rows), dtype=bool)
+        if across is not None and any_set(across != 0.0):
+            flat, _, meets = sub_base_point_in_plane(pref, across, centres, radii, active, prio, variant)
+            use = (across != 0.0).any(axis=1) & meets
+            if all_set(use):
+                return flat
+        delta, _ = sub_base_point(pref, centres, radii, active, prio, variant)
+        return np.where(use[:, None], flat, delta) if any_set(use) else delta
 
     def _sub_bases(self, rows, offsets, force_sc=None):
         """Steps 1-2 for frames `rows`, with the upper limbs' base offsets from the SC `offsets[name]` (b,3);
@@ -220,7 +223,8 @@ class SubBasePlacement:
             status[solve] = res.status
             reason[solve] = res.reason
             # Paper §5.2.1: when the trunk cannot bring the SC there (joint limits), the pelvis moves by the
-            # remaining error, as far as the feet allow. Not past obstacles: a blocked trunk stays.
+            # remaining error, as far as the feet allow, sideways too (the trunk's limits held it from taking
+            # that part). Not past obstacles: a blocked trunk stays.
             err = sc_star[solve] - res.positions[:, -1]
             late = (norm(err) > self.settings.chain.tolerance) \
                 & ((res.status == "limited") | (res.status == "max_iterations"))
