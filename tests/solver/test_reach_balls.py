@@ -1,5 +1,6 @@
 """Sub-base geometry (solver/fullbody/reach_balls.py) against brute force: the nearest point of a sphere inside every
-active ball, checked on dense samples of the sphere; and frames without rows."""
+active ball, checked on dense samples of the sphere; the nearest point of the balls within a plane, checked on a
+dense grid of the plane; and frames without rows."""
 
 import numpy as np
 import pytest
@@ -7,7 +8,8 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from fullbody_adjust.solver.fullbody.reach_balls import nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point
+from fullbody_adjust.solver.fullbody.reach_balls import (nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point,
+                                                         sub_base_point_in_plane)
 
 
 def _sphere_samples(n=20000):
@@ -69,6 +71,7 @@ def test_no_frames_give_no_rows(k):
     assert nearest_on_sphere_in_balls(p, p, np.zeros(0), c, r, a)[0].shape == (0, 3)
     for variant in ("weighted", "priority", "fabrik"):
         assert sub_base_point(p, c, r, a, np.ones(k), variant)[0].shape == (0, 3)
+        assert sub_base_point_in_plane(p, p, c, r, a, np.ones(k), variant)[0].shape == (0, 3)
 
 
 def test_a_point_next_to_the_spheres_centre():
@@ -77,3 +80,54 @@ def test_a_point_next_to_the_spheres_centre():
     centres = np.array([[0.625, 0.625, 0.625], [0.625, 0.625, 0.625], [0.625, 0.625, 0.625]])
     _check_against_samples(np.zeros(3), np.array([2.05703663e-12, 0.0, 0.0]), 1.0, centres,
                            np.array([1.5, 1.5, 1.5]), np.array([True, True, True]))
+
+
+def _plane_grid(point, normal, half=3.0, n=601):
+    """A square grid of the plane through `point` with unit `normal` (spacing 2 * half / (n - 1))."""
+    u = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(normal, u)
+    a, b = np.meshgrid(np.linspace(-half, half, n), np.linspace(-half, half, n))
+    return point + a.reshape(-1, 1) * u + b.reshape(-1, 1) * v
+
+
+@settings(deadline=None, max_examples=40)
+@given(point=arrays(np.float64, 3, elements=coords), normal=arrays(np.float64, 3, elements=coords),
+       centres=arrays(np.float64, (3, 3), elements=coords), radii=arrays(np.float64, 3, elements=st.floats(0.3, 1.5)),
+       active=arrays(bool, 3), variant=st.sampled_from(["priority", "weighted", "fabrik"]))
+def test_nearest_point_within_a_plane_beats_every_grid_point(point, normal, centres, radii, active, variant):
+    """Where the plane meets every active ball and holds a point of all of them, the answer lies in the plane, in
+    every ball, and no farther from the point than the nearest such grid point of the plane; where they have no
+    common point in the plane, it still lies in the plane; where the plane misses a ball, meets says so."""
+    if np.linalg.norm(normal) < 0.1:
+        normal = np.array([0.0, 0.0, 1.0])
+    normal = normal / np.linalg.norm(normal)
+    x, feasible, meets = sub_base_point_in_plane(point[None], normal[None], centres[None], radii[None],
+                                                 active[None], np.array([3.0, 2.0, 1.0]), variant)
+    off = np.abs((centres - point) @ normal)
+    assert meets[0] == bool(np.all((off <= radii) | ~active))
+    assert abs((x[0] - point) @ normal) <= 1e-12
+    grid = _plane_grid(point, normal)
+    inside = np.all((np.linalg.norm(grid[:, None] - centres, axis=-1) <= radii) | ~active, axis=1)
+    if inside.any():
+        assert meets[0] and feasible[0]
+        assert np.all((np.linalg.norm(x[0] - centres, axis=1) <= radii * (1 + 1e-9)) | ~active)
+        assert np.linalg.norm(x[0] - point) <= np.min(np.linalg.norm(grid[inside] - point, axis=1)) + 1e-9
+
+
+def test_a_plane_through_the_balls_centres_gives_the_3d_answer():
+    """Balls centred in the plane, a point of the plane: the nearest point of their intersection lies in the plane
+    already, so the plane changes nothing; a plane across that line gives a farther point off the 3-d one."""
+    centres = np.array([[0.0, 0.0, 0.0], [1.2, 0.3, 0.0]])
+    radii = np.array([1.0, 0.8])
+    point = np.array([-0.5, 2.0, 0.0])
+    on = np.ones((1, 2), dtype=bool)
+    free, ok = nearest_in_balls(point[None], centres[None], radii[None], on)
+    flat, flat_ok, meets = sub_base_point_in_plane(point[None], np.array([[0.0, 0.0, 1.0]]), centres[None],
+                                                   radii[None], on, np.ones(2), "priority")
+    assert ok[0] and flat_ok[0] and meets[0]
+    np.testing.assert_allclose(flat, free, atol=1e-12)
+    across, across_ok, _ = sub_base_point_in_plane(point[None], np.array([[1.0, 0.0, 0.0]]), centres[None],
+                                                   radii[None], on, np.ones(2), "priority")
+    assert across_ok[0] and across[0, 0] == pytest.approx(point[0], abs=1e-12)
+    assert np.linalg.norm(across[0] - point) > np.linalg.norm(free[0] - point) + 1e-3

@@ -58,6 +58,27 @@ def sub_base_point(points, centres, radii, active, priorities, variant):
     return lanes.run(_sub_base_point, (points, centres), prio.tolist(), variant, values=(radii, active), outputs=2)
 
 
+def sub_base_point_in_plane(points, normals, centres, radii, active, priorities, variant):
+    """sub_base_point for points held to the plane through `points` (F,3) with unit `normals` (F,3).
+
+    The plane cuts each ball in a disc: the ball about the centre's projection onto the plane with radius
+    sqrt(r^2 - d^2) (d the centre's distance from the plane) has the same points in the plane. Every such ball
+    and every intersection of them is symmetric about the plane, and a convex set's nearest point to a point is
+    unique, so the nearest point to a point of the plane lies in the plane: the 3-d solution on the cut balls is
+    the in-plane one (the variants' projections keep to the plane the same way). The result is projected onto
+    the plane once more against rounding; that only brings it nearer each centre and the point.
+    Returns (x (F,3), feasible (F,), meets (F,)): meets False where the plane misses an active ball (x is then
+    the nearest point of the others' cuts, not a placement to use)."""
+    d = np.einsum("fkc,fc->fk", centres - points[:, None, :], normals)
+    r = np.asarray(radii, dtype=np.float64)
+    meets = ((np.abs(d) <= r) | ~active).all(axis=1)
+    cut_centres = centres - d[..., None] * normals[:, None, :]
+    cut_radii = np.sqrt(np.maximum(r * r - d * d, 0.0))
+    x, feasible = sub_base_point(points, cut_centres, cut_radii, active, priorities, variant)
+    x = x - np.einsum("fc,fc->f", x - points, normals)[:, None] * normals
+    return x, feasible, meets
+
+
 def _projection(p, c, r):
     """The nearest point of the ball (c, r) to p (p itself inside)."""
     d = vec.sub(p, c)

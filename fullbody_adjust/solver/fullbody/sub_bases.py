@@ -7,7 +7,7 @@ import numpy as np
 from ..maths import vectors as vec
 from ..maths.geometry import all_set, any_set, norm
 from ..obstacles.boxes import penetrations
-from .reach_balls import nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point
+from .reach_balls import nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point, sub_base_point_in_plane
 from .trunk_curl import curl_chord, curl_start
 
 # The lean's radius is the chord of the curl toward the lean point, which moves a little with the radius: a few
@@ -95,9 +95,44 @@ class SubBasePlacement:
         out = np.where(ok_bend[:, None], bend, arms_only)
         return np.where(ok_lean[:, None], lean, out), ok_lean
 
-    def _root_delta(self, rows, pref, trunk_centre, trunk_active):
+    def _across(self, rows):
+        """(b,3) the unit normal of the plane the pelvis keeps to when it translates for the SC's sake, zero
+        where it is free: the plane that holds the direction the upper limbs ask the SC to move in and lies
+        square to the hips' line as far as that allows (its normal is the hips' line less its part along the
+        ask). Each constrained upper limb whose target lies beyond its reach from its start base asks, toward
+        its target, for how far it falls short (where the SC would go for it alone). A hand held where it stands
+        asks nothing, though its reach ball may lean the SC sideways toward it: the trunk bends for that, and
+        the pelvis does not slide along the hips, which would carry the knees sideways. A target out to the
+        side asks along the hips' line, and the pelvis is free to follow it (no plane)."""
+        ask = np.zeros((len(rows), 3))
+        for n in self._upper():
+            chain = self.chain0[n][rows]
+            target = self.limb_target[n][rows]
+            short = norm(target - chain[:, 0]) - self.reach_eff[n][rows]
+            on = self.limb_active[n][rows] & (short > 0.0)
+            # Toward the target from the joint its last two segments swing from (an arm's shoulder: a clavicle
+            # rides on the chest and swings little, so a target straight in front of the shoulder asks for
+            # straight ahead, not for the side the clavicle's base lies off).
+            pull = target - chain[:, max(chain.shape[1] - 3, 0)]
+            dist = norm(pull)
+            on &= dist > 0.0
+            ask += np.where(on[:, None], pull * (short / np.where(on, dist, 1.0))[:, None], 0.0)
+        hips = self.chain0["leg.L"][rows, 0] - self.chain0["leg.R"][rows, 0]
+        size = norm(ask)
+        asked = size > 0.0
+        along = ask / np.where(asked, size, 1.0)[:, None]
+        normal = hips - (hips * along).sum(axis=1)[:, None] * along
+        size = norm(normal)
+        plane = asked & (size > 1e-9 * norm(hips))  # none without an ask, or for one along the hips' line
+        return np.where(plane[:, None], normal / np.where(plane, size, 1.0)[:, None], 0.0)
+
+    def _root_delta(self, rows, pref, trunk_centre, trunk_active, across=None):
         """Root translation for frames `rows`: nearest to `pref` (b,3) where every constrained foot reaches its
-        target and (where trunk_active) the trunk reaches the SC target (trunk_centre = sc* - trunk base)."""
+        target and (where trunk_active) the trunk reaches the SC target (trunk_centre = sc* - trunk base).
+        across (b,3): where non-zero, the translation keeps to the plane through `pref` with that normal
+        (_across) wherever the plane meets every ball (the trunk's only off the plane is one whose SC target
+        lies farther to the side than the trunk reaches): the nearest such point, or the priorities' best
+        effort in the plane. The trunk's curl takes the sideways part then, as far as it can."""
         legs = self._legs()
         hips = {n: self.chain0[n][rows, 0] for n in legs}
         centres, radii, active, prio = self._balls(legs, rows, hips)
@@ -111,8 +146,14 @@ class SubBasePlacement:
         else:
             prio = np.append(prio, upper_prio)
             variant = self.settings.variant
+        use = np.zeros(len(rows), dtype=bool)
+        if across is not None and any_set(across != 0.0):
+            flat, _, meets = sub_base_point_in_plane(pref, across, centres, radii, active, prio, variant)
+            use = (across != 0.0).any(axis=1) & meets
+            if all_set(use):
+                return flat
         delta, _ = sub_base_point(pref, centres, radii, active, prio, variant)
-        return delta
+        return np.where(use[:, None], flat, delta) if any_set(use) else delta
 
     def _sub_bases(self, rows, offsets, force_sc=None):
         """Steps 1-2 for frames `rows`, with the upper limbs' base offsets from the SC `offsets[name]` (b,3);
@@ -141,11 +182,15 @@ class SubBasePlacement:
         # Root: stays exactly while every constrained foot reaches from its hip and the trunk reaches sc*.
         legs = self._legs()
         trunk_ok = ~need_sc | (norm(sc_star - base0) <= self.reach["trunk"][rows])
-        need_root = ~(self._in_reach(legs, rows, {n: self.chain0[n][rows, 0] for n in legs}) & trunk_ok)
+        feet_reach = self._in_reach(legs, rows, {n: self.chain0[n][rows, 0] for n in legs})
+        need_root = ~(feet_reach & trunk_ok)
         delta = np.zeros((b, 3))
         if any_set(need_root):
             n = np.nonzero(need_root)[0]
-            delta[n] = self._root_delta(rows[n], np.zeros((n.size, 3)), sc_star[n] - base0[n], need_sc[n])
+            # The feet that reach from their hips ask nothing of the root: it moves for the SC alone, and keeps
+            # to the plane of the SC's ask (_across).
+            across = np.where((need_sc & feet_reach)[n, None], self._across(rows[n]), 0.0)
+            delta[n] = self._root_delta(rows[n], np.zeros((n.size, 3)), sc_star[n] - base0[n], need_sc[n], across)
         moved_root = (delta != 0.0).any(axis=1)
 
         # A root moved for the feet carries the SC along if the arms still reach from there; else the SC goes
@@ -178,7 +223,8 @@ class SubBasePlacement:
             status[solve] = res.status
             reason[solve] = res.reason
             # Paper §5.2.1: when the trunk cannot bring the SC there (joint limits), the pelvis moves by the
-            # remaining error, as far as the feet allow. Not past obstacles: a blocked trunk stays.
+            # remaining error, as far as the feet allow, sideways too (the trunk's limits held it from taking
+            # that part). Not past obstacles: a blocked trunk stays.
             err = sc_star[solve] - res.positions[:, -1]
             late = (norm(err) > self.settings.chain.tolerance) \
                 & ((res.status == "limited") | (res.status == "max_iterations"))
