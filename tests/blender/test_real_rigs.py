@@ -29,7 +29,6 @@ KNOWN = {
     ('far', 'godot_plush'): 'knees sideways L 10.9 mm, R 10.9 mm',
     ('obstacle', 'kaykit_manny'): '0 joints and 1 mesh vertices inside the box',
     ('obstacle', 'godot_plush'): '0 joints and 6 mesh vertices inside the box',
-    ('obstacle', 'godot_robot'): '0 joints and 2 mesh vertices inside the box',
     ('clip_pops', 'kaykit_manny'): '6 pop frames (the clip itself 5)',
     ('clip_pops', 'godot_plush'): '8 pop frames (the clip itself 5)',
 }

@@ -1,0 +1,60 @@
+"""A limb's surface as points riding on its chain's segments (AdjustSettings.surface; bridge/limb_thickness.py
+reads them from the meshes the armature deforms), and how many of them a pose puts in the obstacle boxes.
+
+A capsule round the centre line (AdjustSettings.clearance) cannot tell a fist that sticks out past the forearm's
+joint end, or a chunky forearm's flat side, from a round limb: near a target that lies nearer a box than the
+limb's radius every capsule enters the box, whichever way the limb turns, while the real surface may clear it
+on one side. The points follow the chain as the bones do: each rides on its segment, turned by the smallest
+swing from the segment's start direction to its new one, a hinge's twist carried on its parent (the rotations
+the product writes: limb_rotations), so a pose's surface is known from its joints alone."""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import SolverInputError
+from .geometry import all_set
+from .obstacles import points_inside
+
+
+@dataclass(frozen=True, eq=False)
+class LimbSurface:
+    """P surface points of one limb: ``segment`` (P,) the chain segment each rides on (segment k: joint k to
+    joint k+1), ``points`` (F,P,3) where each lies at the start pose of each of the F frames (solve space)."""
+
+    segment: np.ndarray
+    points: np.ndarray
+
+    def __post_init__(self):
+        segment = np.asarray(self.segment)
+        points = np.asarray(self.points, dtype=np.float64)
+        if segment.ndim != 1 or points.ndim != 3 or points.shape[1:] != (segment.size, 3):
+            raise SolverInputError(f"a limb surface needs segment (P,) and points (F,P,3), got {segment.shape} "
+                                   f"and {points.shape}")
+        if segment.size and (not np.issubdtype(segment.dtype, np.integer) or segment.min() < 0):
+            raise SolverInputError("a limb surface's segments must be chain segment indices >= 0")
+        if not all_set(np.isfinite(points)):
+            raise SolverInputError("a limb surface's points have NaN/inf")
+        object.__setattr__(self, "segment", segment.astype(np.int64))
+        object.__setattr__(self, "points", points)
+
+
+def posed_points(surface, rows, start, chains, rotations):
+    """(b,k,P,3): the surface points of frames ``rows`` (b,) on chains (b,k,n,3) whose segments turned by
+    ``rotations`` (b,k,n-1,3,3) (world rotation deltas, limb_rotations.chain_rotations) from the frames' start
+    pose chains ``start`` (b,n,3): each point turns with its segment about the segment's root."""
+    points = surface.points[rows]  # (b,P,3)
+    out = np.empty(chains.shape[:2] + points.shape[1:])
+    for s in np.unique(surface.segment):
+        on = surface.segment == s
+        out[:, :, on] = chains[:, :, s, None] + np.einsum("bkij,bpj->bkpi", rotations[:, :, s],
+                                                          points[:, on] - start[:, None, s])
+    return out
+
+
+def points_in_boxes(points, boxes):
+    """(b,k): how many of the points (b,k,P,3) lie inside any of `boxes` (shared, or per problem for the b)."""
+    b, k, p = points.shape[:3]
+    if len(boxes) == 0 or p == 0:
+        return np.zeros((b, k), dtype=np.int64)
+    return points_inside(points.reshape(b, k * p, 3), boxes).any(axis=-1).reshape(b, k, p).sum(axis=-1)
