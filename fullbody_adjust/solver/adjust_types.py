@@ -47,8 +47,8 @@ class AdjustSettings:
         the Δd of the push out.
     surface: per limb (a mapping or (limb, LimbSurface) pairs; stored as sorted pairs), its mesh's surface as
         points riding on its segments (limb_surface.py): where the limb reached its target with some of them in a
-        box, the poses that swivel round the target are tried and the one with the fewest in a box (grown by
-        `chain.margin`) is kept (limb_easing.py). A limb not listed keeps its clearance's capsule alone."""
+        box, the poses that swivel round the target are tried and the one whose points lie least deep in the boxes
+        (grown by `chain.margin`) is kept (limb_easing.py). A limb not listed keeps its clearance's capsule alone."""
 
     chain: ChainSettings = ChainSettings()
     variant: str = DEFAULT_VARIANT

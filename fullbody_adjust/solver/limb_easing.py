@@ -10,7 +10,7 @@ import numpy as np
 
 from .geometry import norm
 from .limb_rotations import chain_rotations
-from .limb_surface import points_in_boxes, posed_points
+from .limb_surface import depth_in_boxes, posed_points
 from .obstacle_swivel import ANGLES, intrusion, swivel_starts
 from .obstacles import points_inside, segments_cross
 
@@ -34,9 +34,10 @@ class ClearanceEasing:
         the other poses that meet the target: each swivel (obstacle_swivel; limbs of two or more segments, rows
         without a pole) solved with the limb's limits and no obstacle, all in one stacked solve (the limits turn
         a swivel past the shoulder's or hip's range back within it). Of those that reach the target with every
-        joint and segment out of the grown boxes, the one with the fewest surface points in them (then the
-        least moved from the pose it replaces) replaces it where it has fewer: among the poses that meet the
-        target, the one whose surface keeps out best. `results` updated in place."""
+        joint and segment out of the grown boxes, the one whose surface points lie least deep in them (their depths
+        added up: limb_surface.depth_in_boxes; then the least moved from the pose it replaces) replaces it where
+        they lie less deep: among the poses that meet the target, the one whose surface keeps out best.
+        `results` updated in place."""
         tries = []
         for t, r in zip(tasks, results):
             surface = self.settings.surface_of(t.name)
@@ -47,7 +48,7 @@ class ClearanceEasing:
             if not rows.size:
                 continue
             boxes = self._margin_boxes(t.rows[rows])
-            now = points_in_boxes(self._surface_points(t, rows, r.positions[rows][:, None]), boxes)[:, 0]
+            now = depth_in_boxes(self._surface_points(t, rows, r.positions[rows][:, None]), boxes)[:, 0]
             rows, now = rows[now > 0], now[now > 0]
             if rows.size:
                 every = np.repeat(rows, len(ANGLES))
@@ -69,11 +70,10 @@ class ClearanceEasing:
             clear = (redo.status == "reached").reshape(len(rows), k) \
                 & ~points_inside(joints, boxes).any(axis=(2, 3)) \
                 & ~segments_cross(joints[:, :, :-1], joints[:, :, 1:], boxes).any(axis=(2, 3))
-            count = np.where(clear, points_in_boxes(self._surface_points(t, rows, joints), boxes),
-                             np.iinfo(np.int64).max)
+            depth = np.where(clear, depth_in_boxes(self._surface_points(t, rows, joints), boxes), np.inf)
             moved = norm(joints - r.positions[rows][:, None]).sum(axis=-1)
-            best = _first_least(count, moved)
-            take = np.nonzero(count[np.arange(len(rows)), best] < now)[0]
+            best = _first_least(depth, moved)
+            take = np.nonzero(depth[np.arange(len(rows)), best] < now)[0]
             pick = take * k + best[take]
             r.status, r.reason = r.status.astype(object), r.reason.astype(object)
             for field in ("positions", "iterations", "residual", "reachable", "status"):
@@ -162,7 +162,7 @@ class ClearanceEasing:
         return ~np.isfinite(self.limb_pole[task.name][task.rows[blocked], 0])
 
 
-def _first_least(count, moved):
-    """(b,): per row of count and moved (b,k), the index of the least count, the least moved among equals."""
-    key = np.where(count == count.min(axis=1, keepdims=True), moved, np.inf)
+def _first_least(depth, moved):
+    """(b,): per row of depth and moved (b,k), the index of the least depth, the least moved among equals."""
+    key = np.where(depth == depth.min(axis=1, keepdims=True), moved, np.inf)
     return np.argmin(key, axis=1)

@@ -1,5 +1,5 @@
 """A limb's surface as points riding on its chain's segments (AdjustSettings.surface; bridge/limb_thickness.py
-reads them from the meshes the armature deforms), and how many of them a pose puts in the obstacle boxes.
+reads them from the meshes the armature deforms), and how deep a pose puts them in the obstacle boxes.
 
 A capsule round the centre line (AdjustSettings.clearance) cannot tell a fist that sticks out past the forearm's
 joint end, or a chunky forearm's flat side, from a round limb: near a target that lies nearer a box than the
@@ -14,7 +14,7 @@ import numpy as np
 
 from .errors import SolverInputError
 from .geometry import all_set
-from .obstacles import points_inside
+from .obstacles import depths_in_boxes
 
 
 @dataclass(frozen=True, eq=False)
@@ -52,9 +52,10 @@ def posed_points(surface, rows, start, chains, rotations):
     return out
 
 
-def points_in_boxes(points, boxes):
-    """(b,k): how many of the points (b,k,P,3) lie inside any of `boxes` (shared, or per problem for the b)."""
+def depth_in_boxes(points, boxes):
+    """(b,k): how deep the points (b,k,P,3) lie in `boxes` (shared, or per problem for the b), added up over the
+    points (each its depth in the box it lies deepest in; 0 outside every box)."""
     b, k, p = points.shape[:3]
     if len(boxes) == 0 or p == 0:
-        return np.zeros((b, k), dtype=np.int64)
-    return points_inside(points.reshape(b, k * p, 3), boxes).any(axis=-1).reshape(b, k, p).sum(axis=-1)
+        return np.zeros((b, k))
+    return depths_in_boxes(points.reshape(b, k * p, 3), boxes).max(axis=-1).reshape(b, k, p).sum(axis=-1)

@@ -8,7 +8,7 @@ import pytest
 
 from fullbody_adjust.solver import Boxes, SolverInputError
 from fullbody_adjust.solver.adjust import AdjustSettings, adjust_pose
-from fullbody_adjust.solver.limb_surface import LimbSurface, points_in_boxes, posed_points
+from fullbody_adjust.solver.limb_surface import LimbSurface, depth_in_boxes, posed_points
 from fullbody_adjust.solver.limb_rotations import chain_rotations
 from tests.helpers import metarig
 
@@ -43,12 +43,23 @@ def test_points_ride_rigidly_on_their_segments():
     np.testing.assert_allclose(same[0, 0], points, atol=1e-12)
 
 
-def test_points_in_boxes_counts_points_inside_any_box():
+def test_depth_in_boxes_adds_up_how_deep_each_point_lies_in_its_deepest_box():
     rng = np.random.default_rng(2)
     points = rng.uniform(-1.0, 1.0, (2, 3, 50, 3))
-    boxes = Boxes(np.array([[-0.5, -0.5, -0.5], [0.2, 0.2, 0.2]]), np.array([[0.0, 0.0, 0.0], [0.9, 0.9, 0.9]]))
-    inside = ((points >= -0.5) & (points <= 0.0)).all(axis=-1) | ((points >= 0.2) & (points <= 0.9)).all(axis=-1)
-    np.testing.assert_array_equal(points_in_boxes(points, boxes), inside.sum(axis=-1))
+    mins, maxs = np.array([[-0.5, -0.5, -0.5], [-0.2, -0.2, -0.2]]), np.array([[0.0, 0.0, 0.0], [0.9, 0.9, 0.9]])
+    got = depth_in_boxes(points, Boxes(mins, maxs))
+    # Sampled independently: a point inside a box lies as deep as the largest ball round it the box holds.
+    flat = points.reshape(-1, 3)
+    want = np.zeros(len(flat))
+    for lo, hi in zip(mins, maxs):
+        inside = ((flat >= lo) & (flat <= hi)).all(axis=1)
+        ball = np.minimum(flat - lo, hi - flat).min(axis=1)
+        want = np.maximum(want, np.where(inside, ball, 0.0))
+    np.testing.assert_allclose(got, want.reshape(2, 3, 50).sum(axis=-1), atol=1e-12)
+    assert (got > 0.0).all()  # 150 points in the boxes' 3 / 8 of the cube: some in each group
+    turned = Boxes(mins[:1], maxs[:1], np.eye(3)[[1, 2, 0]][None])  # the same box with its axes permuted
+    np.testing.assert_allclose(depth_in_boxes(points[..., [1, 2, 0]], turned),
+                               depth_in_boxes(points, Boxes(mins[:1], maxs[:1])), atol=1e-12)
 
 
 @pytest.mark.parametrize("segment, points, message", [
