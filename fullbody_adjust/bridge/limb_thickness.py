@@ -62,11 +62,12 @@ def limb_radii(obj, rig):
 
 
 def limb_surfaces(obj, rig, matrices, to_solve):
-    """{limb: solver LimbSurface} for AdjustSettings.surface: each limb's surface points (the vertices weighted
-    mostly to its bones, as limb_radii counts them; the _MOST farthest from their bones' joint segments where
-    there are more) at the start pose of each frame, in solve space: rigidly on the bone each counts for
+    """{limb: solver LimbSurface} for AdjustSettings.surface: each arm's and leg's surface points (the vertices
+    weighted mostly to its bones, as limb_radii counts them; the _MOST farthest from their bones' joint segments
+    where there are more) at the start pose of each frame, in solve space, rigidly on the bone each counts for
     (``matrices`` (F,J,4,4) the bones' world matrices, ``to_solve`` (F,4,4) solve_space's: world to solve space).
-    Limbs without one are left out."""
+    Arms and legs only: theirs is the swivel round the target that keeps a surface out (an elbow, a knee); the
+    trunk's and the head's chains have none a surface should turn them by. Limbs without one are left out."""
     out = {}
     for limb, (segment, owner, on_bone) in _measures(obj, rig)[1].items():
         posed = np.einsum("fjab,jb->fja", matrices[:, owner], on_bone)
@@ -97,8 +98,8 @@ def _measures(obj, rig):
         found = radii[list(bones)]
         if np.isfinite(found).any():
             out[name] = float(np.nanmax(found))
-        mine = np.nonzero(np.isin(owners, bones))[0]
-        if mine.size:
+        mine = np.nonzero(np.isin(owners, bones))[0] if name.startswith(("arm", "leg")) else []
+        if len(mine):
             mine = mine[np.argsort(-distances[mine], kind="stable")[:_MOST]]
             segment = np.array([limb.bones.index(b) for b in owners[mine]], dtype=np.int64)
             on_bone = np.einsum("jab,jb->ja", np.linalg.inv(rig.rest["rest_matrices"][owners[mine]]),
