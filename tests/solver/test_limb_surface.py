@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from fullbody_adjust.solver import Boxes, SolverInputError
-from fullbody_adjust.solver.adjust import AdjustSettings, adjust_pose
+from fullbody_adjust.solver.adjust import AdjustSettings, adjust_frames, adjust_pose
 from fullbody_adjust.solver.limb_surface import LimbSurface, depth_in_boxes, posed_points
 from fullbody_adjust.solver.limb_rotations import chain_rotations
 from tests.helpers import metarig
@@ -130,3 +130,20 @@ def test_a_surface_in_the_box_turns_the_limb_round_its_target():
     other = solve(AdjustSettings(surface={"leg.R": LimbSurface(np.zeros(1, dtype=np.int64), heads[None, :1])}))
     np.testing.assert_array_equal(other.heads, paper.heads)
     np.testing.assert_array_equal(other.rotations, paper.rotations)
+
+
+def test_over_frames_each_frame_turns_as_solved_alone():
+    """adjust_frames on two frames, the box on the first only (the second's far away): the first frame's pose is
+    the one solved alone with the surface, the second the one solved without the box."""
+    model, heads, tails, x_axes, targets, boxes, surface, forearm, fist = _fist_case()
+    far = Boxes(boxes.mins + 10.0, boxes.maxs + 10.0)
+    frames = Boxes(np.stack([boxes.mins, far.mins]), np.stack([boxes.maxs, far.maxs]))
+    two = {limb: LimbSurface(s.segment, np.concatenate([s.points, s.points])) for limb, s in surface.items()}
+    both = adjust_frames(model, np.stack([heads, heads]), np.stack([tails, tails]), np.stack([targets, targets]),
+                         metarig.EFFECTORS, metarig.PRIORITIES, obstacles=frames,
+                         settings=AdjustSettings(surface=two), bone_x_axes=np.stack([x_axes, x_axes]))
+    for f, box in enumerate((boxes, far)):
+        alone = adjust_pose(model, heads, tails, targets, metarig.EFFECTORS, metarig.PRIORITIES, obstacles=box,
+                            settings=AdjustSettings(surface=surface), bone_x_axes=x_axes)
+        np.testing.assert_allclose(both[f].heads, alone.heads, atol=1e-9)
+    assert "surface" in both[0].reasons[0] and "surface" not in both[1].reasons[0]
