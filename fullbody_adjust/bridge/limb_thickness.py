@@ -69,9 +69,9 @@ def limb_surfaces(obj, rig, matrices, to_solve):
     Arms and legs only: theirs is the swivel round the target that keeps a surface out (an elbow, a knee); the
     trunk's and the head's chains have none a surface should turn them by. Limbs without one are left out."""
     out = {}
-    for limb, (segment, owner, on_bone) in _measures(obj, rig)[1].items():
+    for limb, (segment, owner, on_bone, weights) in _measures(obj, rig)[1].items():
         posed = np.einsum("fjab,jb->fja", matrices[:, owner], on_bone)
-        out[limb] = LimbSurface(segment, np.einsum("fab,fjb->fja", to_solve, posed)[..., :3])
+        out[limb] = LimbSurface(segment, np.einsum("fab,fjb->fja", to_solve, posed)[..., :3], weights)
     return out
 
 
@@ -88,7 +88,8 @@ def _measures(obj, rig):
     if kept is not None and kept[0] == key:
         _radii.move_to_end(obj.name)
         return kept[1]
-    points, owners, distances = owned_points(obj, rig, meshes, [arrays for _fingerprint, arrays in reads], placements)
+    points, owners, distances, blend = owned_points(obj, rig, meshes, [arrays for _fingerprint, arrays in reads],
+                                                    placements)
     radii = np.full(len(rig.model.names), np.nan)
     for bone in np.unique(owners):
         radii[bone] = robust_radius(distances[owners == bone])
@@ -104,23 +105,23 @@ def _measures(obj, rig):
             segment = np.array([limb.bones.index(b) for b in owners[mine]], dtype=np.int64)
             on_bone = np.einsum("jab,jb->ja", np.linalg.inv(rig.rest["rest_matrices"][owners[mine]]),
                                 np.c_[points[mine], np.ones(mine.size)])
-            surfaces[name] = (segment, owners[mine], on_bone)
+            surfaces[name] = (segment, owners[mine], on_bone, _limb_weights(rig, limb, mine, blend))
     _remember(_radii, obj.name, (key, (out, surfaces)))
     return out, surfaces
 
 
 def owned_points(obj, rig, meshes, weights, placements):
     """(points (N,3) at rest in armature units, owners (N,) the model bone each counts for, distances (N,) from
-    that bone's joint segment) of the vertices of ``meshes`` weighted mostly to one bone that counts for a chain
-    bone (module docstring); ``weights``: _mesh_weights' arrays, ``placements``: mesh space -> armature space
-    ((4,4) each)."""
+    that bone's joint segment, blend: ((M,2) point and deform bone, (M,) its weight) every weight of those
+    points) of the vertices of ``meshes`` weighted mostly to one bone that counts for a chain bone (module
+    docstring); ``weights``: _mesh_weights' arrays, ``placements``: mesh space -> armature space ((4,4) each)."""
     model = rig.model
     rest = rig.rest["rest_matrices"]
     heads, ends = rest[:, :3, 3], end_points(rest, rig.ends)
     deform = _deform_flags(obj)
     carrier = _carriers(model, heads, ends, deform)
     index = {name: j for j, name in enumerate(model.names) if deform[j]}  # the groups the armature deforms by
-    points, owners = [], []
+    points, owners, blends, at = [], [], [], 0
     for mesh, (vertex, group, weight), placement in zip(meshes, weights, placements):
         group_bone = np.array([index.get(g.name, -1) for g in mesh.vertex_groups] + [-1])
         bone = group_bone[np.minimum(group, len(group_bone) - 1)]
@@ -136,10 +137,50 @@ def owned_points(obj, rig, meshes, weights, placements):
             continue
         owners.append(owner[owner >= 0])
         points.append(_rest_positions(mesh)[kept] @ placement[:3, :3].T + placement[:3, 3])
+        row = np.full(int(vertex.max()) + 1, -1)
+        row[kept] = at + np.arange(kept.size)
+        mine = row[vertex] >= 0
+        blends.append(np.stack([row[vertex[mine]], bone[mine]]).T)
+        blends.append(weight[mine])
+        at += kept.size
     if not points:
-        return np.zeros((0, 3)), np.zeros(0, dtype=np.int64), np.zeros(0)
+        return np.zeros((0, 3)), np.zeros(0, dtype=np.int64), np.zeros(0), (np.zeros((0, 2), dtype=np.int64),
+                                                                             np.zeros(0))
     points, owners = np.concatenate(points), np.concatenate(owners)
-    return points, owners, _point_segment(points, heads[owners], ends[owners])
+    blend = (np.concatenate(blends[0::2]), np.concatenate(blends[1::2]))
+    return points, owners, _point_segment(points, heads[owners], ends[owners]), blend
+
+
+def _limb_weights(rig, limb, points, blend):
+    """(P, S+2) the skinning weights of points ``points`` (indices into owned_points' points) over limb ``limb``'s
+    S chain segments (a deform bone counts for the chain bone it lies along, _carriers), its end (the end bone and
+    every bone below it: the hand or foot, which rides on the end joint) and the rest (the torso: the base), each
+    row adding up to 1 (LimbSurface.weights)."""
+    model = rig.model
+    rest = rig.rest["rest_matrices"]
+    deform = np.ones(len(model.names), dtype=bool)
+    carrier = _carriers(model, rest[:, :3, 3], end_points(rest, rig.ends), deform)
+    segments = len(limb.bones)
+    column = np.full(len(model.names), segments + 1)  # the rest
+    if limb.end_bone is not None:
+        below = np.zeros(len(model.names), dtype=bool)
+        below[limb.end_bone] = True
+        parents = np.asarray(model.parents)
+        for _ in range(len(model.names)):  # every bone below the end bone, a level per pass
+            grown = below | ((parents >= 0) & below[np.maximum(parents, 0)])
+            if (grown == below).all():
+                break
+            below = grown
+        column[below] = segments
+    for k, bone in enumerate(limb.bones):
+        column[carrier == bone] = k
+    pairs, weight = blend
+    row = np.full(int(pairs[:, 0].max()) + 1 if len(pairs) else 0, -1)
+    row[points] = np.arange(len(points))
+    take = row[pairs[:, 0]] >= 0 if len(pairs) else np.zeros(0, dtype=bool)
+    out = np.zeros((len(points), segments + 2))
+    np.add.at(out, (row[pairs[take, 0]], column[pairs[take, 1]]), weight[take])
+    return out / out.sum(axis=1, keepdims=True)
 
 
 def robust_radius(distances):

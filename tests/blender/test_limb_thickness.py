@@ -289,3 +289,5 @@ def test_a_limbs_surface_is_its_mesh_where_the_start_pose_puts_it(extension_modu
     chain = rig.model.limbs["arm.L"].bones
     upper = arm.segment == chain.index(obj.data.bones.find("upper_arm.L"))
     assert upper.sum() == RINGS * SIDES and (arm.segment[~upper] == chain.index(obj.data.bones.find("forearm.L"))).all()
+    # Every vertex weighted 1 to its bone: all its weight on its own segment (of the chain's, the hand's, the rest's).
+    np.testing.assert_array_equal(arm.weights, np.eye(len(chain) + 2)[arm.segment])

@@ -43,6 +43,27 @@ def test_points_ride_rigidly_on_their_segments():
     np.testing.assert_allclose(same[0, 0], points, atol=1e-12)
 
 
+def test_weighted_points_blend_their_bones_moves():
+    """Given weights, a point goes where linear blend skinning puts it: its weights times where each segment's
+    rotation about its root, the end joint's move and the base's move would take it."""
+    start, moved = _chain()
+    rng = np.random.default_rng(9)
+    points = rng.uniform(-0.3, 0.3, (1, 30, 3)) + start[0, 1]
+    weights = rng.dirichlet(np.ones(4), 30)  # segments 0 and 1, the end, the base
+    surface = LimbSurface(np.argmax(weights[:, :2], axis=1), points, weights)
+    turns = chain_rotations(start, moved[:, 0], None, np.array([0]))[0]
+    got = posed_points(surface, np.array([0]), start, moved, turns[None, None])[0, 0]
+    c, s0, p = moved[0, 0], start[0], points[0]
+    want = (weights[:, :1] * (c[0] + (p - s0[0]) @ turns[0].T) + weights[:, 1:2] * (c[1] + (p - s0[1]) @ turns[1].T)
+            + weights[:, 2:3] * (p + c[2] - s0[2]) + weights[:, 3:] * (p + c[0] - s0[0]))
+    np.testing.assert_allclose(got, want, atol=1e-12)
+    # One-hot weights on a point's own segment: the rigid ride.
+    rigid = LimbSurface(surface.segment, points, np.eye(4)[surface.segment])
+    np.testing.assert_allclose(posed_points(rigid, np.array([0]), start, moved, turns[None, None]),
+                               posed_points(LimbSurface(surface.segment, points), np.array([0]), start, moved,
+                                            turns[None, None]), atol=1e-12)
+
+
 def test_depth_in_boxes_adds_up_how_deep_each_point_lies_in_its_deepest_box():
     rng = np.random.default_rng(2)
     points = rng.uniform(-1.0, 1.0, (2, 3, 50, 3))
@@ -66,10 +87,11 @@ def test_depth_in_boxes_adds_up_how_deep_each_point_lies_in_its_deepest_box():
     (np.array([0, 1]), np.zeros((1, 3, 3)), "segment"),
     (np.array([0, -1]), np.zeros((1, 2, 3)), "segment indices"),
     (np.array([0, 1]), np.full((1, 2, 3), np.nan), "NaN"),
+    (np.array([0, 1]), np.zeros((1, 2, 3)), "weights"),
 ])
 def test_bad_surfaces_are_one_line(segment, points, message):
     with pytest.raises(SolverInputError, match=message):
-        LimbSurface(segment, points)
+        LimbSurface(segment, points, np.zeros((2, 2)) if message == "weights" else None)
     with pytest.raises(SolverInputError, match="unknown limb"):
         AdjustSettings(surface={"tail": LimbSurface(np.array([0]), np.zeros((1, 1, 3)))})
     with pytest.raises(SolverInputError, match="LimbSurface"):
