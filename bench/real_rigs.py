@@ -19,7 +19,8 @@ is used only through its operators and its command line, as a user would:
              movement along the hips' line (mm);
   obstacle   the near click without an obstacle, to see where the forearm goes; then from the start again with
              a box (edge 0.3 forearm lengths) centred on that forearm's middle; Adjust Pose. Bone heads inside the
-             box, evaluated mesh vertices inside (before the click, and in the unobstructed pose: in the way);
+             box, evaluated mesh vertices inside (before the click, and in the unobstructed pose: in the way), and of
+             those the hand's (weighted most to the hand bone or one below it: the target places the hand);
   retarget   cmu_07_01_walk.bvh imported with Blender's BVH importer into the rig's file (24 fps, keys scaled),
              then `retarget FILE --source Source --target RIG --floor 0` through the command-line function
              (cli.main); exit code, and from the written file: the mesh soles on the source's planted frames (p95

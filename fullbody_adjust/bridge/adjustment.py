@@ -135,8 +135,11 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
     boxes = None
     if corners.shape[1]:  # a set's meshes far from the character are left out before they are built into boxes
         # Each limb keeps its mesh's radius plus the margin from the boxes (limb_thickness; none without a mesh).
+        # Their surfaces as points on their segments pick, among the poses that meet a target, one that keeps the
+        # mesh itself out (limb_easing).
         solve_settings = replace(solve_settings, clearance=limb_thickness.limb_clearances(
-            obj, rig, unit, solve_settings.chain.margin))
+            obj, rig, unit, solve_settings.chain.margin), surface=limb_thickness.limb_surfaces(
+            obj, rig, snapshot.matrices, to_solve))
         centre, radius = body_reach(model, heads, tails, arm_targets,
                                     snapshot.derived("skeleton reach", lambda: skeleton_reach(model, heads, tails),
                                                      of=model))

@@ -256,3 +256,38 @@ def test_a_box_inside_the_forearm_where_it_was_ends_outside_the_mesh(extension_m
     assert (distances > 0.0).all()
     goal = np.array(evaluated(slot(obj, "hand.L").target).matrix_world.translation)
     assert np.linalg.norm(after.to_world(after.head("hand.L")) - goal) < 1e-4
+
+
+def test_a_limbs_surface_is_its_mesh_where_the_start_pose_puts_it(extension_module_name):
+    """limb_surfaces: the arm's vertices (upper arm and forearm, not the torso's) at a posed start, through the
+    solve space, are the evaluated (deformed) mesh's own vertices there."""
+    thickness = importlib.import_module(f"{extension_module_name}.bridge.limb_thickness")
+    rig_cache = importlib.import_module(f"{extension_module_name}.bridge.rig_cache")
+    solve_space = importlib.import_module(f"{extension_module_name}.bridge.solve_space")
+    pose = importlib.import_module(f"{extension_module_name}.bridge.pose")
+    obj, body, owner, _rest = arm_scene()
+    obj.location = (0.3, -0.2, 0.1)
+    obj.scale = (2.0, 2.0, 2.0)
+    for name, angles in (("upper_arm.L", (0.3, 0.2, -0.4)), ("forearm.L", (0.7, 0.0, 0.1))):
+        pb = obj.pose.bones[name]
+        pb.rotation_mode = 'XYZ'
+        pb.rotation_euler = angles
+    bpy.context.view_layer.update()
+    rig = rig_cache.rig_of(obj)
+    snapshot = pose.read_pose_frames(obj, [bpy.context.scene.frame_current])
+    to_solve, _heads, _tails, unit = solve_space.solve_space(snapshot, rig.ends)
+    surfaces = thickness.limb_surfaces(obj, rig, snapshot.matrices, to_solve)
+    assert set(surfaces) == {"arm.L"}  # the trunk has a radius, but no swivel to turn its surface out by
+    arm = surfaces["arm.L"]
+    world = arm_vertices(body, owner)  # the upper arm's and forearm's, evaluated
+    world_matrix = np.array(obj.matrix_world)
+    got = (arm.points[0] / unit[0]) @ world_matrix[:3, :3].T + world_matrix[:3, 3]
+    assert arm.points.shape == (1, len(world), 3)
+    nearest = np.linalg.norm(got[:, None] - world[None], axis=-1).min(axis=1)
+    assert nearest.max() < 1e-5, nearest.max()
+    # Each rides on its own segment: the upper arm's on the segment before the forearm's.
+    chain = rig.model.limbs["arm.L"].bones
+    upper = arm.segment == chain.index(obj.data.bones.find("upper_arm.L"))
+    assert upper.sum() == RINGS * SIDES and (arm.segment[~upper] == chain.index(obj.data.bones.find("forearm.L"))).all()
+    # Every vertex weighted 1 to its bone: all its weight on its own segment (of the chain's, the hand's, the rest's).
+    np.testing.assert_array_equal(arm.weights, np.eye(len(chain) + 2)[arm.segment])

@@ -27,8 +27,6 @@ REQUIRED = ("root", "trunk", "arm.L", "arm.R", "hand.L", "hand.R", "leg.L", "leg
 # (test, rig) -> the figure measured on the code this file was written against (bpy 5.0.1).
 KNOWN = {
     ('obstacle', 'kaykit_manny'): '0 joints and 1 mesh vertices inside the box',
-    ('obstacle', 'godot_plush'): '0 joints and 6 mesh vertices inside the box',
-    ('obstacle', 'godot_robot'): '0 joints and 2 mesh vertices inside the box',
     ('clip_pops', 'kaykit_manny'): '6 pop frames (the clip itself 5)',
     ('clip_pops', 'godot_plush'): '8 pop frames (the clip itself 5)',
 }
@@ -169,8 +167,16 @@ def test_far_reach_keeps_each_knee_within_1_cm_sideways(rig):
 
 @pytest.mark.parametrize("rig", cases("obstacle"))
 def test_an_obstacle_keeps_joints_and_mesh_out(rig):
+    """Joints and the arm's mesh out of the box. The hand's mesh is the target's: the hand is placed on it and keeps
+    its world orientation (DESIGN §1), and the target wins over the obstacle (paper §4.1: a box holding the target
+    is ignored for the last segment), so of the hand's vertices the box may hold what it holds in the unobstructed
+    pose at the same target, never more (godot_plush: its mitten's cuff, 4 of whose 6 vertices lie in the box on
+    the hand's transform alone, 11 mm deep; 36 swivels of the arm round the target with the hand kept leave at
+    least 4 there)."""
     found = figures(rig, "obstacle")
-    assert found["joints_inside"] == 0 and found["mesh_vertices_inside"] == 0, found
+    assert found["joints_inside"] == 0, found
+    assert found["mesh_vertices_inside"] - found["hand_vertices_inside"] == 0, found
+    assert found["hand_vertices_inside"] <= found["hand_vertices_in_the_way"], found
 
 
 @pytest.mark.parametrize("rig", cases("walk_exit"))

@@ -193,13 +193,17 @@ def far_case(saved):
 
 def obstacle_case(saved):
     """The near click once without an obstacle, to see where the forearm goes; then again from the saved file
-    with a box (edge 0.3 forearm lengths) centred on that forearm's middle."""
+    with a box (edge 0.3 forearm lengths) centred on that forearm's middle. Mesh vertices inside the box are
+    counted in all, and those of the hand (weighted most to the mapped hand bone or a bone below it): the hand
+    is placed by the target and keeps its world orientation (DESIGN §1), so what its mesh puts in the box at the
+    target no pose of the arm takes out, and the unobstructed pose shows how much that is."""
     rig = saved.open()
     target, _, _ = adjust(rig, near_target)
     _, elbow, wrist, _ = arm_of(rig)
     centre, size = 0.5 * (elbow + wrist), 0.3 * float(np.linalg.norm(wrist - elbow))
     lo, hi = centre - 0.5 * size, centre + 0.5 * size
-    in_the_way = rm.vertices_inside(rm.mesh_vertices(rig.meshes), lo, hi)
+    hand = hand_owned(rig)
+    in_the_way = rm.mesh_vertices(rig.meshes)
     rig = saved.open()
     before = {}
 
@@ -210,10 +214,28 @@ def obstacle_case(saved):
         before["inside"] = rm.vertices_inside(rm.mesh_vertices(r.meshes), lo, hi)
 
     target, _, _ = adjust(rig, near_target, add_box)
+    after = rm.mesh_vertices(rig.meshes)
     return {"joints_inside": rm.vertices_inside(rm.world_heads(rig.armature), lo, hi),
-            "mesh_vertices_inside": rm.vertices_inside(rm.mesh_vertices(rig.meshes), lo, hi),
-            "mesh_vertices_inside_before": before["inside"], "mesh_vertices_in_the_way": in_the_way,
+            "mesh_vertices_inside": rm.vertices_inside(after, lo, hi),
+            "hand_vertices_inside": rm.vertices_inside(after[hand], lo, hi),
+            "mesh_vertices_inside_before": before["inside"],
+            "mesh_vertices_in_the_way": rm.vertices_inside(in_the_way, lo, hi),
+            "hand_vertices_in_the_way": rm.vertices_inside(in_the_way[hand], lo, hi),
             "residual_m": metres(rig, np.linalg.norm(wrist_of(rig) - target))}
+
+
+def hand_owned(rig, side="R"):
+    """(n,) bool over rm.mesh_vertices(rig.meshes): the vertices whose largest weight is the mapped hand bone's
+    or that of a bone below it (none on an arm mapped without a hand)."""
+    names = [bone for bone in bone_map(rig.armature).get(f"hand.{side}", []) if bone]
+    bones = rig.armature.data.bones
+    hand = set(names) | {b.name for name in names for b in bones[name].children_recursive}
+    out = []
+    for mesh in rig.meshes:
+        groups = [g.name for g in mesh.vertex_groups]
+        out.extend(bool(v.groups) and groups[max(v.groups, key=lambda g: g.weight).group] in hand
+                   for v in mesh.data.vertices)
+    return np.array(out, dtype=bool)
 
 
 def retarget_case(saved, folder, cli):

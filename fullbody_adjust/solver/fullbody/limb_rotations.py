@@ -64,6 +64,17 @@ def set_segment_rotations(solves, starts, limits):
         at += f.size
 
 
+def chain_rotations(start, joints, limits, frames):
+    """World rotation deltas (b,n-1,3,3) of chains `joints` (b,n,3) on frames `frames` (b,) from their start
+    chains `start` (b,n,3), as set_segment_rotations writes them (`limits` the limb's LimbLimits or None)."""
+    kind = axes = None
+    if limits is not None:
+        kind = limits.limits.kind
+        if any_set(kind[1:] == HINGE):
+            axes = _frame_axes(limits.limits.hinge_axis, frames)
+    return _segment_rotations(start, joints, kind, axes)
+
+
 def _frame_axes(axes, frames):
     """Hinge axes (b,m,3) on `frames` (b,) from per-frame (F,m,3) or shared (m,3) ones."""
     return axes[frames] if axes.ndim == 3 else np.broadcast_to(axes, (len(frames),) + axes.shape)

@@ -10,6 +10,7 @@ import numpy as np
 from ..body.model import LIMB_NAMES, HumanLimits
 from ..chain.fabrik import ChainSettings
 from ..errors import SolverInputError
+from ..obstacles.surface import LimbSurface
 from ..vocabulary import DEFAULT_VARIANT, VARIANTS
 
 UNCONSTRAINED = "unconstrained"  # status of an effector without a target on that frame
@@ -43,7 +44,11 @@ class AdjustSettings:
         chain solve tests its joints and segments against the boxes grown by it (obstacles.grown_clear_of; a box
         its target or base lies nearer than that is grown less). A limb not listed (the default: every limb)
         keeps the paper's behaviour: its joints and segments out of the boxes themselves, `chain.margin` only
-        the Δd of the push out."""
+        the Δd of the push out.
+    surface: per limb (a mapping or (limb, LimbSurface) pairs; stored as sorted pairs), its mesh's surface as
+        points riding on its segments (obstacles/surface.py): where the limb reached its target with some of them in a
+        box, the poses that swivel round the target are tried and the one whose points lie least deep in the boxes
+        (grown by `chain.margin`) is kept (obstacles/easing.py). A limb not listed keeps its clearance's capsule alone."""
 
     chain: ChainSettings = ChainSettings()
     variant: str = DEFAULT_VARIANT
@@ -55,9 +60,11 @@ class AdjustSettings:
     limit_passes: int = 2
     help_held_limbs: bool = True
     clearance: tuple = ()
+    surface: tuple = ()
 
     def __post_init__(self):
         object.__setattr__(self, "clearance", _clearance_pairs(self.clearance))
+        object.__setattr__(self, "surface", _surface_pairs(self.surface))
         if not isinstance(self.help_held_limbs, bool):
             raise SolverInputError("help_held_limbs must be a bool")
         if not isinstance(self.chain, ChainSettings):
@@ -70,6 +77,10 @@ class AdjustSettings:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
                 raise SolverInputError(f"{name} must be an integer >= {low}")
+
+    def surface_of(self, limb):
+        """The LimbSurface of `limb` (None: none)."""
+        return dict(self.surface).get(limb)
 
     def clearance_of(self, limb):
         """The clearance of `limb` (0.0: none, the paper's behaviour)."""
@@ -92,6 +103,20 @@ def _clearance_pairs(clearance):
                 or not math.isfinite(distance) or distance < 0:
             raise SolverInputError(f"clearance of {limb} must be a finite number >= 0")
     return tuple(sorted((limb, float(distance)) for limb, distance in pairs.items()))
+
+
+def _surface_pairs(surface):
+    """AdjustSettings.surface as sorted (limb, LimbSurface) pairs, checked."""
+    try:
+        pairs = dict(surface.items() if hasattr(surface, "items") else surface)
+    except (TypeError, ValueError):
+        raise SolverInputError("surface must map limb names to LimbSurface") from None
+    for limb, points in pairs.items():
+        if limb not in LIMB_NAMES:
+            raise SolverInputError(f"surface for unknown limb {limb!r} (use {', '.join(LIMB_NAMES)})")
+        if not isinstance(points, LimbSurface):
+            raise SolverInputError(f"surface of {limb} must be a LimbSurface")
+    return tuple(sorted(pairs.items(), key=lambda pair: pair[0]))
 
 
 @dataclass

@@ -168,6 +168,15 @@ def distances_to_boxes(points, boxes):
     return np.linalg.norm(np.maximum(np.maximum(mins - q, q - maxs), 0.0), axis=-1)
 
 
+def depths_in_boxes(points, boxes):
+    """(...,3) points, K boxes -> (..., K): how deep each point lies in each closed box (its distance to the
+    box's nearest face from inside; 0 outside or on a face)."""
+    p = np.asarray(points, dtype=np.float64)
+    mins, maxs, axes = _box_arrays(boxes, p.ndim - 1)
+    q = _in_box_frames(p, axes)
+    return np.maximum(np.minimum(q - mins, maxs - q).min(axis=-1), 0.0)
+
+
 def as_boxes(obstacles):
     """None, Boxes, or an array of box corners ((K,8,3), (K,2,3) or per problem (B,K,...,3)) -> Boxes or None."""
     if obstacles is None or isinstance(obstacles, Boxes):

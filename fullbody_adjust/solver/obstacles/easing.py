@@ -1,13 +1,17 @@
 """Where a limb's clearance (AdjustSettings.clearance: its surface's radius plus Margin) keeps its chain solve from
 the target: the retries with less of it (ClearanceEasing, mixed into limb_placement.LimbPlacement, whose
-_solve_stacked, _limb_boxes, settings, obstacles and limb_pole it uses), each first from the limb's clearest
-swivel (obstacle_swivel), then from its own start."""
+_solve_stacked, _limb_boxes, settings, obstacles, limits, chain0 and limb_pole it uses), each first from the limb's
+clearest swivel (obstacle_swivel), then from its own start; and where a limb reached its target with its mesh's
+surface (AdjustSettings.surface) in a box, the swivel round the target that keeps the surface out best."""
 
 from dataclasses import replace
 
 import numpy as np
 
-from .swivel import intrusion, swivel_starts
+from ..maths.geometry import norm
+from ..fullbody.limb_rotations import chain_rotations
+from .surface import depth_in_boxes, posed_points
+from .swivel import ANGLES, intrusion, swivel_starts
 from .boxes import points_inside, segments_cross
 
 # The fractions of a limb's clearance it is solved with, in turn, where the previous one kept it from its target
@@ -19,6 +23,81 @@ class ClearanceEasing:
     """LimbPlacement's retries of limbs their clearance kept from their targets."""
 
     def _eased(self, tasks, results):
+        """_eased_levels, then _surface_clear on what reached."""
+        self._eased_levels(tasks, results)
+        self._surface_clear(tasks, results)
+
+    def _surface_clear(self, tasks, results):
+        """Where a limb with a surface (settings.surface_of: its mesh as points riding on its segments) reached its
+        target with some of those points in a box grown by the margin (a fist past the forearm's joint end, a
+        target nearer a box than the limb's radius: no capsule round the centre line keeps such a surface out),
+        the other poses that meet the target: each swivel (obstacle_swivel; limbs of two or more segments, rows
+        without a pole) solved with the limb's limits and no obstacle, all in one stacked solve (the limits turn
+        a swivel past the shoulder's or hip's range back within it). Of those that reach the target with every
+        joint and segment out of the grown boxes, the one whose surface points lie least deep in them (their depths
+        added up: surface.depth_in_boxes; then the least moved from the pose it replaces) replaces it where
+        they lie less deep: among the poses that meet the target, the one whose surface keeps out best.
+        `results` updated in place."""
+        tries = []
+        for t, r in zip(tasks, results):
+            surface = self.settings.surface_of(t.name)
+            if surface is None or t.start.shape[1] < 3:
+                continue
+            rows = np.nonzero(r.status == "reached")[0]
+            rows = rows[self._swivels(t, rows)]
+            if not rows.size:
+                continue
+            boxes = self._margin_boxes(t.rows[rows])
+            now = depth_in_boxes(self._surface_points(t, rows, r.positions[rows][:, None]), boxes)[:, 0]
+            rows, now = rows[now > 0], now[now > 0]
+            if rows.size:
+                every = np.repeat(rows, len(ANGLES))
+                starts = swivel_starts(t.start[rows], t.targets[rows]).reshape(-1, *t.start.shape[1:])
+                tries.append((t, r, rows, now, replace(t, rows=t.rows[every], start=starts, targets=t.targets[every],
+                                                       carry=None if t.carry is None else t.carry[every],
+                                                       still=None if t.still is None else t.still[every])))
+        if not tries:
+            return
+        kept, self.obstacles = self.obstacles, None
+        try:
+            solved = self._solve_stacked([task for *_t, task in tries], retry=True)
+        finally:
+            self.obstacles = kept
+        for (t, r, rows, now, task), redo in zip(tries, solved):
+            k = len(ANGLES)
+            boxes = self._margin_boxes(t.rows[rows])
+            joints = redo.positions.reshape(len(rows), k, *redo.positions.shape[1:])
+            clear = (redo.status == "reached").reshape(len(rows), k) \
+                & ~points_inside(joints, boxes).any(axis=(2, 3)) \
+                & ~segments_cross(joints[:, :, :-1], joints[:, :, 1:], boxes).any(axis=(2, 3))
+            depth = np.where(clear, depth_in_boxes(self._surface_points(t, rows, joints), boxes), np.inf)
+            moved = norm(joints - r.positions[rows][:, None]).sum(axis=-1)
+            best = _first_least(depth, moved)
+            take = np.nonzero(depth[np.arange(len(rows)), best] < now)[0]
+            pick = take * k + best[take]
+            r.status, r.reason = r.status.astype(object), r.reason.astype(object)
+            for field in ("positions", "iterations", "residual", "reachable", "status"):
+                getattr(r, field)[rows[take]] = getattr(redo, field)[pick]
+            r.reason[rows[take]] = [f"{why}; turned round its target to keep its surface out of the obstacles"
+                                    for why in r.reason[rows[take]]]
+
+    def _margin_boxes(self, frames):
+        """The obstacle boxes of `frames` grown by the margin (per problem)."""
+        boxes = self.obstacles.select(frames)
+        return boxes.grown(np.full((len(frames), len(boxes)), self.settings.chain.margin))
+
+    def _surface_points(self, task, rows, chains):
+        """surface.posed_points of `task`'s rows `rows` on chains (b,k,n,3), turned as the bones are written
+        (from the frames' start pose chains, limb_rotations.chain_rotations)."""
+        frames = task.rows[rows]
+        b, k, n = chains.shape[:3]
+        start = self.chain0[task.name][frames]
+        turns = chain_rotations(np.repeat(start, k, axis=0), chains.reshape(b * k, n, 3),
+                                self.limits.get(task.name), np.repeat(frames, k))
+        return posed_points(self.settings.surface_of(task.name), frames, start, chains,
+                            turns.reshape(b, k, n - 1, 3, 3))
+
+    def _eased_levels(self, tasks, results):
         """Where a limb's clearance kept it from its target (status 'blocked'), the limb solved again with less
         (_EASED): first from the start whose middle joint swivels round to where it comes least into the
         clearance (obstacle_swivel; limbs of two or more segments, rows without a pole, whose bend plane is the
@@ -81,3 +160,9 @@ class ClearanceEasing:
         if task.name not in self.limb_pole:
             return np.ones(len(blocked), dtype=bool)
         return ~np.isfinite(self.limb_pole[task.name][task.rows[blocked], 0])
+
+
+def _first_least(depth, moved):
+    """(b,): per row of depth and moved (b,k), the index of the least depth, the least moved among equals."""
+    key = np.where(depth == depth.min(axis=1, keepdims=True), moved, np.inf)
+    return np.argmin(key, axis=1)
