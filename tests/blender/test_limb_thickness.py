@@ -261,10 +261,10 @@ def test_a_box_inside_the_forearm_where_it_was_ends_outside_the_mesh(extension_m
 def test_a_limbs_surface_is_its_mesh_where_the_start_pose_puts_it(extension_module_name):
     """limb_surfaces: the arm's vertices (upper arm and forearm, not the torso's) at a posed start, through the
     solve space, are the evaluated (deformed) mesh's own vertices there."""
-    thickness = importlib.import_module(f"{extension_module_name}.bridge.limb_thickness")
-    rig_cache = importlib.import_module(f"{extension_module_name}.bridge.rig_cache")
-    solve_space = importlib.import_module(f"{extension_module_name}.bridge.solve_space")
-    pose = importlib.import_module(f"{extension_module_name}.bridge.pose")
+    thickness = importlib.import_module(f"{extension_module_name}.bridge.reading.limb_thickness")
+    rig_cache = importlib.import_module(f"{extension_module_name}.bridge.rig.rig_cache")
+    solve_space = importlib.import_module(f"{extension_module_name}.bridge.reading.solve_space")
+    pose = importlib.import_module(f"{extension_module_name}.bridge.reading.pose")
     obj, body, owner, _rest = arm_scene()
     obj.location = (0.3, -0.2, 0.1)
     obj.scale = (2.0, 2.0, 2.0)
