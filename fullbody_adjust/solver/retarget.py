@@ -34,7 +34,10 @@ Rz @ Ry @ Rx), quaternions (w, x, y, z), axis-angle (angle, x, y, z).
        not matter: hands and feet are aligned like their chain's last segment);
    unmapped target bones keep their local transform. The root translates so that the hip centre (midpoint
    of the hip joints) goes where the source's does, scaled about the ground below the rest hips by the
-   leg-length ratio (target/source, hip joint to ankle).
+   leg-length ratio (target/source, hip joint to ankle); with the floor a contact, the whole body then up or
+   down by as much as puts the target's soles on the floor on the frames the source's are lowest (each rig
+   has its own foot below the ankle: an ankle standing higher above its sole than the scaled source's would
+   bend the knees to stand; retarget_plan._resting_offsets).
 2. Effector targets (``plan_retarget``): free of contacts, wrists and ankles go where the transferred pose
    of step 1 puts them, so the solve leaves the limbs at the source's angles. Each effector's contacts come
    from what it touches in the source (contacts.detect_contacts: its slowest point still, speeds per second
@@ -53,16 +56,19 @@ Rz @ Ry @ Rx), quaternions (w, x, y, z), axis-angle (angle, x, y, z).
    forward to the target's (retarget_rig.rest_forward: the toes, else square across the hips, as solver/facing.py
    reads them; never the objects' axes), so the target faces its travel as the source faces its own: a source
    walking forward makes the target walk forward, whichever way either character faces in its file.
-   No foot goes below the floor. The whole body then shifts, smoothly, as its held hands and feet moved (on
-   average), and as far again as needed to bring every target within its limb's reach less a margin (see
-   ``RetargetSettings.reach_margin``); the free trajectories move with it, so only the held limbs are
-   solved.
+   A foot rolls onto its toes no further than lifts its ankle as the source's (scaled) and, where it is not
+   held, keeps its sole above the floor: turned back toes up about its ankle, so the leg moves as the
+   source's where a longer foot would dig into the floor (retarget_feet). No foot goes below the floor. The
+   whole body then shifts, smoothly, as its held hands and feet moved (on average), and as far again as
+   needed to bring every target within its limb's reach less a margin (see ``RetargetSettings.reach_margin``);
+   the free trajectories move with it, so only the held limbs are solved.
 3. Back to channels (``basis_from_pose`` + ``rotation_channel``): inverse kinematics of the pose matrices,
    rotations in each bone's mode, continuous from frame to frame.
 Distances in settings are in source leg lengths (so they hold for any unit and size), durations in seconds.
 
 Where things live: rotation_channels (Blender's rotation channels), retarget_rig (Rig, kinematics, measures),
-retarget_transfer (step 1), contacts (detection and holding), retarget_plan (step 2), retarget_metrics
+retarget_transfer (step 1), contacts (detection and holding), retarget_plan (step 2), retarget_feet (the feet's
+toe roll), foot_pivots (what a planted foot turns about), retarget_metrics
 (measures of the result); this module holds the solve's side (body model, solved pose, motion limits) and
 names the whole API in one place.
 """

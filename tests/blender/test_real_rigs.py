@@ -30,8 +30,6 @@ KNOWN = {
     ('obstacle', 'kaykit_manny'): '0 joints and 1 mesh vertices inside the box',
     ('obstacle', 'godot_plush'): '0 joints and 6 mesh vertices inside the box',
     ('obstacle', 'godot_robot'): '0 joints and 2 mesh vertices inside the box',
-    ('clip_pops', 'kaykit_manny'): '6 pop frames (the clip itself 5)',
-    ('clip_pops', 'godot_plush'): '8 pop frames (the clip itself 5)',
 }
 if bpy.app.version < (4, 5, 0):
     # Measured on bpy 4.2.23 (4.5, 5.0 and 5.2: 0 pop frames, 29.5 deg): the swing shin as the toe-off pitches
