@@ -31,10 +31,6 @@ KNOWN = {
     ('obstacle', 'godot_plush'): '0 joints and 6 mesh vertices inside the box',
     ('obstacle', 'godot_robot'): '0 joints and 2 mesh vertices inside the box',
 }
-if bpy.app.version < (4, 5, 0):
-    # Measured on bpy 4.2.23 (4.5, 5.0 and 5.2: 0 pop frames, 29.5 deg): the swing shin as the toe-off pitches
-    # KayKit's long foot, raising the ankle over the floor by 60 mm in a frame.
-    KNOWN[('walk_pops', 'kaykit_manny')] = '1 pop frame (source 0), largest step 31.9 deg'
 
 
 # Rigs whose limbs are not chains, which the goals except ("a rig it cannot map gets one line naming the bone and
