@@ -27,13 +27,7 @@ REQUIRED = ("root", "trunk", "arm.L", "arm.R", "hand.L", "hand.R", "leg.L", "leg
 # (test, rig) -> the figure measured on the code this file was written against (bpy 5.0.1).
 KNOWN = {
     ('obstacle', 'kaykit_manny'): '0 joints and 1 mesh vertices inside the box',
-    ('clip_pops', 'kaykit_manny'): '6 pop frames (the clip itself 5)',
-    ('clip_pops', 'godot_plush'): '8 pop frames (the clip itself 5)',
 }
-if bpy.app.version < (4, 5, 0):
-    # Measured on bpy 4.2.23 (4.5, 5.0 and 5.2: 0 pop frames, 29.5 deg): the swing shin as the toe-off pitches
-    # KayKit's long foot, raising the ankle over the floor by 60 mm in a frame.
-    KNOWN[('walk_pops', 'kaykit_manny')] = '1 pop frame (source 0), largest step 31.9 deg'
 
 
 # Rigs whose limbs are not chains, which the goals except ("a rig it cannot map gets one line naming the bone and

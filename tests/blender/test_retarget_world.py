@@ -1,6 +1,6 @@
 """The character in the world: armature units and object scale are handled once, at the bridge
-(bridge/retarget_read.rig_of: the Rig's world matrix), and the facing comes from the skeleton
-(solver/retarget_rig.rest_forward). A source whose armature is a hundredth of the size, scaled up 100 times by
+(bridge/retarget/read.rig_of: the Rig's world matrix), and the facing comes from the skeleton
+(solver/retarget/rig.rest_forward). A source whose armature is a hundredth of the size, scaled up 100 times by
 its object, or a target in centimetres scaled by 0.01, retargets exactly as the plain ones, with the figures
 reported in world units (metres here); a target turned in its data keeps facing where it faces and walks that
 way as the source walks its own way."""

@@ -1,5 +1,5 @@
 """Retargeting measures joints and soles, never the tails an importer left, and takes the heading from the
-skeletons (solver/retarget/rig.py, retarget_soles.py, retarget_plan.py).
+skeletons (solver/retarget/rig.py, soles.py, plan.py).
 
 Rigs are the CMU skeletons of tests/solver/test_retarget.py: the same rig with its tails a hundred times as
 long (as Blender's glTF importer leaves them), turned in its data to face ±X/±Y, and with a skinned sole below

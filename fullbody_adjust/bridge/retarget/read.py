@@ -138,7 +138,7 @@ def pose_property(collection, prop, shape):
 def rig_of(obj, bone_map):
     """solver.retarget.Rig of an armature object, its groups from ``bone_map``: each bone's joint end
     (solver.joint_ends, from the rest matrices and rest tails) and each foot's sole from the meshes the
-    armature deforms (bridge/retarget_soles; the foot's joints where there is none). A control rig's Rig is
+    armature deforms (bridge/retarget/soles; the foot's joints where there is none). A control rig's Rig is
     its mapped skeleton alone (control_rig), in the metarig's hierarchy: the controls are posed from it."""
     if control_rig.is_generated_rigify(obj):
         return _skeleton_rig(obj, bone_map)

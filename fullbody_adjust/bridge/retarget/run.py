@@ -15,9 +15,9 @@
     write  every mapped target bone's rotation (and the root's location), one foreach_set per F-Curve, into a
            NEW action assigned to the target. The source and its action are only read, never changed; the
            target's previous action, if it has no other user, gets a fake user so it is kept.
-    measure how the result keeps the source's contacts, on its own bones (solver.retarget_metrics).
+    measure how the result keeps the source's contacts, on its own bones (solver.retarget.metrics).
 
-Reading is in retarget_read, writing in retarget_write; this module checks the input, plans, solves and
+Reading is in read, writing in write; this module checks the input, plans, solves and
 measures.
 """
 
@@ -46,7 +46,7 @@ class RetargetOutcome:
     """What a retarget did, world units. Per frame and effector (solver.retarget.EFFECTORS order):
     targets, residuals (effector -> target distance after the solve), status, contacts (held frames).
     contact_report: how the result keeps the source's contacts, measured on its own bones
-    (solver.retarget_metrics.contact_figures: per effector contact error, sliding, frames below the floor,
+    (solver.retarget.metrics.contact_figures: per effector contact error, sliding, frames below the floor,
     pops); contact_error (F,E): the result's contact error on contact frames, NaN elsewhere;
     contact_error_before: the same of the transferred motion before the adjustment."""
 

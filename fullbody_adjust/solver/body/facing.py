@@ -1,6 +1,6 @@
 """Where a skeleton faces at rest, from its leg joints alone (never its object's axes, never the tails an importer
 left): the one calculation behind the bone mapping's sides (bone_mapping/body_sides.py), the retarget's heading
-(retarget_rig.rest_forward) and the side elbows and knees bend to (rest_hinges.rest_facing).
+(rig.rest_forward) and the side elbows and knees bend to (rest_hinges.rest_facing).
 
 Up is given: world z for the mapping and the retarget, the hips -> shoulders direction for the rest hinges (which
 work in armature space); "across" below means perpendicular to up. The hip joints give the lateral line (else the

@@ -74,7 +74,7 @@ def step_lengths(points):
 def contact_figures(contacts, points, source_points, boxes, ground, leg, ratio, fps, reachable=None):
     """Per effector, how the result keeps the source's contacts. ``contacts`` {effector: [Contact]} (the
     source's); ``points`` and ``source_points`` {effector: (F,P,3)} world points of the result's and the
-    source's hand or foot (solver.retarget_rig.effector_points: the wrist or ankle, then the hand's joints or
+    source's hand or foot (solver.retarget.rig.effector_points: the wrist or ankle, then the hand's joints or
     the foot's sole, which sliding is measured on); ``boxes`` the contact objects' (mins,
     maxs) or None; ``ground`` the floor's height or None; ``leg`` the result's leg length, ``ratio`` its
     ratio to the source's; ``reachable`` {effector: (F,) bool} frames whose target was within reach (None:

@@ -5,7 +5,7 @@ bone channels. No bpy: the bridge (bridge/retarget/run.py) reads the rigs and ac
 Conventions. A ``Rig`` holds a skeleton's rest (``Bone.matrix_local``, armature space), its body-model groups
 (bone indices), its object's world matrix, each bone's joint end (solver/body/joint_ends.py: positions, lengths,
 reaches and segment directions are joints, never the tails an importer left) and each foot's sole (the lowest
-skinned vertices of the character's mesh, or the foot's joints without one: retarget_soles). Poses are
+skinned vertices of the character's mesh, or the foot's joints without one: soles). Poses are
 armature-space pose matrices (F,J,4,4), composed as Blender does (``pose = parent pose @ parent_rest^-1 @
 rest @ basis``; a connected bone ignores its location).
 Rotation channels follow Blender: Euler angles stored per axis, composed in the mode's order ('XYZ' is
@@ -29,12 +29,15 @@ Rz @ Ry @ Rx), quaternions (w, x, y, z), axis-angle (angle, x, y, z).
        proportional position (target bone centre k+½ of n ↔ source position (k+½)·m/n - ½, the rotation
        changes of the two nearest source bones blended);
      - fingers both rigs name (thumb, index, middle, ring, pinky), bone k from the base ↔ bone k, aligned as
-       their hand (retarget_fingers);
+       their hand (fingers);
      - hand ↔ hand, foot ↔ foot, head ↔ head (a tiny helper bone pointing anywhere, as the CMU hands, does
        not matter: hands and feet are aligned like their chain's last segment);
    unmapped target bones keep their local transform. The root translates so that the hip centre (midpoint
    of the hip joints) goes where the source's does, scaled about the ground below the rest hips by the
-   leg-length ratio (target/source, hip joint to ankle).
+   leg-length ratio (target/source, hip joint to ankle); with the floor a contact, the whole body then up or
+   down by as much as puts the target's soles on the floor on the frames the source's are lowest (each rig
+   has its own foot below the ankle: an ankle standing higher above its sole than the scaled source's would
+   bend the knees to stand; plan._resting_offsets).
 2. Effector targets (``plan_retarget``): free of contacts, wrists and ankles go where the transferred pose
    of step 1 puts them, so the solve leaves the limbs at the source's angles. Each effector's contacts come
    from what it touches in the source (contacts.detect_contacts: its slowest point still, speeds per second
@@ -50,19 +53,22 @@ Rz @ Ry @ Rx), quaternions (w, x, y, z), axis-angle (angle, x, y, z).
      - a hand on an object: still at the mean of the source's own world positions (exact) or its scaled
        ones (exact=False; scaled about the ground below the hips, by the leg ratio, turned by the heading).
    The heading: the source's motion is turned about world Z by the angle from the source skeleton's rest
-   forward to the target's (retarget_rig.rest_forward: the toes, else square across the hips, as solver/body/facing.py
+   forward to the target's (rig.rest_forward: the toes, else square across the hips, as solver/body/facing.py
    reads them; never the objects' axes), so the target faces its travel as the source faces its own: a source
    walking forward makes the target walk forward, whichever way either character faces in its file.
-   No foot goes below the floor. The whole body then shifts, smoothly, as its held hands and feet moved (on
-   average), and as far again as needed to bring every target within its limb's reach less a margin (see
-   ``RetargetSettings.reach_margin``); the free trajectories move with it, so only the held limbs are
-   solved.
+   A foot rolls onto its toes no further than lifts its ankle as the source's (scaled) and, where it is not
+   held, keeps its sole above the floor: turned back toes up about its ankle, so the leg moves as the
+   source's where a longer foot would dig into the floor (feet). No foot goes below the floor. The
+   whole body then shifts, smoothly, as its held hands and feet moved (on average), and as far again as
+   needed to bring every target within its limb's reach less a margin (see ``RetargetSettings.reach_margin``);
+   the free trajectories move with it, so only the held limbs are solved.
 3. Back to channels (``basis_from_pose`` + ``rotation_channel``): inverse kinematics of the pose matrices,
    rotations in each bone's mode, continuous from frame to frame.
 Distances in settings are in source leg lengths (so they hold for any unit and size), durations in seconds.
 
-Where things live: rotation_channels (Blender's rotation channels), retarget_rig (Rig, kinematics, measures),
-retarget_transfer (step 1), contacts (detection and holding), retarget_plan (step 2), retarget_metrics
+Where things live: rotation_channels (Blender's rotation channels), rig (Rig, kinematics, measures),
+transfer (step 1), contacts (detection and holding), plan (step 2), feet (the feet's
+toe roll), foot_pivots (what a planted foot turns about), metrics
 (measures of the result); this module holds the solve's side (body model, solved pose, motion limits) and
 names the whole API in one place.
 """

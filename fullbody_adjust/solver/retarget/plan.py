@@ -13,8 +13,9 @@ from ..errors import SolverInputError
 from .foot_pivots import held_still, pivot_bone, roll
 from ..maths.geometry import all_set, norm
 from ..body.joint_ends import end_points
+from .feet import limit_toe_roll
 from .rig import (EFFECTOR_CHAIN, EFFECTORS, FEET, Rig, ankle_above_sole, chain_joints, effector_joint,
-    effector_points, facing_turn, hip_centres, leg_length, rest_points, sole_heights)
+                  effector_points, facing_turn, hip_centres, leg_length, rest_points, sole_heights)
 from .transfer import carried_bones, transfer_pose, translate_body
 
 
@@ -86,7 +87,7 @@ class RetargetPlan:
     (the source's soles, Rig.soles), None when the floor is not a contact; boxes: the contact objects'
     world boxes (mins, maxs) or None; refit_feet(pose) the world targets with the feet held as shaped in
     another pose (the solved one); carried: target bones outside the bone map that take the source's motion
-    (fingers both rigs have: retarget_fingers), their start pose to be kept relative to their parents."""
+    (fingers both rigs have: fingers), their start pose to be kept relative to their parents."""
 
     start_pose: np.ndarray
     heads: np.ndarray
@@ -145,14 +146,20 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
         return anchor_t + ratio * (points @ heading.T - anchor_s)
 
     start = transfer_pose(turned, source_pose, target, target_basis, scaled(hip_centres(source, s_heads)))
-    t_heads, t_ends = target.world_points(start)
+    s_points = {e: effector_points(source, source_pose, e) for e in EFFECTORS}  # where the source touches things
     soles = ankle_above_sole(target, start)  # the transferred feet's own ankle heights above their soles
+    if ground:  # the body at the height where the feet stand on the floor as the source's do
+        ankles = np.stack([target.to_world(start[:, target.groups[e][0], :3, 3])[:, 2] for e in FEET], axis=1)
+        offsets = _resting_offsets(ankles, s_points, soles, floor, leg_s, settings)
+        if offsets:
+            translate_body(target, start, np.broadcast_to([0.0, 0.0, np.mean(list(offsets.values()))],
+                                                          (len(start), 3)))
+    t_heads, t_ends = target.world_points(start)
     frames = len(source_pose)
     blend = settings.frames(settings.blend_duration) if settings.blend_duration else 0
     contacts = np.zeros((frames, len(EFFECTORS)), dtype=bool)
-    found, s_points = {}, {}
+    found = {}
     for k, e in enumerate(EFFECTORS):
-        s_points[e] = effector_points(source, source_pose, e)  # where the source touches things
         found[e] = detect_contacts(e, s_points[e], floor if ground else None, boxes, leg_s, settings)
         for c in found[e]:
             contacts[c.start:c.stop, k] = True
@@ -162,6 +169,19 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     pivots = {e: pivot_bone(source, target, e) for e in FEET}
     pinned = {e: held_still(s_heads[:, pivots[e][0]], settings.fps, rule.plant_speed * leg_s,
                             rule.plant_height * leg_s) for e in FEET}
+
+    # Free of contacts, each wrist and ankle goes where the transferred pose puts it (its limb keeps the
+    # source's angles); the holds are blended into that.
+    free = np.stack([effector_joint(target, t_heads, t_ends, e) for e in EFFECTORS], axis=1)
+    own = free.copy()  # where the transferred limbs put each wrist and ankle: within reach, moving with the body
+    if ground:
+        _stand_in_place(free, found, s_points, soles, floor, leg_s, settings)
+        # Each foot rolls onto its toes no further than lifts its ankle as the source's does, nor than takes its
+        # sole below the floor where it is not held (feet): the leg, not the floor, moves the ankle.
+        feet = [EFFECTORS.index(e) for e in FEET]
+        limit_toe_roll(source, source_pose, target, start, ratio,
+                       np.where(contacts[:, feet], np.inf, free[:, feet, 2] - floor))
+        soles = ankle_above_sole(target, start)
 
     def held(paths, feet=start, soles=soles):
         """Targets (F,E,3): free trajectories ``paths`` (F,E,3) with the holds blended in; feet never below
@@ -187,12 +207,6 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
                 out[:, k, 2] += np.where(contacts[:, k], lift, _let_go(lift, step))  # a planted foot stays down
         return out
 
-    # Free of contacts, each wrist and ankle goes where the transferred pose puts it (its limb keeps the
-    # source's angles); the holds are blended into that.
-    free = np.stack([effector_joint(target, t_heads, t_ends, e) for e in EFFECTORS], axis=1)
-    own = free.copy()  # where the transferred limbs put each wrist and ankle: within reach, moving with the body
-    if ground:
-        _stand_in_place(free, found, s_points, soles, floor, leg_s, settings)
     # Every target within its limb's reach (see reach_margin): shift the whole body, smoothly, where needed;
     # the free trajectories move with it, and the feet's holds (centred on them); hands stay on their objects.
     bases, reach = [], []
@@ -206,7 +220,7 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     feet_first = [2.0 if e.startswith("hand") else 3.0 for e in EFFECTORS]
     # The body first moves as its held hands and feet moved. The free trajectories ride on the shift and the
     # holds blend in on top of it, so the shift changes by at most half the blend speed a frame: together
-    # they stay within what retarget_metrics counts as a pop (POP_SPEED).
+    # they stay within what metrics counts as a pop (POP_SPEED).
     targets = held(free)
     shift = body_shift(bases, targets, reach, feet_first, settings.reach_margin, settings.settle_margin, blend,
                        max_step=0.5 * step, preferred=_held_offset(targets, free, contacts, blend),
@@ -258,22 +272,44 @@ def _foot_path(contact, free, target_points, soles, on_surface, floor, ratio, pi
     return path
 
 
+def _resting_offsets(ankles, s_points, soles, floor, leg, settings):
+    """{foot index: how far (world z) its ankle must move so that its sole is on the floor on the frames the
+    source's is lowest (its lower half, the median there)}, of the feet that come down to the floor there (the
+    source's soles within the plant height, and _UNSEEN_FOOT, of it). ``ankles`` (F,2): the target's ankle
+    heights; ``soles`` (F,2): its ankles above their soles; ``s_points``: the source's effector points; ``leg``:
+    the source's leg length.
+
+    Scaled with the legs (hip joint to ankle), the target's ankles come down where the source's do, but each rig
+    has its own foot below the ankle: one whose ankle stands higher above its sole than the scaled source's would
+    stand in the floor (KayKit's and Godot's plush characters by a seventh to a quarter of a leg on Kenney's run),
+    and lifting its feet out of it bends its knees far more than the source's, most where the source's leg is
+    nearly straight. The body moves by the feet's mean offset instead, its legs as straight as the source's."""
+    near = floor + (settings.detection.plant_height + _UNSEEN_FOOT) * leg
+    out = {}
+    for i, (e, resting) in enumerate(zip(FEET, _resting(s_points).T)):
+        if np.median(s_points[e][resting, 1:, 2].min(axis=1)) <= near:
+            out[i] = float(np.median((floor + soles[:, i] - ankles[:, i])[resting]))
+    return out
+
+
+def _resting(s_points):
+    """(F,2) bool: per foot, the frames its sole is lowest in the source (the lower half of its heights)."""
+    low = np.stack([s_points[e][:, 1:, 2].min(axis=1) for e in FEET], axis=1)
+    return low <= np.percentile(low, 50, axis=0)
+
+
 def _stand_in_place(free, found, s_points, soles, floor, leg, settings):
     """A foot the source hardly ever holds still on the floor (planted on at most _HELD_STANCE of the frames:
     an in-place clip, whose stance slides under the body) but that comes down to it: its free trajectory in
     ``free`` (F,E,3, changed in place) raised or lowered as a whole, so that its sole is on the floor on the
-    frames the source's is lowest (its lower half, the median there). Whatever each rig's ankle height and
-    sole, the stance stands on the floor, and one height per foot adds no jerk. ``soles`` (F,2): the
-    target's ankles above their soles."""
-    near = floor + (settings.detection.plant_height + _UNSEEN_FOOT) * leg
-    for i, e in enumerate(FEET):
-        if sum(c.stop - c.start for c in found[e] if c.kind == GROUND) > _HELD_STANCE * len(free):
+    frames the source's is lowest (_resting_offsets). Whatever each rig's ankle height and sole, the stance
+    stands on the floor, and one height per foot adds no jerk. ``soles`` (F,2): the target's ankles above
+    their soles."""
+    ankles = free[:, [EFFECTORS.index(e) for e in FEET], 2]
+    for i, offset in _resting_offsets(ankles, s_points, soles, floor, leg, settings).items():
+        if sum(c.stop - c.start for c in found[FEET[i]] if c.kind == GROUND) > _HELD_STANCE * len(free):
             continue  # its stances are held on the floor
-        low = s_points[e][:, 1:, 2].min(axis=1)
-        resting = low <= np.percentile(low, 50)
-        if np.median(low[resting]) <= near:
-            k = EFFECTORS.index(e)
-            free[:, k, 2] += float(np.median((floor + soles[:, i] - free[:, k, 2])[resting]))
+        free[:, EFFECTORS.index(FEET[i]), 2] += offset
 
 
 def _let_go(lift, step):

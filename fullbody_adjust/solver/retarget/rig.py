@@ -37,8 +37,8 @@ class Rig:
     ends (J,3) or None: each bone's joint end in its own rest frame (joint_ends.joint_ends; None: found here
     from the rest tails and the groups). soles {foot group: (points (P,3) armature-space rest, bones (P,K)
     int, weights (P,K))} or None: the points of each foot's sole, skinned to the bones as a mesh vertex is
-    (bridge/retarget_soles reads the lowest vertices of the feet of the character's mesh); None or a foot
-    left out: its joints (retarget_soles.default_soles: ankle, toes, heel, no tail an importer made up).
+    (bridge/retarget/soles reads the lowest vertices of the feet of the character's mesh); None or a foot
+    left out: its joints (soles.default_soles: ankle, toes, heel, no tail an importer made up).
     skinned_soles: the feet whose soles are a mesh's (None: those given in ``soles``; a Rig copied with
     dataclasses.replace keeps them). After construction: ``lengths_joint`` (J,) the joint-to-joint rest
     lengths, ``sole_skin`` {foot: (bones,

@@ -4,7 +4,7 @@ character's mesh has, not on a joint.
 
 A sole is (points (P,3) in armature space at rest, bones (P,K) int, weights (P,K)): point p follows
 sum_k weights[p,k] * pose[bones[p,k]] @ rest[bones[p,k]]^-1 @ points[p] (weights summing to 1; a padding
-bone -1 weighs 0). bridge/retarget_soles reads them from the mesh (the lowest vertices of the foot); without a
+bone -1 weighs 0). bridge/retarget/soles reads them from the mesh (the lowest vertices of the foot); without a
 mesh a foot's sole is its joints (the heads of its bones: ankle, toes, heel; and the leaf tips an importer did
 not make up), each riding on its own bone."""
 

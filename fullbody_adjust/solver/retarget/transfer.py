@@ -27,7 +27,7 @@ class BonePair:
 
 
 def pair_bones(source, target):
-    """BonePairs for every mapped bone of ``target`` and every finger bone both rigs have (retarget_fingers),
+    """BonePairs for every mapped bone of ``target`` and every finger bone both rigs have (fingers),
     parents first.
 
     Alignment: limb segments (upper arm, forearm, thigh, shin, and the hand and foot like the segment they
@@ -74,7 +74,7 @@ def pair_bones(source, target):
                 continue  # no hand bone on one side: the other's hand rides on its forearm
             last = pairs.get(target.groups[chain][-1])
             pair(target.groups[end][0], source.groups[end], alignment=last.alignment if last else body)
-    # Fingers both rigs have (retarget_fingers), aligned as their hand is.
+    # Fingers both rigs have (fingers), aligned as their hand is.
     hands = {side: pairs[target.groups[f"hand.{side}"][0]].alignment for side in ("L", "R")
              if f"hand.{side}" in target.groups and f"hand.{side}" in source.groups}
     for t, s, alignment in finger_pairs(source, target, s_dirs, t_dirs, hands):
