@@ -12,8 +12,9 @@ The path, in world space (the rigs face -Y, Z up), three legs of equal step coun
 The other targets stay put: the left hand at its near point, the feet where they stand. Each step is one Live
 update; live_update_ms, live_floor_ms (the poses each update showed, replayed: bench/interactive.py) and
 blender_ik_ms (Blender's IK on the same path; on the generated rig its IK controls) give p50, p95, p99 and the
-worst update (ms); rig_evaluations_per_update (a control rig) is the mean over Live's updates; hand_residual
-the largest wrist-to-target distance in arm lengths at the start, the far point, back near and at the end.
+worst update (ms), and of each leg's updates (legs), Live's also those of its time in the solver (solver);
+rig_evaluations_per_update (a control rig) is the mean over Live's updates; hand_residual the largest
+wrist-to-target distance in arm lengths at the start, the far point, back near and at the end.
 """
 
 import numpy as np
@@ -75,6 +76,10 @@ def measure(scene, steps, timers, evaluations):
             evaluations.count = 0
             times = function(scene, "drag", steps)
             result[name] = percentiles([total for total, _outside in times])
+            if name == "live_update_ms":  # what of each update the solver took (the rest: reading, placing, Blender)
+                result[name]["solver"] = percentiles([total - outside for total, outside in times])
+            result[name]["legs"] = {leg: percentiles([total for total, _outside in part])
+                                    for leg, part in zip(LEGS, np.array_split(times, len(LEGS)))}
             if scene.residuals:
                 result[name]["hand_residual"] = dict(scene.residuals)
             if evaluations.count and name == "live_update_ms":
