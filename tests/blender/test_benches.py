@@ -20,7 +20,8 @@ def run_bench(tmp_path, name, *args):
 
 
 def test_interactive_bench_measures_every_rig_and_case(tmp_path):
-    report = run_bench(tmp_path, "interactive.py", "--repeat", "3")  # a median, not the first update alone
+    steps = 24
+    report = run_bench(tmp_path, "interactive.py", "--repeat", "3", "--steps", str(steps))  # a median, not one update
     assert set(report["rigs"]) == {"basic", "full", "generated"}
     for kind, rig in report["rigs"].items():
         assert set(rig["cases"]) == {"near", "far", "obstacle"}
@@ -37,6 +38,18 @@ def test_interactive_bench_measures_every_rig_and_case(tmp_path):
                     assert measures[name]["hand_residual"] > 0.1, (kind, name)  # 2.5 arm lengths away
                 else:
                     assert measures[name]["hand_residual"] < 1e-4, (kind, case, name)
+        drag = rig["drag"]  # the scripted drag: every update timed, Live's and the floor's and Blender's IK's
+        for name in ("live_update_ms", "live_floor_ms", "blender_ik_ms"):
+            figures = drag[name]
+            assert figures["steps"] == steps, (kind, name, figures)
+            assert 0.0 < figures["p50"] <= figures["p95"] <= figures["p99"] <= figures["worst"], (kind, name, figures)
+        assert drag["live_floor_ms"]["p50"] < drag["live_update_ms"]["p50"], kind
+        evaluations = drag["live_update_ms"].get("rig_evaluations_per_update")
+        assert (evaluations >= 1) if kind == "generated" else (evaluations is None), (kind, evaluations)
+        # The hand on its target where the path is within reach, far off at 2.5 arm lengths; Blender's IK acts.
+        residual = drag["live_update_ms"]["hand_residual"]
+        assert max(residual[at] for at in ("start", "back", "end")) < 1e-4 < 0.1 < residual["far"], (kind, residual)
+        assert drag["blender_ik_ms"]["hand_residual"]["start"] < 1e-3, (kind, drag["blender_ik_ms"])
 
 
 def test_ik_limits_bench_reads_the_limits_it_set(tmp_path):

@@ -1,6 +1,7 @@
 """Adjust Pose and Adjust Frames on generated Rigify rigs: the body is solved on the rig's ORG- skeleton and keyed
 on the controls an animator keys; success is measured on the evaluated deform (DEF-) bones the mesh follows."""
 
+import dataclasses
 import importlib
 
 import bpy
@@ -197,8 +198,7 @@ def test_an_ik_hand_control_is_placed_without_evaluating_the_trunk_move(extensio
         def pairs(*args, follows=follows, following=following):
             given = pairs_of(*args)
             following.update(p.control for p in given if p.follows_control)
-            return given if follows else [control_match.ControlPair(*(getattr(pair, f) for f in (
-                "control", "bone", "level", "end", "kind", "group"))) for pair in given]
+            return given if follows else [dataclasses.replace(pair, follows_control=False) for pair in given]
         monkeypatch.setattr(control_rig, "control_pairs", pairs)
         before = Pose(rig)
         reach_left_hand(rig, before, task)

@@ -25,7 +25,8 @@ tolerance or a sweep stops helping; the controls are left as the best sweep plac
 about as much as Blender's own IK on it, so a level is evaluated only when the moves since the last evaluation leave its
 pairs' matrices unknown: a rigid pair whose control hangs (in the pose hierarchy) below a control moved since, or below
 the bone that control drives, is carried by that move, control and bone alike, and is placed from the carried matrices;
-pairs of other limbs are unaffected (limbs are independent given the trunk, which carries them all); the bone of an IK
+pairs of other limbs are unaffected (limbs are independent given the trunk, which carries them all; a part of the trunk
+carries only the limbs its pairs say, ``carries``: a rig's hips control moves its legs, not its arms); the bone of an IK
 chain's end control stays with that control when a control it does not hang below moved (a clavicle, the trunk: the
 chain still reaches the control; where that does not hold, a chain that cannot reach or a control that follows a moved
 one through a constraint, as a Rigify IK parent switch makes it, the sweep's closing evaluation finds the error and the
@@ -58,7 +59,7 @@ _STALLED = 0.7
 _SLOPE_STEP = 1e-5
 _SLOPE_MIN = 0.2
 
-# The group of the trunk's pairs: a move of the trunk carries every limb.
+# The group of the trunk's pairs that carry the whole body: a move of one carries every limb.
 TRUNK_GROUP = "trunk"
 
 
@@ -78,6 +79,8 @@ class ControlPair:
     # chain reaches it): a move of a control it does not hang below is taken to leave the control, and so the bone,
     # where they were (module notes: the sweep's closing evaluation catches where that is wrong).
     follows_control: bool = False
+    # The groups besides its own whose bones a move of the control moves (a TRUNK_GROUP pair's: every group).
+    carries: tuple = ()
 
     @property
     def bends(self):
@@ -281,13 +284,14 @@ def _carried_or_apart(pair, pending, above):
     """How the moves ``pending`` (pair, step) since the last evaluation move ``pair``'s control and bone: the
     armature-space motion of the nearest moved control above it (the last one: levels are placed parents
     first, and a recorded step is the control's whole motion since the evaluation), the identity when only
-    other limbs moved, or None when a move may move it in a way not known without evaluating the rig (a move
-    of its own limb, or of the trunk, by a control it does not hang below)."""
+    other limbs (or parts of the trunk that do not carry its group) moved, or None when a move may move it in a
+    way not known without evaluating the rig (a move of its own limb, or of what carries it, by a control it
+    does not hang below)."""
     carry = np.eye(4)
     for moved, step in pending:
         groups = (moved.group, pair.group)
-        if None not in groups and TRUNK_GROUP not in groups and moved.group != pair.group:
-            continue  # another limb
+        if None not in groups and moved.group not in (pair.group, TRUNK_GROUP) and pair.group not in moved.carries:
+            continue  # another limb, or a part of the trunk that does not carry this one
         if None in groups or pair.kind != "rigid":
             return None
         if not {moved.control, moved.bone} & above[pair.control]:

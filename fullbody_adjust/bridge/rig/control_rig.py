@@ -6,7 +6,9 @@ body is solved on the ORG- bones, and the result is keyed on the controls (never
 
 - trunk: ``torso`` carries the whole body (paired with ``ORG-spine.002``, the spine's pivot), ``spine_fk`` the
   hips, ``tweak_spine.001`` the lower back, ``spine_fk.003`` the chest (Rigify's spine pivots in its middle,
-  so these are the controls that reach every trunk bone);
+  so these are the controls that reach every trunk bone). Moving ``spine_fk`` moves the hips, the lower back
+  and the legs, ``spine_fk.003`` the chest, the neck and the arms, ``tweak_spine.001`` the lower back alone
+  (measured on the basic rig): the hips' and the chest's pairs are groups of their own that carry those limbs;
 - clavicles: ``shoulder.L/R``;
 - a limb in FK: its FK controls (``upper_arm_fk``, ``forearm_fk``, ``hand_fk``; ``thigh_fk``...);
 - a limb in IK: the hand or foot IK control, the pole (``upper_arm_ik_target``) when the rig uses one, else the
@@ -39,9 +41,11 @@ _LIMBS = {
     "leg": ("thigh_parent", ("thigh", "shin", "foot"), ("thigh_fk", "shin_fk", "foot_fk"),
             "foot_ik", "thigh_ik_target", "thigh_ik"),
 }
-# Trunk bone (metarig name) -> (its control, level). Levels order the placement: parents' controls first.
-_TRUNK = {"spine.002": ("torso", 0), "spine": ("spine_fk", 1), "spine.003": ("spine_fk.003", 1),
-          "spine.001": ("tweak_spine.001", 2)}
+# Trunk bone (metarig name) -> (its control, level, its pairs' group, the limbs a move of the control carries).
+# Levels order the placement: parents' controls first.
+_HIPS, _CHEST = "hips", "chest"
+_TRUNK = {"spine.002": ("torso", 0, TRUNK_GROUP, ()), "spine": ("spine_fk", 1, _HIPS, ("leg.L", "leg.R")),
+          "spine.003": ("spine_fk.003", 1, _CHEST, ("arm.L", "arm.R")), "spine.001": ("tweak_spine.001", 2, _HIPS, ())}
 _CLAVICLE_LEVEL = 2
 
 
@@ -145,12 +149,12 @@ def control_pairs(obj, bone_map):
     mapped = {bone for _group, bone in bone_map.items()}
     pairs = []
 
-    def add(control, bone, level, end=None, kind="rigid", group=None, follows_control=False):
+    def add(control, bone, level, end=None, kind="rigid", group=None, follows_control=False, carries=()):
         if control in bones and bone in mapped:
-            pairs.append(ControlPair(control, bone, level, end, kind, group, follows_control))
+            pairs.append(ControlPair(control, bone, level, end, kind, group, follows_control, carries))
 
-    for name, (control, level) in _TRUNK.items():
-        add(control, ORG + name, level, group=TRUNK_GROUP)
+    for name, (control, level, group, carries) in _TRUNK.items():
+        add(control, ORG + name, level, group=group, carries=carries)
     for mode in limb_modes(obj):
         limb, side = mode.limb.split(".")
         _switch, chain, fk, ik_end, pole, ik_base = _LIMBS[limb]
