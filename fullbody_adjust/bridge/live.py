@@ -30,6 +30,7 @@ import bpy
 import numpy as np
 from bpy.app.handlers import persistent
 
+from ..solver.vocabulary import ROTATION_PROPERTY
 from . import adjustment
 from .reading import frames, obstacles, pose, start_checks
 from .writing import keyframes
@@ -112,7 +113,7 @@ def key_pose(context, obj):
     values = {}
     for name in names:
         pose_bone = bones[name]
-        rotation = pose.ROTATION_PROPERTY[pose_bone.rotation_mode]
+        rotation = ROTATION_PROPERTY[pose_bone.rotation_mode]
         props = {rotation: np.array(getattr(pose_bone, rotation), dtype=np.float64)}
         i = state.start.index(name)
         for prop in ("location", "scale"):  # as Adjust Pose: an unmoved location (or scale) is not keyed
@@ -319,7 +320,7 @@ def _restore(obj, state, frame, keep=()):
         if name in keep or pose_bone is None or name not in index:
             continue
         i = index[name]
-        for prop in ("location", pose.ROTATION_PROPERTY[pose_bone.rotation_mode], "scale"):
+        for prop in ("location", ROTATION_PROPERTY[pose_bone.rotation_mode], "scale"):
             value = channels[prop][i]
             if not np.array_equal(np.array(getattr(pose_bone, prop), dtype=np.float32), value.astype(np.float32)):
                 setattr(pose_bone, prop, tuple(float(v) for v in value))
