@@ -34,7 +34,8 @@ import numpy as np
 
 from ..maths import vectors as vec
 from .settings import UNCONSTRAINED, VARIANTS, AdjustBatchResult, AdjustResult, AdjustSettings
-from ..body.model import GROUPS, LIMB_OF_EFFECTOR, BodyModel, LimbLimits
+from ..body.model import GROUPS, LIMB_OF_EFFECTOR, BodyModel
+from ..limits.human import LimbLimits
 from ..errors import SolverInputError
 from ..maths.geometry import all_set, any_set, apply_matrix, norm
 from .limb_placement import LimbPlacement
@@ -80,9 +81,9 @@ def adjust_frames(model, heads, tails, targets, effectors, priorities=None, *, o
     heads, tails (F,J,3): world bone heads/tails at the start poses; targets (F,E,3) for the effector names
     `effectors` (E,) (from hand.L hand.R foot.L foot.R head), a NaN row meaning no target on that frame;
     priorities (E,) >= 0, higher wins (default all 1); obstacles: Boxes shared (K,3) or per frame (F,K,3);
-    limits: {limb name: body.LimbLimits} to replace the defaults (a limb missing from the dict is free);
+    limits: {limb name: human.LimbLimits} to replace the defaults (a limb missing from the dict is free);
     bone_x_axes: optional per-bone world axes (J,3)/(F,J,3) for the default hinge axes of straight elbows and
-    knees (the forearms' and shins' rows: body.default_limits);
+    knees (the forearms' and shins' rows: human.default_limits);
     end_turns (F,E,3,3): world rotation deltas wanted for the hand and foot bones (e.g. to a target's
     orientation), turned no further from where the forearm/shin carries them than END_SWING allows; a NaN
     entry (or None) keeps the bone's world orientation;
