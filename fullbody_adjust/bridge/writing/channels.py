@@ -13,8 +13,8 @@ rounding) as long as the rig allows it: a connected bone's head stays on its par
 non-uniform scale a rigid bone turning in world space changes its world length, so not every world
 matrix is reachable: the conversion then honours each bone's world head and world direction (its Y
 axis) exactly, takes its roll from the requested Z axis, and keeps the rig's bone lengths (fixed in
-armature space). A swing computed in armature space is always reachable. A caller that needs exact world lengths under non-uniform scale solves in armature
-space (``snapshot.matrix_world`` maps between the two).
+armature space). A swing computed in armature space is always reachable. A caller that needs exact world
+lengths under non-uniform scale solves in armature space (``snapshot.matrix_world`` maps between the two).
 
 Bone constraints are not evaluated by the conversion: channels are computed as if the moved bones had
 none (their evaluated pose is read, but a constraint still acts on the written channels).
