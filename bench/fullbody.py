@@ -2,7 +2,7 @@
 wrists and ankles as targets, errors against the captured pose) on mocap clips the default
 joint limits were not fitted on, for the product's default solve, with an ablation.
 
-Held-out split: body.HumanLimits were chosen on every shipped CMU clip, so they have seen them all. Here they are
+Held-out split: human.HumanLimits were chosen on every shipped CMU clip, so they have seen them all. Here they are
 refitted (bench/limits_fit.py: 99.9th percentile + margin, as HumanLimits' docstring describes) on FIT_CLIPS
 (walk, pickup, climb) only, and Table 1 is reported on HELD_OUT_CLIPS (jump, dance, and the walk on the Daz
 skeleton). The honest held-out figure is 'ours' (the refitted limits); 'ours_shipped_limits' (the defaults)
@@ -48,7 +48,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from fullbody_adjust.solver.fullbody.adjust import AdjustSettings, adjust_frames, adjust_pose  # noqa: E402
-from fullbody_adjust.solver.body.model import HumanLimits, default_limits  # noqa: E402
+from fullbody_adjust.solver.limits.human import HumanLimits, default_limits  # noqa: E402
 from fullbody_adjust.solver.maths.geometry import swing_rotation  # noqa: E402
 from command_line import whole_number_options  # noqa: E402
 from limits_fit import DAZ_CLIP, fit_limits, load_clip  # noqa: E402

@@ -11,7 +11,7 @@ and forward so the arm solves. Timed in this one process, --repeat times each, p
                  Limit Rotation on the left upper arm
   read_set       ik_limits.joint_limits alone on that rig (reading and conversion; this includes the default
                  limits it starts from, which the solver no longer computes itself when it is given limits)
-  defaults       body.default_limits alone (so read_set - defaults is what the reading adds to a solve)
+  defaults       human.default_limits alone (so read_set - defaults is what the reading adds to a solve)
 
 Prints one JSON object: the median and best time of each (ms) and the ratios read / adjust (medians). A rig
 whose limits keep a target out of reach makes the solve itself iterate longer: adjust_set against
@@ -37,7 +37,7 @@ from fullbody_adjust.bridge import adjustment  # noqa: E402
 from fullbody_adjust.bridge.reading import ik_limits  # noqa: E402
 from fullbody_adjust.bridge.reading import pose  # noqa: E402
 from fullbody_adjust.bridge.rig import rig_cache  # noqa: E402
-from fullbody_adjust.solver.body.model import default_limits  # noqa: E402
+from fullbody_adjust.solver.limits.human import default_limits  # noqa: E402
 
 
 def build_scene():

@@ -23,7 +23,7 @@ Each measure of a case starts from the rest pose without keys (clicks then go on
   *_over_ik       ours / Blender's, medians of the same run;
   live_floor_ms   Live Adjust's update with a solve that costs nothing: the same target moves, the handler, and
                   the pose each real update showed written again (the channels not at rest, through
-                  pose.apply_channels) and evaluated by Blender. What no solver can take off a Live update;
+                  channels.apply_channels) and evaluated by Blender. What no solver can take off a Live update;
                   live_floor_over_ik is the least live_update_over_ik could be;
   rig_evaluations_per_update  (the generated rig) how often placing its controls evaluated the rig, on average
                   per click or Live update: each evaluation costs about what Blender's IK update of that rig does
@@ -60,7 +60,9 @@ from fullbody_adjust.bpy_exit import leave  # noqa: E402
 from fullbody_adjust.bridge import adjustment, live  # noqa: E402
 from fullbody_adjust.bridge.rig import control_match  # noqa: E402
 from fullbody_adjust.bridge.reading import pose  # noqa: E402
+from fullbody_adjust.bridge.writing.channels import apply_channels  # noqa: E402
 from fullbody_adjust.bridge.rig import rig_cache  # noqa: E402
+from fullbody_adjust.solver.vocabulary import ROTATION_PROPERTY  # noqa: E402
 
 RIGS = ("basic", "full", "generated")
 CASES = ("near", "far", "obstacle")
@@ -144,10 +146,10 @@ class Scene:
 
     def posed(self):
         """{bone: {channel: values}} of the channels not at rest (reset() leaves every bone at rest), as
-        pose.apply_channels writes them."""
+        apply_channels writes them."""
         out = {}
         for bone in self.obj.pose.bones:
-            props = ("location", pose.ROTATION_PROPERTY[bone.rotation_mode], "scale")
+            props = ("location", ROTATION_PROPERTY[bone.rotation_mode], "scale")
             moved = {prop: np.array(getattr(bone, prop)) for prop in props
                      if tuple(getattr(bone, prop)) != REST_CHANNELS[prop]}
             if moved:
@@ -286,7 +288,7 @@ def time_live_floor(scene, case, repeat):
 
     def replay(context, obj, *args, **kwargs):
         pose_now = next(shown)
-        pose.apply_channels(obj, pose_now)
+        apply_channels(obj, pose_now)
         return SimpleNamespace(moved_bones=tuple(pose_now))
     solve = live.adjustment.adjust_pose
     live.adjustment.adjust_pose = replay

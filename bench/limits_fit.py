@@ -1,6 +1,6 @@
 """Fit the default human joint limits on some mocap clips, so other clips can be held out (bench/fullbody.py).
 
-body.HumanLimits says its cones and hinge ranges were chosen to hold every captured pose of the five CMU clips:
+human.HumanLimits says its cones and hinge ranges were chosen to hold every captured pose of the five CMU clips:
 the 99.9th percentile of each measured angle, plus a margin. This measures those angles the same way on any
 set of clips and turns them into a HumanLimits:
 
@@ -12,7 +12,7 @@ set of clips and turns them into a HumanLimits:
   knee      bend between thigh and shin (the upper end of the hinge range)
   neck      consecutive neck segments, the first against the trunk's last segment
 
-The directions the lumbar and hip cones are measured against come from body.default_limits itself, so they
+The directions the lumbar and hip cones are measured against come from human.default_limits itself, so they
 are the solver's. Fitted value = the 99.9th percentile + 5 deg, rounded up to a multiple of 5 deg (this rule
 gives the shipped lumbar, spine, shoulder, hip and neck values from the docstring's measurements). Not refitted,
 kept from the shipped defaults: the clavicle cone and the hinge twists (both measured between pairs of poses,
@@ -34,7 +34,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from fullbody_adjust.solver.body.model import BodyModel, HumanLimits, default_limits  # noqa: E402
+from fullbody_adjust.solver.body.model import BodyModel  # noqa: E402
+from fullbody_adjust.solver.limits.human import HumanLimits, default_limits  # noqa: E402
 from tests.helpers.bvh import CMU_CLIPS, CMU_GROUPS, DAZ_GROUPS, MOCAP_DIR, read_bvh, read_cmu  # noqa: E402
 
 DAZ_CLIP = "cmu_daz_02_01_walk.bvh"

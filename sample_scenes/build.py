@@ -37,7 +37,7 @@ import bpy  # noqa: E402  (first: it puts Blender's own modules, addon_utils amo
 import addon_utils  # noqa: E402
 
 import fullbody_adjust  # noqa: E402
-from fullbody_adjust.bridge import mapping, targets  # noqa: E402
+from fullbody_adjust.bridge.rig import mapping, targets  # noqa: E402
 
 MOCAP = Path(os.environ.get("FBA_MOCAP_DIR", REPO / "tests" / "data" / "mocap"))
 PICKUP_CLIP = "cmu_02_06_pickup_f0-1349.bvh"

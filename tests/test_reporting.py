@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 
 from fullbody_adjust.reporting import preview, summary
+from fullbody_adjust.reporting.canvas import GLYPH_HEIGHT, GLYPH_WIDTH, WHITE, Canvas, glyph_mask
+from fullbody_adjust.reporting.png import encode_png
 from fullbody_adjust.reporting.progress import ConsoleProgress, format_seconds
 
 EFFECTORS = ("hand.L", "hand.R", "foot.L", "foot.R", "head")
@@ -190,12 +192,12 @@ def decode_png(data):
 @given(st.integers(1, 40), st.integers(1, 40), st.integers(0, 2 ** 32 - 1))
 def test_png_round_trip(width, height, seed):
     image = np.random.default_rng(seed).integers(0, 256, (height, width, 3), dtype=np.uint8)
-    assert np.array_equal(decode_png(preview.encode_png(image)), image)
+    assert np.array_equal(decode_png(encode_png(image)), image)
 
 
 def test_png_rejects_a_grey_image():
     with pytest.raises(ValueError, match="H,W,3"):
-        preview.encode_png(np.zeros((4, 4), dtype=np.uint8))
+        encode_png(np.zeros((4, 4), dtype=np.uint8))
 
 
 # --- the figure ----------------------------------------------------------------------------------------------
@@ -236,14 +238,14 @@ def test_figure_size_matches_its_layout_and_survives_png():
     image = preview.render(data)
     layout = preview.Layout(data)
     assert image.shape == (layout.height, layout.width, 3)
-    decoded = decode_png(preview.encode_png(image))
+    decoded = decode_png(encode_png(image))
     assert np.array_equal(decoded, image)
-    assert _pixel(decoded, (layout.width - 1, layout.height - 1)) == preview.WHITE
+    assert _pixel(decoded, (layout.width - 1, layout.height - 1)) == WHITE
 
 
 def test_figure_draws_bones_targets_and_boxes_where_they_project():
     data = _figure()
-    image = decode_png(preview.encode_png(preview.render(data)))
+    image = decode_png(encode_png(preview.render(data)))
     layout = preview.Layout(data)
     last = len(data.snapshot_frames) - 1
     for view in range(len(preview.VIEWS)):
@@ -308,14 +310,14 @@ def test_a_single_frame_draws_dots():
 
 
 def test_text_uses_the_bitmap_font():
-    canvas = preview.Canvas(40, 12)
+    canvas = Canvas(40, 12)
     end = canvas.text(2, 3, "a1", preview.INK)
-    assert end == 2 + 2 * (preview.GLYPH_WIDTH + 1)
+    assert end == 2 + 2 * (GLYPH_WIDTH + 1)
     drawn = np.all(canvas.pixels == preview.INK, axis=-1)
-    h, w = preview.GLYPH_HEIGHT, preview.GLYPH_WIDTH
-    assert np.array_equal(drawn[3:3 + h, 2:2 + w], preview.glyph_mask("A"))  # lower case drawn as upper case
-    assert np.array_equal(drawn[3:3 + h, 8:8 + w], preview.glyph_mask("1"))
-    assert drawn.sum() == preview.glyph_mask("A").sum() + preview.glyph_mask("1").sum()
+    h, w = GLYPH_HEIGHT, GLYPH_WIDTH
+    assert np.array_equal(drawn[3:3 + h, 2:2 + w], glyph_mask("A"))  # lower case drawn as upper case
+    assert np.array_equal(drawn[3:3 + h, 8:8 + w], glyph_mask("1"))
+    assert drawn.sum() == glyph_mask("A").sum() + glyph_mask("1").sum()
 
 
 @pytest.mark.parametrize("count, wanted, rows", [(1, 4, [0]), (3, 4, [0, 1, 2]), (48, 4, [0, 16, 31, 47]),

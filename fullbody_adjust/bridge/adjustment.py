@@ -18,13 +18,14 @@ from ..solver import ChainSettings, SolverInputError
 from ..solver.fullbody.adjust import AdjustSettings, adjust_frames as solve_frames
 from ..solver.fullbody.settings import UNCONSTRAINED
 from ..solver.body.model import LIMB_OF_EFFECTOR
-from ..solver.maths.geometry import norm
+from ..solver.maths.geometry import affine_inverse, norm
 from ..solver.body.joint_ends import end_points
 from ..solver.obstacles.reach import body_reach, skeleton_reach
 from ..solver.obstacles.boxes import penetrations
 from .rig import control_rig, rig_cache, targets
 from .reading import frames as frames_module, ik_limits, limb_thickness, obstacles, pose, solve_space, start_checks
 from .writing import keyframes
+from .writing.channels import apply_channels, armature_rotations_to_channels
 from .rig.control_match import control_channels
 from .errors import AdjustError
 from .outcome import Outcome
@@ -175,13 +176,13 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
     elif names:
         # Both writers check all their input before writing any of it; the channels come from the snapshot
         # just read, so once keying has started the pose write cannot fail.
-        channels = pose.armature_rotations_to_channels(obj, snapshot,
-                                                       _new_pose_matrices(snapshot, result, unit, written), names)
+        channels = armature_rotations_to_channels(obj, snapshot,
+                                                  _new_pose_matrices(snapshot, result, unit, written), names)
         if options.insert_keys:
             action = keyframes.key_bones_frames(obj, None, frames, channels, action_name=options.new_action)
         if apply_pose:
-            pose.apply_channels(obj, {bone: {prop: v[0] for prop, v in props.items()}
-                                      for bone, props in channels.items()})
+            apply_channels(obj, {bone: {prop: v[0] for prop, v in props.items()}
+                                 for bone, props in channels.items()})
     progress("done", 1.0)
 
     if apply_pose and options.evaluated_residuals:
@@ -231,7 +232,7 @@ def _control_channels(context, obj, frames, snapshot, result, unit, bone_map, ke
             if oriented[targets.EFFECTORS.index(end)] or not bone_map.bones(end):
                 continue  # ... but one that takes its target's orientation (or is not mapped: no hand bone)
             k, p = position[bone_map.bones(end)[0]], position[bone_map.bones(limb)[-1]]
-            desired[:, k] = desired[:, p] @ pose.affine_inverse(old[:, p]) @ old[:, k]
+            desired[:, k] = desired[:, p] @ affine_inverse(old[:, p]) @ old[:, k]
     pairs = control_rig.control_pairs(obj, bone_map)
     if apply_pose:
         return control_channels(obj, context.view_layer, pairs, names, desired, tolerance, [0], start=snapshot)

@@ -14,9 +14,9 @@ once. They never keep bpy objects between calls (Undo and file loads replace the
 object name and the objects are looked up on each call. A live solve's error is stored for the panel,
 never raised out of a handler. Applying the pose makes Blender evaluate the armature again; that update
 is not a reason to solve (only a target's, pole's or obstacle's transform, the armature's object transform, a
-changed setting or the frame are). A setting changed (its property's update calls ``settings_changed``) marks
-the armature's Live solve pending and tags the armature, so the update that follows solves once, however many
-settings a script changes in between.
+changed setting or the frame are: bridge/live_updates.py tells). A setting changed (its property's update calls
+``settings_changed``) marks the armature's Live solve pending and tags the armature, so the update that follows
+solves once, however many settings a script changes in between.
 
 The obstacles' boxes are read once and kept (reading them goes through every object of the scene) until an update
 may have changed them: a mesh that does not move with the armature moved or changed (read at once, and when the
@@ -30,7 +30,8 @@ import bpy
 import numpy as np
 from bpy.app.handlers import persistent
 
-from . import adjustment
+from ..solver.vocabulary import ROTATION_PROPERTY
+from . import adjustment, live_updates
 from .reading import frames, obstacles, pose, start_checks
 from .writing import keyframes
 from .rig import rig_cache, targets
@@ -112,7 +113,7 @@ def key_pose(context, obj):
     values = {}
     for name in names:
         pose_bone = bones[name]
-        rotation = pose.ROTATION_PROPERTY[pose_bone.rotation_mode]
+        rotation = ROTATION_PROPERTY[pose_bone.rotation_mode]
         props = {rotation: np.array(getattr(pose_bone, rotation), dtype=np.float64)}
         i = state.start.index(name)
         for prop in ("location", "scale"):  # as Adjust Pose: an unmoved location (or scale) is not keyed
@@ -141,65 +142,19 @@ def _on_depsgraph_update(scene, depsgraph):
             gone = True
             continue
         state = _states[obj.name]
-        _follow_obstacles(obj, state, depsgraph)  # on every update: one that moved nothing may have changed them
+        # On every update: one that moved nothing may have changed them.
+        live_updates.follow_obstacles(obj, state, depsgraph)
         live.append((obj, state))
     moved = {update.id.name for update in depsgraph.updates
              if update.is_updated_transform and isinstance(update.id, bpy.types.Object)}
     for obj, state in live:
-        if obj.name in moved and _object_moved(obj, state):
+        if obj.name in moved and live_updates.object_moved(obj, state):
             state.stale = True  # the base pose's world matrices moved with the object
             _solve(obj, state, bpy.context)
-        elif state.pending or _inputs_moved(obj, moved - {obj.name}):
+        elif state.pending or live_updates.inputs_moved(obj, moved - {obj.name}):
             _solve(obj, state, bpy.context)
     if gone:
         _resync()  # Live switched off some other way (or the armature deleted): follow what the file says
-
-
-def _follow_obstacles(obj, state, depsgraph):
-    """Drop the obstacles ``state`` keeps when ``depsgraph``'s updates may have changed them. A changed obstacle mesh
-    has them read at once, and solves again only when the boxes did change: a mesh that follows the pose some other
-    way (a driver) changes with every pose shown, and would otherwise keep Live solving."""
-    changed = _obstacles_changed(obj, depsgraph)
-    if changed == _MESH_CHANGED:
-        kept = state.obstacle_corners
-        try:
-            state.obstacle_corners = obstacles.obstacle_boxes(obj, bpy.context)
-        except AdjustError:  # the solve says why
-            state.obstacle_corners = None
-        state.pending |= state.obstacle_corners is None or kept is None \
-            or not np.array_equal(kept, state.obstacle_corners)
-    elif changed:
-        state.obstacle_corners = None
-
-
-def _inputs_moved(obj, moved):
-    """Whether one of the objects named ``moved`` is a target or a pole of ``obj`` (obstacles: see
-    _obstacles_changed)."""
-    if not moved:
-        return False
-    slots = obj.fullbody_adjust.targets
-    return bool(moved & {ob.name for slot in slots for ob in (slot.target, slot.pole) if ob is not None})
-
-
-# What _obstacles_changed tells.
-_MESH_CHANGED = "mesh"  # an obstacle mesh moved or changed: read them at once, solve again if they differ
-_SCENE_CHANGED = "scene"  # the scene's objects or collections changed: read them again at the next solve
-
-
-def _obstacles_changed(obj, depsgraph):
-    """How ``depsgraph``'s updates may have changed the obstacles of ``obj``: _MESH_CHANGED when a mesh that does not
-    move with ``obj`` moved or changed (the character's own meshes, deformed by each pose shown, do not count);
-    else _SCENE_CHANGED when the scene or a collection was updated (objects linked, removed, shown, hidden: such
-    updates name them; so do many other changes, which is why they do not solve again by themselves); else None."""
-    scene = None
-    for update in depsgraph.updates:
-        data = update.id.original
-        if isinstance(data, (bpy.types.Scene, bpy.types.Collection)):
-            scene = _SCENE_CHANGED
-        elif (isinstance(data, bpy.types.Object) and data.type == 'MESH'
-              and (update.is_updated_transform or update.is_updated_geometry) and not obstacles.moves_with(data, obj)):
-            return _MESH_CHANGED
-    return scene
 
 
 @persistent
@@ -319,7 +274,7 @@ def _restore(obj, state, frame, keep=()):
         if name in keep or pose_bone is None or name not in index:
             continue
         i = index[name]
-        for prop in ("location", pose.ROTATION_PROPERTY[pose_bone.rotation_mode], "scale"):
+        for prop in ("location", ROTATION_PROPERTY[pose_bone.rotation_mode], "scale"):
             value = channels[prop][i]
             if not np.array_equal(np.array(getattr(pose_bone, prop), dtype=np.float32), value.astype(np.float32)):
                 setattr(pose_bone, prop, tuple(float(v) for v in value))
@@ -388,11 +343,6 @@ def _live_object(name):
         _states.pop(name, None)
         return None
     return obj
-
-
-def _object_moved(obj, state):
-    return state.start is not None and not np.allclose(np.array(obj.matrix_world), state.start.matrix_world,
-                                                        rtol=0.0, atol=1e-6)
 
 
 def _missing_targets(obj, scene):

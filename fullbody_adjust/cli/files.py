@@ -6,7 +6,7 @@ from dataclasses import dataclass
 import os
 
 from ..bridge import files as batch
-from ..reporting import preview
+from ..reporting import png
 from ..reporting.progress import ConsoleProgress, NoProgress
 
 
@@ -93,7 +93,7 @@ def write_text(path, text):
 
 def write_png(path, image):
     try:
-        preview.write_png(path, image)
+        png.write_png(path, image)
     except OSError as ex:
         raise CommandError(f"cannot write {path}: {ex.strerror}") from None
 

@@ -7,7 +7,8 @@ exported here; the parts (chains, limits, geometry) are imported from their modu
 
 from .fullbody.adjust import adjust_frames, adjust_pose
 from .fullbody.settings import UNCONSTRAINED, AdjustBatchResult, AdjustResult, AdjustSettings
-from .body.model import BodyModel, default_limits
+from .body.model import BodyModel
+from .limits.human import default_limits
 from .chain.settings import ChainSettings
 from .errors import SolverInputError
 from .obstacles.boxes import Boxes, penetrations

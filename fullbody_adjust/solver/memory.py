@@ -1,7 +1,7 @@
 """What solves of one body model keep for the solves after them, held by the model (BodyModel.memory): the caller
 that holds the model (the bridge keeps one per armature) holds this too, and a new model starts with nothing kept.
 
-Nothing here can be stale: every entry is keyed on all it was computed from (fullbody/prepared.py, body/model.py), or depends
+Nothing here can be stale: every entry is keyed on all it was computed from (fullbody/prepared.py, limits/human.py), or depends
 on the model alone.
 """
 
@@ -16,4 +16,4 @@ class SolveMemory:
         self.limb_records = OrderedDict()  # a limb's default limits, by everything they are computed from
         self.levels = None  # the model's (levels, leaves): the order the top-down pass places bones in
         self.group_bones = None  # the model's groups' bones for one reduceat per frame and group
-        self.checked_ranges = {}  # validated JointLimits per set of default ranges (body._checked_ranges)
+        self.checked_ranges = {}  # validated JointLimits per set of default ranges (human._checked_ranges)

@@ -7,7 +7,8 @@ import pytest
 
 from fullbody_adjust.bridge.errors import AdjustError
 from fullbody_adjust.bridge.writing.keyframes import key_bones_frames
-from fullbody_adjust.bridge.reading.pose import apply_channels, read_pose, world_rotations_to_channels
+from fullbody_adjust.bridge.reading.pose import read_pose
+from fullbody_adjust.bridge.writing.channels import apply_channels, world_rotations_to_channels
 
 from .scene_tools import key_bones
 

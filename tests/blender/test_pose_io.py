@@ -1,4 +1,5 @@
-"""Pose in (world space), rotations out (bridge/reading/pose.py), through the bpy wheel.
+"""Pose in (world space), rotations out (bridge/reading/pose.py, bridge/writing/channels.py), through
+the bpy wheel.
 
 Each test asks for new world matrices, converts and applies them, lets Blender evaluate the pose and
 reads the result back: the bones land where asked, bones outside the request keep their local channels
@@ -13,19 +14,15 @@ import numpy as np
 import pytest
 from mathutils import Euler, Matrix, Quaternion
 
-from fullbody_adjust.bridge.reading import pose as pose_module
+from fullbody_adjust.bridge.writing import channels as channels_module
 from fullbody_adjust.bridge.errors import AdjustError
 from fullbody_adjust.bridge.writing.keyframes import key_bones_frames
 from fullbody_adjust.solver.maths.geometry import affine_inverse
 from fullbody_adjust.solver.vocabulary import EULER_ORDERS
-from fullbody_adjust.bridge.reading.pose import (
+from fullbody_adjust.bridge.reading.pose import as_batch, evaluated_heads, read_pose, read_pose_frames, rotation_modes
+from fullbody_adjust.bridge.writing.channels import (
     apply_channels,
     armature_rotations_to_channels,
-    as_batch,
-    evaluated_heads,
-    read_pose,
-    read_pose_frames,
-    rotation_modes,
     world_rotations_to_channels,
 )
 
@@ -295,16 +292,16 @@ def test_one_frames_reachable_matrices_are_the_batch_paths_bit_for_bit():
     requested[..., 3, :] = (0.0, 0.0, 0.0, 1.0)
     pose_matrices = rng.normal(size=(frames, 9, 4, 4))
     idx = np.array([1, 2, 4, 5, 7, 8])
-    batch = pose_module._reachable_armature_matrices(SimpleNamespace(pose_matrices=pose_matrices), requested, idx)
+    batch = channels_module._reachable_armature_matrices(SimpleNamespace(pose_matrices=pose_matrices), requested, idx)
     for f in range(frames):
-        one = pose_module._reachable_armature_matrices(SimpleNamespace(pose_matrices=pose_matrices[f:f + 1]),
+        one = channels_module._reachable_armature_matrices(SimpleNamespace(pose_matrices=pose_matrices[f:f + 1]),
                                                        requested[f:f + 1], idx)
         assert one.shape == (1, k, 4, 4)
         assert one.tobytes() == batch[f:f + 1].tobytes()
     with pytest.raises(ValueError, match="Y axis"):
         flat = requested[:1].copy()
         flat[0, 2, :3, 1] = 0.0
-        pose_module._reachable_armature_matrices(SimpleNamespace(pose_matrices=pose_matrices[:1]), flat, idx)
+        channels_module._reachable_armature_matrices(SimpleNamespace(pose_matrices=pose_matrices[:1]), flat, idx)
 
 
 def test_what_a_snapshot_keeps_is_its_own():

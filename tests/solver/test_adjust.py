@@ -9,7 +9,8 @@ from hypothesis import strategies as st
 
 from fullbody_adjust.solver.fullbody.adjust import (AdjustSettings, adjust_frames, adjust_pose, nearest_in_balls,
                                            project_onto_balls, sub_base_point)
-from fullbody_adjust.solver.body.model import END, BodyModel, default_limits
+from fullbody_adjust.solver.body.model import END, BodyModel
+from fullbody_adjust.solver.limits.human import default_limits
 from fullbody_adjust.solver.errors import SolverInputError
 from fullbody_adjust.solver.maths.geometry import swing_rotation
 from fullbody_adjust.solver.limits.joint_limits import CONE, HINGE

@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from fullbody_adjust.solver.body.model import BodyModel, HumanLimits, default_limits
+from fullbody_adjust.solver.body.model import BodyModel
+from fullbody_adjust.solver.limits.human import HumanLimits, default_limits
 from fullbody_adjust.solver.errors import SolverInputError
 from fullbody_adjust.solver.maths.geometry import swing_rotation
 from fullbody_adjust.solver.limits.joint_limits import CONE, HINGE, JointLimits, hinge_twist_angle

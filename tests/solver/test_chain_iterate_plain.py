@@ -6,7 +6,7 @@ import pytest
 
 from fullbody_adjust.solver.chain.fabrik import solve_chain_batch
 from fullbody_adjust.solver.fullbody.adjust import adjust_frames
-from fullbody_adjust.solver.body.model import default_limits
+from fullbody_adjust.solver.limits.human import default_limits
 from fullbody_adjust.solver.chain.iterate_plain import PlainIterations
 from fullbody_adjust.solver.chain.model import ChainModel
 from fullbody_adjust.solver.obstacles.response import ObstacleResponse

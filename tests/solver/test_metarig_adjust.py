@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from fullbody_adjust.solver.fullbody.adjust import AdjustSettings, adjust_frames, adjust_pose
-from fullbody_adjust.solver.body.model import LimbLimits, default_limits
+from fullbody_adjust.solver.limits.human import LimbLimits, default_limits
 from fullbody_adjust.solver.obstacles.boxes import points_inside, segments_cross
 from tests.helpers import metarig
 

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from fullbody_adjust.solver.body import model as body
+from fullbody_adjust.solver.limits import human
 from fullbody_adjust.solver.maths import lanes
 from fullbody_adjust.solver.fullbody import limb_rotations as lr
 from fullbody_adjust.solver.limits.joint_limits import CONE, FREE, HINGE
@@ -71,7 +71,7 @@ def _hinge_frames(rng, n):
 
 
 def _hinge(parent, child, side, x):
-    return body._hinge_axis(parent, child, side, x, BENT)
+    return human._hinge_axis(parent, child, side, x, BENT)
 
 
 @pytest.mark.parametrize("with_x", [True, False])

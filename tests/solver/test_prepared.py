@@ -14,7 +14,7 @@ from hypothesis.extra.numpy import arrays
 
 from fullbody_adjust.solver.fullbody import prepared
 from fullbody_adjust.solver.fullbody.adjust import AdjustSettings, adjust_frames, adjust_pose
-from fullbody_adjust.solver.body.model import HumanLimits, default_limits
+from fullbody_adjust.solver.limits.human import HumanLimits, default_limits
 from fullbody_adjust.solver.chain.fabrik import solve_chain_batch
 from fullbody_adjust.solver.limits.joint_limits import CONE
 from tests.helpers import metarig

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from fullbody_adjust.solver.fullbody.adjust import adjust_pose
-from fullbody_adjust.solver.body.model import HumanLimits
+from fullbody_adjust.solver.limits.human import HumanLimits
 from fullbody_adjust.solver.body.rest_hinges import REST_BENT, rest_facing, rest_hinge_axes
 from tests.helpers import metarig
 from tests.helpers.rotations import about_axis

@@ -15,7 +15,7 @@ import pytest
 from fullbody_adjust.solver.fullbody import adjust
 from fullbody_adjust.solver.fullbody.adjust import adjust_frames
 from fullbody_adjust.solver.fullbody.settings import AdjustSettings
-from fullbody_adjust.solver.body.model import default_limits
+from fullbody_adjust.solver.limits.human import default_limits
 from fullbody_adjust.solver.errors import SolverInputError
 from fullbody_adjust.solver.limits.joint_limits import HINGE
 from fullbody_adjust.solver.limits.rig_limits import BoneLimitSpec, rig_limits

@@ -7,7 +7,7 @@ import pytest
 
 from fullbody_adjust.solver.fullbody import limb_placement
 from fullbody_adjust.solver.fullbody.adjust import adjust_frames
-from fullbody_adjust.solver.body.model import LimbLimits, default_limits
+from fullbody_adjust.solver.limits.human import LimbLimits, default_limits
 from fullbody_adjust.solver.limits.joint_limits import HINGE
 from fullbody_adjust.solver.obstacles.boxes import Boxes
 from tests.helpers import metarig

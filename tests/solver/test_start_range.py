@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from fullbody_adjust.solver.fullbody.adjust import AdjustSettings, adjust_pose
-from fullbody_adjust.solver.body.model import HumanLimits, default_limits
+from fullbody_adjust.solver.limits.human import HumanLimits, default_limits
 from fullbody_adjust.solver.limits.joint_limits import CONE, FREE, HINGE
 from fullbody_adjust.solver.limits.start_range import widened_ranges
 from tests.helpers import metarig

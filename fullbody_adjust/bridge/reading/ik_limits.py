@@ -14,7 +14,7 @@ keeps the solved pose and the pose Blender evaluates from it the same at any inf
 
 import numpy as np
 
-from ...solver.body.model import default_limits
+from ...solver.limits.human import default_limits
 from ...solver.maths.geometry import norm
 from ...solver.body.rest_hinges import rest_hinge_axes
 from ...solver.limits.rig_limits import AXES, BoneLimitSpec, rig_limits

@@ -7,9 +7,8 @@ from dataclasses import replace
 import numpy as np
 
 from ...solver import Boxes
-from ...solver.maths.geometry import norm
+from ...solver.maths.geometry import affine_inverse, norm
 from ...solver.body.joint_ends import end_points
-from . import pose
 
 
 def in_solve_units(settings, scales, unit):
@@ -38,7 +37,7 @@ def solve_space(snapshot, ends):
     under an object scale of 0.01 is solved in metres. The tails are where the bones end as joints (``ends``,
     rig_cache.Rig.ends), not where the importer left them."""
     unit = np.cbrt(np.linalg.det(snapshot.matrix_world[:, :3, :3]))
-    to_solve = unit[:, None, None] * pose.affine_inverse(snapshot.matrix_world)
+    to_solve = unit[:, None, None] * affine_inverse(snapshot.matrix_world)
     to_solve[:, 3] = (0.0, 0.0, 0.0, 1.0)
     out = (to_solve, transform(to_solve, snapshot.heads),
            unit[:, None, None] * end_points(snapshot.pose_matrices, ends), unit)

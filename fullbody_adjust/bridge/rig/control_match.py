@@ -43,7 +43,8 @@ from mathutils import Matrix
 
 from ...solver.maths import geometry_plain as g
 from ...solver.maths.geometry import affine_inverse
-from ..reading.pose import ROTATION_PROPERTY, continuous_rotation
+from ...solver.vocabulary import ROTATION_PROPERTY
+from ..writing.channels import continuous_rotation
 
 
 # A control counts as moved when an entry of its local matrix changed by more than this: its channels are

@@ -1,1 +1,1 @@
-"""Writing Blender data: keyframes straight into F-Curves."""
+"""Writing Blender data: solved transforms as pose bones' channels, and keyframes straight into F-Curves."""

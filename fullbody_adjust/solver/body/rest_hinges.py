@@ -1,7 +1,7 @@
 """Elbows and knees bend in the plane their joints show at rest, not about an axis the bone's roll happens to give.
 
 The default hinge of an elbow or knee whose start pose is (nearly) straight needs an axis the start pose cannot
-give (body.LimitStart). A bone's X axis is that axis on rigs whose rolls were set for it (Rigify's shins turn
+give (human.LimitStart). A bone's X axis is that axis on rigs whose rolls were set for it (Rigify's shins turn
 about their X axes; its forearms about an X axis 11.6 degrees off the arm's rest plane), but an importer sets
 rolls as it likes (glTF, FBX with automatic bone orientation off), and a far reach about such an axis swings the
 knees sideways into an X. So the axis is found at REST from joint positions (bone heads, never tails) and the
@@ -25,7 +25,7 @@ import math
 
 import numpy as np
 
-from .model import HumanLimits
+from ..limits.human import HumanLimits
 from .facing import skeleton_facing
 from ..maths.geometry import any_perpendicular, cross, dot, norm, normalize
 

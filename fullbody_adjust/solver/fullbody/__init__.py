@@ -1,1 +1,2 @@
-"""The full-body adjustment (paper §5, Algorithm 1): sub-bases, reach balls, the trunk's curl, placing the limbs, bone rotations out."""
+"""The full-body adjustment (paper §5, Algorithm 1): its input checked, sub-bases, reach balls, the trunk's curl,
+placing the limbs, bone rotations out, each effector's outcome."""

@@ -21,10 +21,11 @@ bend plane, and the forearm / shin then turns relative to it about the hinge axi
 Everything is vectorised over frames; a frame's result depends only on its own data (chain solves mask
 converged problems and every other step is row-wise), so adjust_pose equals a row of adjust_frames.
 
-Modules: fullbody/settings.py (settings, results), fullbody/reach_balls.py (sub-base geometry), fullbody/sub_bases.py (step 1),
-fullbody/trunk_curl.py (the spine's curl: the lean's radius and the trunk solve's start),
-fullbody/limb_placement.py (steps 2-4: the chain solves and the top-down pass that places the bones),
-chain/two_bone_start.py (a hinged limb's warm start), fullbody/limb_rotations.py (bone rotations), fullbody/prepared.py (the work that
+Modules: fullbody/settings.py (settings, results), fullbody/inputs.py (the input checked), fullbody/reach_balls.py
+(sub-base geometry), fullbody/sub_bases.py (step 1), fullbody/trunk_curl.py (the spine's curl: the lean's radius and
+the trunk solve's start), fullbody/limb_placement.py (steps 2-4: the chain solves and the top-down pass that places
+the bones), chain/two_bone_start.py (a hinged limb's warm start), fullbody/limb_rotations.py (bone rotations),
+fullbody/outcome.py (each effector's residual, status and reason; the result), fullbody/prepared.py (the work that
 depends only on the start pose, kept while it is the same: Live's updates share it).
 """
 
@@ -32,17 +33,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..maths import vectors as vec
 from .settings import UNCONSTRAINED, VARIANTS, AdjustBatchResult, AdjustResult, AdjustSettings
-from ..body.model import GROUPS, LIMB_OF_EFFECTOR, BodyModel, LimbLimits
+from ..body.model import LIMB_OF_EFFECTOR, BodyModel
+from ..limits.human import LimbLimits
 from ..errors import SolverInputError
-from ..maths.geometry import all_set, any_set, apply_matrix, norm
+from ..maths.geometry import any_set, apply_matrix, norm
+from .inputs import check_limits, checked_inputs, end_goals
 from .limb_placement import LimbPlacement
 from .limb_rotations import LimbSolve, chest_rotation
-from ..limits.joint_limits import FREE
+from .outcome import batch_result, effector_outcome
 from ..obstacles.reach import body_reach, reachable_boxes
-from ..obstacles.boxes import Boxes
-from .prepared import group_bones, prepare
+from .prepared import prepare
 from .reach_balls import nearest_in_balls, project_onto_balls, sub_base_point
 from .sub_bases import SubBasePlacement
 
@@ -80,9 +81,9 @@ def adjust_frames(model, heads, tails, targets, effectors, priorities=None, *, o
     heads, tails (F,J,3): world bone heads/tails at the start poses; targets (F,E,3) for the effector names
     `effectors` (E,) (from hand.L hand.R foot.L foot.R head), a NaN row meaning no target on that frame;
     priorities (E,) >= 0, higher wins (default all 1); obstacles: Boxes shared (K,3) or per frame (F,K,3);
-    limits: {limb name: body.LimbLimits} to replace the defaults (a limb missing from the dict is free);
+    limits: {limb name: human.LimbLimits} to replace the defaults (a limb missing from the dict is free);
     bone_x_axes: optional per-bone world axes (J,3)/(F,J,3) for the default hinge axes of straight elbows and
-    knees (the forearms' and shins' rows: body.default_limits);
+    knees (the forearms' and shins' rows: human.default_limits);
     end_turns (F,E,3,3): world rotation deltas wanted for the hand and foot bones (e.g. to a target's
     orientation), turned no further from where the forearm/shin carries them than END_SWING allows; a NaN
     entry (or None) keeps the bone's world orientation;
@@ -108,48 +109,13 @@ class _Problem(SubBasePlacement, LimbPlacement):
                  bone_x_axes):
         self.model = model
         self.settings = settings
-        j = len(model.names)
-        self.H0 = _frames_array(heads, "heads", (j, 3))
-        self.T0 = _frames_array(tails, "tails", (j, 3))
+        checked = checked_inputs(model, heads, tails, targets, effectors, priorities, obstacles)
+        self.H0, self.T0, self.effectors = checked.heads, checked.tails, checked.effectors
         F = self.F = self.H0.shape[0]
-        if self.T0.shape[0] != F:
-            raise SolverInputError(f"heads have {F} frames but tails {self.T0.shape[0]}")
-        if isinstance(effectors, str):
-            raise SolverInputError("effectors must be a sequence of effector names")
-        self.effectors = tuple(effectors)
-        for e in self.effectors:
-            if e not in LIMB_OF_EFFECTOR:
-                raise SolverInputError(f"unknown effector {e!r} (use hand.L hand.R foot.L foot.R head)")
-            if e not in model.effectors:
-                raise SolverInputError(f"effector {e!r} needs a head group with neck bones and a head bone")
-        if len(set(self.effectors)) != len(self.effectors):
-            raise SolverInputError("an effector is listed twice")
-        E = len(self.effectors)
-        t = np.asarray(targets, dtype=np.float64)
-        if t.shape != (F, E, 3):
-            raise SolverInputError(f"targets must have shape ({F},{E},3), got {t.shape}")
-        nan_rows = np.isnan(t).all(axis=2)
-        if any_set(~np.isfinite(t) & ~nan_rows[..., None]):
-            raise SolverInputError("target has NaN/inf (a target row must be all finite, or all NaN for none)")
-        self.targets = t
-        self.active_e = ~nan_rows
-        if priorities is None:
-            pr = np.ones(E)
-        else:
-            pr = np.asarray(priorities, dtype=np.float64)
-            if pr.shape != (E,):
-                raise SolverInputError(f"priorities must have shape ({E},), got {pr.shape}")
-            if not all_set(np.isfinite(pr)) or any_set(pr < 0):
-                raise SolverInputError("priorities must be finite numbers >= 0")
-        self.priorities = pr
-        if obstacles is not None:
-            if not isinstance(obstacles, Boxes):
-                raise SolverInputError("obstacles must be Boxes")
-            if obstacles.batched and obstacles.mins.shape[0] != F:
-                raise SolverInputError(f"per-frame boxes have {obstacles.mins.shape[0]} frames, expected {F}")
-            if len(obstacles) == 0:
-                obstacles = None
-        self.obstacles = obstacles
+        t = self.targets = checked.targets
+        self.active_e = checked.active
+        pr = self.priorities = checked.priorities
+        self.obstacles = checked.obstacles
 
         # Limb chains at the start poses and their reach (read-only, kept with the prepared start pose).
         self.prepared = prepare(model, self.H0, self.T0, settings, bone_x_axes)
@@ -176,7 +142,7 @@ class _Problem(SubBasePlacement, LimbPlacement):
         if limits is None:
             limits = self.prepared.limits  # the solver's own, made to fit: not checked again on every solve
         else:
-            _check_limits(model, limits, F)
+            check_limits(model, limits, F)
         self.limits = limits
         self.iterations = np.zeros(F, dtype=np.int64)
         self.end_turns, self.limb_pole = {}, {}
@@ -184,21 +150,7 @@ class _Problem(SubBasePlacement, LimbPlacement):
     def set_end_goals(self, end_turns, poles):
         """Per limb: the end bone's wanted world rotation deltas (F,3,3) and the pole points (F,3), NaN rows
         where none (see adjust_frames); limbs without any are left out."""
-        F, E = self.F, len(self.effectors)
-        for label, given, shape, store in (("end_turns", end_turns, (F, E, 3, 3), self.end_turns),
-                                           ("poles", poles, (F, E, 3), self.limb_pole)):
-            if given is None:
-                continue
-            given = np.asarray(given, dtype=np.float64)
-            if given.shape != shape:
-                raise SolverInputError(f"{label} must have shape {shape}, got {given.shape}")
-            for k, e in enumerate(self.effectors):
-                rows = given[:, k].reshape(F, -1)
-                unset = np.isnan(rows).all(axis=1)
-                if any_set(~np.isfinite(rows) & ~unset[:, None]):
-                    raise SolverInputError(f"{label} for {e} have NaN/inf (all NaN for none)")
-                if e != "head" and not all_set(unset):
-                    store[LIMB_OF_EFFECTOR[e]] = given[:, k]
+        self.end_turns, self.limb_pole = end_goals(self.effectors, self.F, end_turns, poles)
 
     def _subset(self, rows):
         """The same problem restricted to frames `rows` (a fresh iteration count)."""
@@ -314,81 +266,10 @@ class _Problem(SubBasePlacement, LimbPlacement):
         return self._result(heads, tails, rotations, limb_solves)
 
     def _result(self, heads, tails, rotations, solves) -> AdjustBatchResult:
-        model, F = self.model, self.F
-        if F == 1:
-            residuals, status, reasons = self._effector_outcome_one_frame(heads, tails, solves)
-        else:
-            residuals, status, reasons = self._effector_outcome(heads, tails, solves)
-        moved = np.zeros((F, len(GROUPS)), dtype=bool)
-        bone_moved = ((heads != self.H0) | (tails != self.T0)).any(axis=2)  # (F,J)
-        columns, bones, starts = group_bones(model)
-        if columns.size:
-            moved[:, columns] = np.logical_or.reduceat(bone_moved[:, bones], starts, axis=1)
-        chest = model.groups["trunk"][-1]
-        sc_disp = norm(tails[:, chest] - self.T0[:, chest])
-        root_disp = norm(heads[:, model.root] - self.H0[:, model.root])
-        return AdjustBatchResult(heads, tails, rotations, self.effectors, residuals, status, reasons, moved, GROUPS,
-                                 self.iterations.copy(), sc_disp, root_disp)
-
-    def _effector_outcome_one_frame(self, heads, tails, solves):
-        """_effector_outcome of one frame, effector by effector in plain floats and strings (the same distances;
-        numpy's per-call cost on five values was most of it)."""
-        tol = self.settings.chain.tolerance
-        trunk = solves["trunk"]
-        trunk_stuck = bool(trunk.solved[0]) and trunk.status[0] in ("blocked", "limited")
-        residuals, status, reasons = [], [], []
-        for k, e in enumerate(self.effectors):
-            name = LIMB_OF_EFFECTOR[e]
-            if not self.active_e[0, k]:
-                residuals.append(np.nan)
-                status.append(UNCONSTRAINED)
-                reasons.append("no target on this frame")
-                continue
-            limb = self.model.limbs[name]
-            res = vec.norm(vec.sub(limb.end_point(heads[0], tails[0]).tolist(), self.targets[0, k].tolist()))
-            st, why = solves[name].status[0], solves[name].reason[0]
-            if res <= tol:
-                st, why = "reached", why or "reached"
-            else:
-                if st == "reached":  # met by its chain, then moved (cannot happen with rigid propagation)
-                    st, why = "unreachable", "moved off its target after the chain solve"
-                if st == "unreachable" and limb.hub == "sc" and trunk_stuck:
-                    st, why = trunk.status[0], f"the trunk could not bring the SC into reach: {trunk.reason[0]}"
-            residuals.append(res)
-            status.append(st)
-            reasons.append(why)
-        return np.array([residuals]), np.array([status], dtype=str), np.array([reasons], dtype=str)
-
-    def _effector_outcome(self, heads, tails, solves):
-        """(residuals, status, reasons) (F,E) of the effectors: each limb's end against its target, and why."""
-        model = self.model
-        tol = self.settings.chain.tolerance
-        # Every effector at once (F,E): each limb's end against its target.
-        names = [LIMB_OF_EFFECTOR[e] for e in self.effectors]
-        act = self.active_e
-        pos = np.stack([model.limbs[name].end_point(heads, tails) for name in names], axis=1) if names else \
-            np.zeros((self.F, 0, 3))
-        res = norm(pos - np.where(act[..., None], self.targets, 0.0))
-        residuals = np.where(act, res, np.nan)
-        met = act & (res <= tol)
-        st = np.stack([solves[name].status for name in names], axis=1).astype(object)
-        why = np.stack([solves[name].reason for name in names], axis=1).astype(object)
-        # Met by its chain, then moved (cannot happen with rigid propagation).
-        moved_off = act & ~met & (st == "reached")
-        st[moved_off] = "unreachable"
-        why[moved_off] = "moved off its target after the chain solve"
-        trunk = solves["trunk"]
-        t_st = np.asarray(trunk.status)
-        trunk_stuck = np.asarray(trunk.solved) & ((t_st == "blocked") | (t_st == "limited"))
-        on_sc = np.array([model.limbs[name].hub == "sc" for name in names])
-        by_trunk = act & ~met & (st == "unreachable") & on_sc & trunk_stuck[:, None]
-        for f, k in zip(*np.nonzero(by_trunk)):
-            st[f, k], why[f, k] = trunk.status[f], f"the trunk could not bring the SC into reach: {trunk.reason[f]}"
-        st[met] = "reached"
-        why[met & (why == "")] = "reached"
-        status = np.where(act, st, UNCONSTRAINED)
-        reasons = np.where(act, why, "no target on this frame")
-        return residuals, status.astype(str), reasons.astype(str)
+        outcome = effector_outcome(self.model, self.effectors, self.targets, self.active_e,
+                                   self.settings.chain.tolerance, heads, tails, solves)
+        return batch_result(self.model, self.H0, self.T0, self.effectors, self.iterations.copy(), heads, tails,
+                            rotations, outcome)
 
 
 def _take_limits(limits, rows):
@@ -396,34 +277,3 @@ def _take_limits(limits, rows):
     axes, ref = limits.hinge_axis, limits.hinge_reference
     return limits.derived(hinge_axis=axes[rows] if axes.ndim == 3 else axes,
                           hinge_reference=ref[rows] if ref is not None and ref.ndim == 3 else ref)
-
-
-def _check_limits(model, limits, F):
-    """A caller's limits {limb name: LimbLimits} for F frames of ``model``: SolverInputError (one line) if they
-    do not fit."""
-    if not isinstance(limits, dict) or any(not isinstance(v, LimbLimits) for v in limits.values()):
-        raise SolverInputError("limits must be a dict of limb name -> LimbLimits")
-    for name, ll in limits.items():
-        if name not in model.limbs:
-            raise SolverInputError(f"limits given for unknown limb {name!r}")
-        m = model.limbs[name].n_joints - 1
-        if len(ll.limits) != m:
-            raise SolverInputError(f"limits for {name!r} cover {len(ll.limits)} joints, the chain has {m}")
-        if ll.limits.hinge_axis.ndim == 3 and ll.limits.hinge_axis.shape[0] != F:
-            raise SolverInputError(f"limits for {name!r}: per-frame hinge axes need {F} frames")
-        pd = ll.parent_direction
-        if pd is not None and (np.shape(pd) != (F, 3) or not all_set(np.isfinite(pd))):
-            raise SolverInputError(f"limits for {name!r}: parent_direction must be finite, shape ({F},3)")
-        if pd is None and ll.limits.kind[0] != FREE:
-            raise SolverInputError(f"limits for {name!r}: joint 0 is limited but has no parent_direction")
-
-
-def _frames_array(a, label, shape):
-    arr = np.asarray(a, dtype=np.float64)
-    if arr.ndim != 3 or arr.shape[1:] != shape:
-        raise SolverInputError(f"{label} must have shape (F,{shape[0]},{shape[1]}), got {arr.shape}")
-    if arr.shape[0] == 0:
-        raise SolverInputError(f"{label} have no frames")
-    if not all_set(np.isfinite(arr)):
-        raise SolverInputError(f"{label} have NaN/inf")
-    return arr

@@ -6,7 +6,7 @@ tails, bone X axes) and the settings it depends on, so an entry can never be sta
 is a different key.
 
   - the limbs' start chains and their reach;
-  - the default human limits of every limb (body.default_limits);
+  - the default human limits of every limb (human.default_limits);
   - the model's hierarchy levels (the order the top-down pass visits the bones in) and its groups' bones (which
     groups a result moved), once per model.
 
@@ -16,14 +16,15 @@ longer frame range is prepared for its one solve only.
 
 A start pose that is new may still share limbs with a recent one: Adjust Pose solves from the pose the click
 before it keyed, in which only the limbs that moved differ. A limb's default limits and its start check are
-therefore also kept per limb (SolveMemory.limb_records), keyed on everything they are computed from (body.LimitStart.inputs
+therefore also kept per limb (SolveMemory.limb_records), keyed on everything they are computed from (human.LimitStart.inputs
 and the settings), so a limb whose inputs are the same bit for bit gets the very same limits without
 computing them.
 """
 
 import numpy as np
 
-from ..body.model import CHAIN, END, FIXED, ROOT, LimitStart
+from ..body.model import CHAIN, END, FIXED, ROOT
+from ..limits.human import LimitStart
 from ..chain.settings import _reach_bounds
 from ..errors import SolverInputError
 from ..maths.geometry import any_set, norm

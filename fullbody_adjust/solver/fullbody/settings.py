@@ -7,7 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..body.model import LIMB_NAMES, HumanLimits
+from ..body.model import LIMB_NAMES
+from ..limits.human import HumanLimits
 from ..chain.fabrik import ChainSettings
 from ..errors import SolverInputError
 from ..obstacles.surface import LimbSurface
@@ -24,7 +25,7 @@ class AdjustSettings:
         is served, lower ones best effort), 'fabrik' (unweighted mean, plain FABRIK's centroid);
     feet_first: ankle tasks have the highest priority at the root (paper §5.2.2); False: the root uses
         `variant` with the tasks' own priorities;
-    use_limits: apply the default human joint limits (body.HumanLimits) when no limits are passed;
+    use_limits: apply the default human joint limits (human.HumanLimits) when no limits are passed;
     reach_margin: a sub-base that must move is placed so the limbs end this fraction short of full stretch:
         FABRIK converges slowly on a nearly straight chain (200 iterations leave ~1e-4 of a 0.3 m chain at
         0.1 % short; 1 % short converges in ~90), and a slightly bent elbow looks more natural anyway;

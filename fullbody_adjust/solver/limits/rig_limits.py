@@ -42,7 +42,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..body.model import BodyModel, LimbLimits
+from ..body.model import BodyModel
+from .human import LimbLimits
 from ..errors import SolverInputError
 from ..maths.geometry import (all_set, any_perpendicular, any_set, apply_matrix, cross, dot, norm, normalize,
     rotate_about_axis)
@@ -96,7 +97,7 @@ class BoneLimitSpec:
 
 
 def rig_limits(defaults, model: BodyModel, heads, tails, rotations, specs) -> dict:
-    """`defaults` ({limb name: LimbLimits}, e.g. body.default_limits) with every chain joint whose bone has a
+    """`defaults` ({limb name: LimbLimits}, e.g. human.default_limits) with every chain joint whose bone has a
     spec that limits its direction replaced by the rig's own limit (module docstring).
 
     heads, tails (F,J,3) and rotations (F,J,3,3) (each bone's axes as columns, any scale) at the start poses,

@@ -1,6 +1,6 @@
 """A start pose outside the default joint ranges is the rig's own range there: the ranges widen to hold it.
 
-The default human limits (body.HumanLimits) bound the MOTION a solve makes. A character whose start pose lies
+The default human limits (human.HumanLimits) bound the MOTION a solve makes. A character whose start pose lies
 outside them (an imported rig whose legs rest past the default hip cone, an arm turned further than the default
 shoulder allows, an elbow folded beyond the default hinge range) is not "corrected": each range is widened just
 enough to hold the start pose of every frame given, so a limb that has to move is never pulled back toward the

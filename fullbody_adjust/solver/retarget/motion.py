@@ -79,7 +79,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..body.model import BodyModel, HumanLimits, LimbLimits, default_limits
+from ..body.model import BodyModel
+from ..limits.human import HumanLimits, LimbLimits, default_limits
 from ..maths.geometry import apply_matrix, cross, dot, norm
 from ..limits.joint_limits import HINGE
 # The retargeting API in one namespace (the bridge and tests use ``retarget.X``).
@@ -134,7 +135,7 @@ _CLEARLY_BENT = 0.2
 
 
 def motion_limits(model, start_pose, heads, tails, human=HumanLimits(), bone_x_axes=None):
-    """Joint limits for adjusting the frames of a motion: body.default_limits of the start poses, except
+    """Joint limits for adjusting the frames of a motion: human.default_limits of the start poses, except
     each elbow and knee hinge axis, which is fixed in its upper bone's frame (upper arm, thigh) as a real
     elbow or knee is, found from the frames where the limb is clearly bent (their bend axes, weighted by
     how bent). Per-frame axes guessed from each pose alone switch between the bend plane and a fallback as
