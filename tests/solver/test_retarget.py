@@ -327,6 +327,37 @@ def test_an_a_pose_target_points_its_limbs_where_the_source_points():
         np.testing.assert_allclose(s_rot[:, s] @ s_rest[s].T, t_rot[:, t] @ t_rest[t].T, atol=1e-9)
 
 
+def test_hips_swung_by_moving_the_thighs_turn_the_target_pelvis():
+    """Some game rigs swing the hips by moving the thighs' heads, the pelvis bone turning less or not at all
+    (KayKit's run: location keys on upperleg.l/r). The source here is the walk with its pelvis held at rest and
+    its hip joints where the walk puts them: the target's hips' line turns as the source's does on every frame
+    (before: it kept its rest direction), and a rigid pelvis still turns exactly as its bone does."""
+    source = cmu_rig(WALK)
+    target = cmu_rig(WALK, scale=1.1, rolls=0.3)
+    pose = source_pose(WALK, source, FRAMES)
+    pelvis = source.groups["root"][0]
+    left, right = source.groups["leg.L"][0], source.groups["leg.R"][0]
+
+    def hip_lines(rig, p):
+        heads = world_heads(rig, p)
+        line = heads[:, rig.groups["leg.L"][0]] - heads[:, rig.groups["leg.R"][0]]
+        return line / np.linalg.norm(line, axis=-1, keepdims=True)
+
+    swung = pose.copy()
+    swung[:, pelvis, :3, :3] = source.rest[pelvis, :3, :3]  # the pelvis bone does not turn...
+    lines = hip_lines(source, swung)  # ...its hip joints do (they keep the walk's positions)
+    turned = np.degrees(angle_between(lines, lines[:1])).max()
+    assert turned > 5.0  # the walk's hips do swing
+    basis = np.tile(np.eye(4), (len(target), 1, 1))
+    moved = rt.transfer_pose(source, swung, target, basis, np.zeros((len(FRAMES), 3)))
+    np.testing.assert_allclose(hip_lines(target, moved), lines, atol=1e-9)
+    rigid = rt.transfer_pose(source, pose, target, basis, np.zeros((len(FRAMES), 3)))
+    t = target.groups["root"][0]
+    s_turn = world_rotations(source, pose)[:, pelvis] @ world_rotations(source, source.rest[None])[0, pelvis].T
+    t_turn = world_rotations(target, rigid)[:, t] @ world_rotations(target, target.rest[None])[0, t].T
+    np.testing.assert_allclose(t_turn, s_turn, atol=1e-9)
+
+
 def test_a_two_bone_trunk_follows_a_three_bone_one():
     """Counts differ: target trunk bones take the blended changes of the source bones at the same
     proportional place, so the chest (SC) direction from the pelvis follows the source's."""

@@ -21,7 +21,8 @@ Rz @ Ry @ Rx), quaternions (w, x, y, z), axis-angle (angle, x, y, z).
    clavicles, neck and head are aligned by the rest body frames only (facing and up): there the rigs differ
    by anatomy rather than pose (the CMU clavicle runs from the mid back up to the shoulder, Rigify's along
    the shoulder line), so the target keeps its own spine curve and shoulder line and takes the source's
-   changes. Pairing (``pair_bones``):
+   changes; the pelvis's change is that of its hip joints' line and its bone's axis across it (a rig that swings
+   its hips by moving the thighs' heads turns the target's pelvis too). Pairing (``pair_bones``):
      - root ↔ root;
      - arm and leg chains pair from the effector end (forearm ↔ forearm, upper arm ↔ upper arm, clavicle ↔
        clavicle); a target bone left over (a clavicle the source lacks) rides rigidly on its parent;

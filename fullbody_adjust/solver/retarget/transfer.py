@@ -124,6 +124,36 @@ def carried_bones(source, target):
     return tuple(sorted(p.target for p in pair_bones(source, target) if p.target not in mapped))
 
 
+def _pelvis_turn(source, source_pose):
+    """(F,3,3) the pelvis's turn since rest in the source's armature space, from its hip joints: the change of
+    the frame of the hips' line and the pelvis bone's axis most across it (of a rigid pelvis, its own rotation
+    change). Some game rigs swing the hips by moving the thighs' heads (KayKit's run: location keys on
+    upperleg.l/r turn the hips' line 30 degrees each way while the pelvis bone only pitches): the pelvis turns as
+    its joints do. None where the hip joints coincide."""
+    left, right = source.groups["leg.L"][0], source.groups["leg.R"][0]
+    pelvis = source.groups["root"][0]
+    rest = unit_columns(source.rest[pelvis, :3, :3])
+    line = source.rest[left, :3, 3] - source.rest[right, :3, 3]
+    size = float(norm(line))
+    if not size > 1e-9 * max(float(norm(source.rest[left, :3, 3])), 1e-300):
+        return None
+    k = int(np.argmin(np.abs(rest.T @ (line / size))))  # the bone axis most across the hips' line
+
+    def frames(lines, axes):
+        lateral = lines / norm(lines)[..., None]
+        up = axes - np.sum(axes * lateral, axis=-1, keepdims=True) * lateral
+        up = up / norm(up)[..., None]
+        return np.stack([lateral, up, np.cross(lateral, up)], axis=-1)
+
+    pose = np.asarray(source_pose, dtype=np.float64)
+    lines = pose[:, left, :3, 3] - pose[:, right, :3, 3]
+    if not np.all(norm(lines) > 1e-9 * size):
+        return None
+    now = frames(lines, unit_columns(pose[:, pelvis, :3, :3])[..., k])
+    before = frames(line, rest[:, k])
+    return now @ before.T
+
+
 def transfer_pose(source, source_pose, target, target_basis, hips):
     """Target pose (F,Jt,4,4, armature space) carrying the source's motion (source_pose (F,Js,4,4), source
     armature space): mapped bones take the aligned world rotation change of their source bones, unmapped
@@ -140,6 +170,11 @@ def transfer_pose(source, source_pose, target, target_basis, hips):
     changes = target.rotation.T @ source.rotation @ unit_columns(
         np.ascontiguousarray(source_pose[:, used][..., :3, :3])) @ np.ascontiguousarray(np.swapaxes(s_rest, -1, -2))
     change_of = {s: k for k, s in enumerate(used)}
+    pelvis = source.groups["root"][0]
+    if pelvis in change_of:
+        turn = _pelvis_turn(source, source_pose)
+        if turn is not None:
+            changes[:, change_of[pelvis]] = target.rotation.T @ source.rotation @ turn @ source.rotation.T
     t_rest = target.rotation @ unit_columns(target.rest[:, :3, :3])
     armature_rot = {}  # target bone -> (F,3,3) rotation in the target's armature space
     for pair in pairs:
