@@ -430,4 +430,4 @@ def test_a_gltf_clip_carries_the_take_asked_for_or_its_longest(cli, capsys, tmp_
     angles = np.degrees(np.arccos(np.clip(np.sum(result * source, axis=-1), -1.0, 1.0)))
     swing = np.degrees(np.arccos(np.clip(np.sum(source[1:] * source[:-1], axis=-1), -1.0, 1.0))).sum(axis=0)
     assert swing.min() > 60.0  # the clip's legs do swing: a still result would fail below
-    assert np.median(angles) < 10.0, np.round(angles, 1)
+    assert np.median(angles) < 2.0, np.round(angles, 1)  # measured 0.23 (9.1 before the pelvis turned as its hips)
