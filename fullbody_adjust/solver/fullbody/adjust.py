@@ -102,8 +102,12 @@ def adjust_frames(model, heads, tails, targets, effectors, priorities=None, *, o
 # ----------------------------------------------------------------------------------------------------------
 # The solve
 
-class _Problem(SubBasePlacement, LimbPlacement):
-    _PER_FRAME_DICTS = SubBasePlacement._PER_FRAME_DICTS + ("end_turns", "limb_pole")
+class _Problem:
+    """One adjustment of F frames: its inputs and per-frame state, the sub-bases placed by ``sub_bases``
+    (SubBasePlacement) and the limbs by ``limbs`` (LimbPlacement), both working on this problem."""
+
+    _PER_FRAME = ("H0", "T0", "targets", "active_e", "iterations")
+    _PER_FRAME_DICTS = ("chain0", "reach", "reach_eff", "limb_target", "limb_active", "end_turns", "limb_pole")
 
     def __init__(self, model, heads, tails, targets, effectors, priorities, obstacles, settings, limits,
                  bone_x_axes):
@@ -146,6 +150,11 @@ class _Problem(SubBasePlacement, LimbPlacement):
         self.limits = limits
         self.iterations = np.zeros(F, dtype=np.int64)
         self.end_turns, self.limb_pole = {}, {}
+        self._own_parts()
+
+    def _own_parts(self):
+        self.limbs = LimbPlacement(self)
+        self.sub_bases = SubBasePlacement(self, self.limbs)
 
     def set_end_goals(self, end_turns, poles):
         """Per limb: the end bone's wanted world rotation deltas (F,3,3) and the pole points (F,3), NaN rows
@@ -167,6 +176,7 @@ class _Problem(SubBasePlacement, LimbPlacement):
                       for k, v in self.limits.items()}
         if self.obstacles is not None:
             sub.obstacles = self.obstacles.select(rows)
+        sub._own_parts()
         return sub
 
     def solve(self) -> AdjustBatchResult:
@@ -214,13 +224,13 @@ class _Problem(SubBasePlacement, LimbPlacement):
 
     def _solve_once(self) -> AdjustBatchResult:
         F = self.F
-        upper = self._upper()
+        upper = self.sub_bases._upper()
         trunk0 = self.chain0["trunk"]
         sc0 = trunk0[:, -1]
         offsets0 = {n: self.chain0[n][:, 0] - sc0 for n in upper}
 
         rows = np.arange(F)
-        delta, sc_star, trunk_joints, trunk_solved, t_status, t_reason = self._sub_bases(rows, offsets0)
+        delta, sc_star, trunk_joints, trunk_solved, t_status, t_reason = self.sub_bases._sub_bases(rows, offsets0)
         # The chest turns, and the arm bases with it: re-place the SC with the turned offsets (fixed point).
         # A frame whose turned offsets moved less than the tolerance since its last placement would get the same
         # SC again (within tolerance): it stops there (a target out of reach converges to such a fixed point).
@@ -243,7 +253,7 @@ class _Problem(SubBasePlacement, LimbPlacement):
             if not any(any_set(far[n] & changed) for n in upper):
                 break
             if fixable is None:  # the same on every pass: it depends on the start offsets only
-                fixable = self._fixable(upper, offsets0)
+                fixable = self.sub_bases._fixable(upper, offsets0)
             retry = np.zeros(F, dtype=bool)
             for n in upper:
                 # A limb that may still reach is re-placed while its base moves at all; one that cannot, only
@@ -257,12 +267,12 @@ class _Problem(SubBasePlacement, LimbPlacement):
             for n in upper:
                 placed_with[n] = placed_with[n].copy()
                 placed_with[n][r] = offsets[n]
-            out = self._sub_bases(r, offsets, force_sc=np.ones(r.size, dtype=bool))
+            out = self.sub_bases._sub_bases(r, offsets, force_sc=np.ones(r.size, dtype=bool))
             delta[r], sc_star[r], trunk_joints[r] = out[0], out[1], out[2]
             trunk_solved[r], t_status[r], t_reason[r] = out[3], out[4], out[5]
 
         trunk = LimbSolve(trunk_joints, trunk_solved, t_status, t_reason)
-        heads, tails, rotations, limb_solves = self._propagate(delta, trunk)
+        heads, tails, rotations, limb_solves = self.limbs._propagate(delta, trunk)
         return self._result(heads, tails, rotations, limb_solves)
 
     def _result(self, heads, tails, rotations, solves) -> AdjustBatchResult:

@@ -1,5 +1,5 @@
 """Steps 2-4 of Algorithm 1 (paper §5): the top-down pass that places every bone once the sub-bases are known,
-solving each limb from its base riding on its parent (LimbPlacement, mixed into adjust._Problem; it uses the
+solving each limb from its base riding on its parent (LimbPlacement, owned by adjust._Problem; it uses the
 problem's chains, targets, limits, obstacles and settings)."""
 
 from dataclasses import dataclass
@@ -20,8 +20,14 @@ from ..chain.two_bone_start import two_bone_start
 _EYE_ROWS = _EYE.tolist()
 
 
-class LimbPlacement(ClearanceEasing):
-    """The limbs' chain solves and the pass that places every bone from them."""
+class LimbPlacement:
+    """The limbs' chain solves and the pass that places every bone from them, for the problem ``p``
+    (adjust._Problem: its chains, targets, limits, obstacles and settings); ``easing`` retries the limbs their
+    clearance kept from their targets."""
+
+    def __init__(self, problem):
+        self.p = problem
+        self.easing = ClearanceEasing(problem, self)
 
     def _solve(self, name, rows, start, targets, carry=None):
         """solve_chain_batch on frames `rows` of limb `name` from chains `start` (b,n,3) to `targets` (b,3):
@@ -48,19 +54,19 @@ class LimbPlacement(ClearanceEasing):
         rows = stack_rows([t.rows for t in tasks])
         start = stack_rows([t.start for t in tasks])
         targets = stack_rows([t.targets for t in tasks])
-        pole = stack_rows([self.limb_pole[t.name][t.rows] if t.name in self.limb_pole
+        pole = stack_rows([self.p.limb_pole[t.name][t.rows] if t.name in self.p.limb_pole
                             else np.full((len(t.rows), 3), np.nan) for t in tasks])
         kwargs = {}
         pole_placed = False
-        ll = self.limits.get(tasks[0].name)
+        ll = self.p.limits.get(tasks[0].name)
         if ll is not None and ll.limits.any_active:
-            parts = [self.limits[t.name].for_chains(self.chain0[t.name][t.rows], t.rows, t.carry) for t in tasks]
+            parts = [self.p.limits[t.name].for_chains(self.p.chain0[t.name][t.rows], t.rows, t.carry) for t in tasks]
             lim = JointLimits.stack([part[0] for part in parts])
             pdir = None if parts[0][1] is None else stack_rows([part[1] for part in parts])
             axes, reference = lim.hinge_axis, lim.hinge_reference
             m = len(lim)
             if lim.kind[m - 1] == HINGE and m >= 2:
-                warm = np.nonzero((norm(start[:, -1] - targets) > self.settings.chain.tolerance)
+                warm = np.nonzero((norm(start[:, -1] - targets) > self.p.settings.chain.tolerance)
                                   | np.isfinite(pole[:, 0]))[0]
                 if warm.size:
                     at_start = carry_axis(axes[warm, m - 1], reference[warm, m - 1],
@@ -75,14 +81,14 @@ class LimbPlacement(ClearanceEasing):
             start = start.copy()
             start[pending] = two_bone_start(start[pending], targets[pending], np.zeros((pending.size, 3)),
                                             pole[pending])
-        if self.obstacles is not None:
+        if self.p.obstacles is not None:
             kwargs["obstacles"] = self._limb_boxes([(t.name, t.rows, t.start[:, 0], t.targets) for t in tasks], ease)
-        res = solve_chain_batch(start, targets, settings=self.settings.chain, **kwargs)
+        res = solve_chain_batch(start, targets, settings=self.p.settings.chain, **kwargs)
         out = [res] if len(tasks) == 1 else _split(res, [len(t.rows) for t in tasks])
         for t, r in zip(tasks, out):
-            self.iterations[t.rows] += r.iterations  # per task: two limbs' rows may be the same frames
-        if self.obstacles is not None and not retry:
-            self._eased(tasks, out)
+            self.p.iterations[t.rows] += r.iterations  # per task: two limbs' rows may be the same frames
+        if self.p.obstacles is not None and not retry:
+            self.easing._eased(tasks, out)
         return out
 
     def _limb_boxes(self, parts, ease=1.0):
@@ -91,8 +97,8 @@ class LimbPlacement(ClearanceEasing):
         obstacles.grown_clear_of: less near its base and target); the frames' boxes as they are where no limb
         of them has one (the paper's behaviour)."""
         rows = stack_rows([part[1] for part in parts])
-        boxes = self.obstacles.select(rows)
-        clearance = [ease * self.settings.clearance_of(part[0]) for part in parts]
+        boxes = self.p.obstacles.select(rows)
+        clearance = [ease * self.p.settings.clearance_of(part[0]) for part in parts]
         if not any(clearance):
             return boxes
         keep_out = np.stack([stack_rows([part[2] for part in parts]), stack_rows([part[3] for part in parts])], 1)
@@ -101,7 +107,7 @@ class LimbPlacement(ClearanceEasing):
     def _stack_key(self, task):
         """What limbs solved in one stacked chain solve must share: the chain length and, when limited, the
         per-joint limits and whether joint 0 has a parent direction."""
-        ll = self.limits.get(task.name)
+        ll = self.p.limits.get(task.name)
         if ll is None or not ll.limits.any_active:
             return task.start.shape[1], None
         return task.start.shape[1], ll.limits.per_joint_key(), ll.parent_direction is None
@@ -110,13 +116,13 @@ class LimbPlacement(ClearanceEasing):
         """Top-down pass over the bones, one hierarchy level at a time: new heads, tails and world rotation
         deltas; limbs other than the trunk are solved when their first bone is reached (their base then rides
         on its parent)."""
-        if self.F == 1:
+        if self.p.F == 1:
             return self._propagate_one_frame(delta, trunk)
         return self._propagate_frames(delta, trunk)
 
     def _propagate_frames(self, delta, trunk):
         """_propagate on F frames at once, numpy on every level."""
-        model, F, H0, T0 = self.model, self.F, self.H0, self.T0
+        model, F, H0, T0 = self.p.model, self.p.F, self.p.H0, self.p.T0
         J = len(model.names)
         heads = H0.copy()
         rot = np.empty((F, J, 3, 3))
@@ -124,7 +130,7 @@ class LimbPlacement(ClearanceEasing):
         moved = np.zeros((F, J), dtype=bool)
         solves = {"trunk": trunk}
 
-        for rigid, par, limb_bones in self.prepared.levels:
+        for rigid, par, limb_bones in self.p.prepared.levels:
             # Rigid children of their parents (overridden below for solved chain bones); where the parent did
             # not move, a bone stays as initialised (its parent's rotation is then the identity).
             _carry(heads, rot, moved, H0, rigid, par)
@@ -143,7 +149,7 @@ class LimbPlacement(ClearanceEasing):
                     s = ls.solved
                     if any_set(s):
                         heads[s, j] = ls.joints[s, k]
-                        rot[s, j] = ls.segment_rotations(self.chain0[name], self.limits.get(name))[s, k]
+                        rot[s, j] = ls.segment_rotations(self.p.chain0[name], self.p.limits.get(name))[s, k]
                         moved[s, j] = True
                 else:
                     ls = solves[name]
@@ -153,11 +159,11 @@ class LimbPlacement(ClearanceEasing):
                         heads[s, j] = ls.joints[s, -1]
                         rot[s, j] = _EYE
                         moved[s, j] = True
-                    if name in self.end_turns:  # ... or turn toward a wanted orientation
-                        w = np.nonzero(np.isfinite(self.end_turns[name][:, 0, 0]))[0]
-                        rot[w, j] = end_rotation(self.end_turns[name][w], rot[w, p], T0[w, j] - H0[w, j])
+                    if name in self.p.end_turns:  # ... or turn toward a wanted orientation
+                        w = np.nonzero(np.isfinite(self.p.end_turns[name][:, 0, 0]))[0]
+                        rot[w, j] = end_rotation(self.p.end_turns[name][w], rot[w, p], T0[w, j] - H0[w, j])
                         moved[w, j] = True
-        _carry(heads, rot, moved, H0, *self.prepared.leaves)  # fingers, face...: on their nearest placed ancestor
+        _carry(heads, rot, moved, H0, *self.p.prepared.leaves)  # fingers, face...: on their nearest placed ancestor
         tails = np.where(moved[..., None], heads + apply_matrix(rot, T0 - H0), T0) if any_set(moved) else T0.copy()
         return heads, tails, rot, solves
 
@@ -165,7 +171,7 @@ class LimbPlacement(ClearanceEasing):
         """_propagate on one frame with its levels' per-bone steps in plain floats (the same operations:
         geometry_plain's products add as einsum does); the limbs' solves, the leaves (fingers, face: many bones
         at once) and the tails in numpy as there."""
-        model, H0, T0 = self.model, self.H0, self.T0
+        model, H0, T0 = self.p.model, self.p.H0, self.p.T0
         J = len(model.names)
         h0 = H0[0].tolist()
         heads = list(h0)
@@ -173,7 +179,7 @@ class LimbPlacement(ClearanceEasing):
         moved = [False] * J
         solves = {"trunk": trunk}
         shift = delta[0].tolist()
-        for rigid, par, limb_bones in self.prepared.levels:
+        for rigid, par, limb_bones in self.p.prepared.levels:
             _carry_one(heads, rot, moved, h0, rigid.tolist(), par.tolist())
             starts = {name: (np.array([heads[j]]), None if p < 0 else np.array([_EYE if rot[p] is None else rot[p]]),
                              np.array([p >= 0 and moved[p]]))
@@ -188,12 +194,12 @@ class LimbPlacement(ClearanceEasing):
                 ls = solves[name]
                 if ls.solved[0]:
                     heads[j] = ls.joints[0, k if role == CHAIN else -1].tolist()
-                    rot[j] = (ls.segment_rotations(self.chain0[name], self.limits.get(name))[0, k].tolist()
+                    rot[j] = (ls.segment_rotations(self.p.chain0[name], self.p.limits.get(name))[0, k].tolist()
                               if role == CHAIN else _EYE_ROWS)
                     moved[j] = True
-                if role != CHAIN and name in self.end_turns and np.isfinite(self.end_turns[name][0, 0, 0]):
+                if role != CHAIN and name in self.p.end_turns and np.isfinite(self.p.end_turns[name][0, 0, 0]):
                     carried = np.array([_EYE if rot[p] is None else rot[p]])
-                    rot[j] = end_rotation(self.end_turns[name], carried, T0[:, j] - H0[:, j])[0].tolist()
+                    rot[j] = end_rotation(self.p.end_turns[name], carried, T0[:, j] - H0[:, j])[0].tolist()
                     moved[j] = True
         heads = np.array([heads], dtype=np.float64)
         rotations = np.empty((1, J, 3, 3))
@@ -202,7 +208,7 @@ class LimbPlacement(ClearanceEasing):
         if turned:
             rotations[0, turned] = np.array([rot[j] for j in turned], dtype=np.float64)
         moved = np.array([moved])
-        _carry(heads, rotations, moved, H0, *self.prepared.leaves)  # many at once: numpy's turn
+        _carry(heads, rotations, moved, H0, *self.p.prepared.leaves)  # many at once: numpy's turn
         tails = np.where(moved[..., None], heads + apply_matrix(rotations, T0 - H0), T0) if any_set(moved) \
             else T0.copy()
         return heads, tails, rotations, solves
@@ -223,12 +229,12 @@ class LimbPlacement(ClearanceEasing):
                 ls.status[rows] = res.status
                 ls.reason[rows] = res.reason
                 # The chain returns a valid start pose that meets its target untouched (0 iterations).
-                kept = (res.iterations == 0) & task.still & np.all(res.positions == self.chain0[task.name][rows],
+                kept = (res.iterations == 0) & task.still & np.all(res.positions == self.p.chain0[task.name][rows],
                                                                    axis=(1, 2))
                 ls.solved[rows[kept]] = False
             # Their segment rotations too, in one call (_propagate then finds them computed).
-            set_segment_rotations([solves[t.name] for t in group], [self.chain0[t.name] for t in group],
-                                  [self.limits.get(t.name) for t in group])
+            set_segment_rotations([solves[t.name] for t in group], [self.p.chain0[t.name] for t in group],
+                                  [self.p.limits.get(t.name) for t in group])
         return solves
 
     def _start_limb(self, name, base, parent_rot, parent_moved):
@@ -239,15 +245,15 @@ class LimbPlacement(ClearanceEasing):
         their positions bit-exact and their rotations exactly identity ("moves only the joints that need to").
         Returns its LimbSolve as carried (the caller writes the solved frames in) and the ChainTask of the frames
         left to solve (None if none)."""
-        F = self.F
-        c0 = self.chain0[name]
+        F = self.p.F
+        c0 = self.p.chain0[name]
         r = np.broadcast_to(_EYE, (F, 3, 3)) if parent_rot is None else parent_rot
         if any_set(parent_moved):
             carried = base[:, None, :] + np.einsum("fij,fkj->fki", r, c0 - c0[:, :1])
             carried = np.where(parent_moved[:, None, None], carried, c0)  # (c0 - b) + b may differ from c0 by 1 ulp
         else:
             carried = c0.copy()
-        solved = self.limb_active[name].copy()
+        solved = self.p.limb_active[name].copy()
         status = np.full(F, "", dtype=object)
         reason = np.full(F, "", dtype=object)
         rows = np.nonzero(solved)[0]
@@ -260,7 +266,7 @@ class LimbPlacement(ClearanceEasing):
             rows = rows[~untouched]
         task = None
         if rows.size:
-            task = ChainTask(name, rows, carried[rows], self.limb_target[name][rows], r[rows], ~parent_moved[rows])
+            task = ChainTask(name, rows, carried[rows], self.p.limb_target[name][rows], r[rows], ~parent_moved[rows])
         return LimbSolve(carried, solved, status, reason), task
 
     def _untouched_start(self, name, rows, parent_moved):
@@ -273,21 +279,21 @@ class LimbPlacement(ClearanceEasing):
         keep = ~parent_moved[rows]
         if not any_set(keep):
             return keep
-        c0, target = self.chain0[name][rows], self.limb_target[name][rows]
-        tol = self.settings.chain.tolerance  # a straight limb on its target reaches it, however its lengths round
+        c0, target = self.p.chain0[name][rows], self.p.limb_target[name][rows]
+        tol = self.p.settings.chain.tolerance  # a straight limb on its target reaches it, however its lengths round
         if len(rows) == 1:  # one frame: the same two distances in plain floats
             r, joints, goal = int(rows[0]), c0[0].tolist(), target[0].tolist()
             keep[0] = (gp.norm(gp.sub(joints[-1], goal)) <= tol
-                       and not gp.norm(gp.sub(goal, joints[0])) > self.reach[name][r] + tol)
+                       and not gp.norm(gp.sub(goal, joints[0])) > self.p.reach[name][r] + tol)
         else:
-            keep &= (norm(c0[:, -1] - target) <= tol) & ~(norm(target - c0[:, 0]) > self.reach[name][rows] + tol)
-        if any_set(keep) and self.obstacles is not None:
+            keep &= (norm(c0[:, -1] - target) <= tol) & ~(norm(target - c0[:, 0]) > self.p.reach[name][rows] + tol)
+        if any_set(keep) and self.p.obstacles is not None:
             # Clear of every box, the chain solve finds nothing to respond to and nothing to note.
             boxes = self._limb_boxes([(name, rows, c0[:, 0], target)])
             keep &= ~points_inside(c0, boxes).any(axis=(1, 2)) & ~points_inside(target, boxes).any(axis=1) \
                 & ~segments_cross(c0[:, :-1], c0[:, 1:], boxes).any(axis=(1, 2))
-        ll = self.limits.get(name)
-        if any_set(keep) and ll is not None and ll.limits.any_active and not self.default_limits:
+        ll = self.p.limits.get(name)
+        if any_set(keep) and ll is not None and ll.limits.any_active and not self.p.default_limits:
             # The caller's limits (a rig's own ranges, retargeting's): a chain solve checks the start against them.
             return np.zeros(rows.size, dtype=bool)
         return keep

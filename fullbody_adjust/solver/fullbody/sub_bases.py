@@ -16,10 +16,15 @@ _LEAN_ROUNDS = 3
 
 
 class SubBasePlacement:
-    """Where the sub-bases go, for frames `rows` of the problem."""
+    """Where the sub-bases go, for frames `rows` of the problem (``p``: adjust._Problem, its chains, targets,
+    reach and settings), the limbs solved by ``limbs`` (LimbPlacement) where the trunk needs them."""
+
+    def __init__(self, problem, limbs):
+        self.p = problem
+        self.limbs = limbs
 
     def _upper(self):
-        return [n for n, limb in self.model.limbs.items() if limb.hub == "sc"]
+        return [n for n, limb in self.p.model.limbs.items() if limb.hub == "sc"]
 
     def _legs(self):
         return [n for n in ("leg.L", "leg.R")]
@@ -35,26 +40,26 @@ class SubBasePlacement:
     def _balls(self, names, rows, offsets_from):
         """Reach balls for the sub-base `anchor`: a limb with base b (rigidly offset from the anchor by
         o = b - anchor) reaches its target t iff |anchor' - (t - o)| <= reach."""
-        centres = np.stack([self.limb_target[n][rows] - offsets_from[n] for n in names], axis=1)
-        radii = np.stack([self.reach_eff[n][rows] * (1.0 - self.settings.reach_margin) for n in names], axis=1)
-        active = np.stack([self.limb_active[n][rows] for n in names], axis=1)
-        prio = np.array([self.limb_priority[n] for n in names])
+        centres = np.stack([self.p.limb_target[n][rows] - offsets_from[n] for n in names], axis=1)
+        radii = np.stack([self.p.reach_eff[n][rows] * (1.0 - self.p.settings.reach_margin) for n in names], axis=1)
+        active = np.stack([self.p.limb_active[n][rows] for n in names], axis=1)
+        prio = np.array([self.p.limb_priority[n] for n in names])
         return centres, radii, active, prio
 
     def _in_reach(self, names, rows, bases):
         """(b,) every active limb's target lies within its reach from `bases[name]` (rule (i), no margin beyond
         the tolerance that counts a target as met: a straight limb whose end is on its target is in reach, however
         its lengths' sum rounds)."""
-        tol = self.settings.chain.tolerance
+        tol = self.p.settings.chain.tolerance
         if len(rows) == 1:  # one frame (Adjust Pose, Live): the same distances in plain floats
             r = int(rows[0])
-            return np.array([all(not self.limb_active[n][r]
-                                 or vec.norm(vec.sub(self.limb_target[n][r].tolist(), bases[n][0].tolist()))
-                                 <= self.reach_eff[n][r] + tol for n in names)])
+            return np.array([all(not self.p.limb_active[n][r]
+                                 or vec.norm(vec.sub(self.p.limb_target[n][r].tolist(), bases[n][0].tolist()))
+                                 <= self.p.reach_eff[n][r] + tol for n in names)])
         ok = np.ones(len(rows), dtype=bool)
         for n in names:
-            d = norm(self.limb_target[n][rows] - bases[n])
-            ok &= ~self.limb_active[n][rows] | (d <= self.reach_eff[n][rows] + tol)
+            d = norm(self.p.limb_target[n][rows] - bases[n])
+            ok &= ~self.p.limb_active[n][rows] | (d <= self.p.reach_eff[n][rows] + tol)
         return ok
 
     def _place_sc(self, rows, pref, trunk_base, offsets):
@@ -70,8 +75,8 @@ class SubBasePlacement:
         Returns (points (b,3), leaned (b,) bool: case 1)."""
         upper = self._upper()
         centres, radii, active, prio = self._balls(upper, rows, offsets)
-        trunk_r = self.reach["trunk"][rows] * (1.0 - self.settings.reach_margin)
-        spine = self.chain0["trunk"][rows]
+        trunk_r = self.p.reach["trunk"][rows] * (1.0 - self.p.settings.reach_margin)
+        spine = self.p.chain0["trunk"][rows]
         spine = spine + (trunk_base - spine[:, 0])[:, None, :]
         shares = self._curl_shares(spine)
         lean_r = norm(pref - trunk_base)
@@ -91,7 +96,7 @@ class SubBasePlacement:
             np.concatenate([active, np.ones((len(rows), 1), dtype=bool)], axis=1))
         if all_set(ok_lean | ok_bend):
             return np.where(ok_lean[:, None], lean, bend), ok_lean
-        arms_only, _ = sub_base_point(pref, centres, radii, active, prio, self.settings.variant)
+        arms_only, _ = sub_base_point(pref, centres, radii, active, prio, self.p.settings.variant)
         out = np.where(ok_bend[:, None], bend, arms_only)
         return np.where(ok_lean[:, None], lean, out), ok_lean
 
@@ -106,10 +111,10 @@ class SubBasePlacement:
         side asks along the hips' line, and the pelvis is free to follow it (no plane)."""
         ask = np.zeros((len(rows), 3))
         for n in self._upper():
-            chain = self.chain0[n][rows]
-            target = self.limb_target[n][rows]
-            short = norm(target - chain[:, 0]) - self.reach_eff[n][rows]
-            on = self.limb_active[n][rows] & (short > 0.0)
+            chain = self.p.chain0[n][rows]
+            target = self.p.limb_target[n][rows]
+            short = norm(target - chain[:, 0]) - self.p.reach_eff[n][rows]
+            on = self.p.limb_active[n][rows] & (short > 0.0)
             # Toward the target from the joint its last two segments swing from (an arm's shoulder: a clavicle
             # rides on the chest and swings little, so a target straight in front of the shoulder asks for
             # straight ahead, not for the side the clavicle's base lies off).
@@ -117,7 +122,7 @@ class SubBasePlacement:
             dist = norm(pull)
             on &= dist > 0.0
             ask += np.where(on[:, None], pull * (short / np.where(on, dist, 1.0))[:, None], 0.0)
-        hips = self.chain0["leg.L"][rows, 0] - self.chain0["leg.R"][rows, 0]
+        hips = self.p.chain0["leg.L"][rows, 0] - self.p.chain0["leg.R"][rows, 0]
         size = norm(ask)
         asked = size > 0.0
         along = ask / np.where(asked, size, 1.0)[:, None]
@@ -134,18 +139,18 @@ class SubBasePlacement:
         lies farther to the side than the trunk reaches): the nearest such point, or the priorities' best
         effort in the plane. The trunk's curl takes the sideways part then, as far as it can."""
         legs = self._legs()
-        hips = {n: self.chain0[n][rows, 0] for n in legs}
+        hips = {n: self.p.chain0[n][rows, 0] for n in legs}
         centres, radii, active, prio = self._balls(legs, rows, hips)
-        upper_prio = max([self.limb_priority[n] for n in self._upper()] + [0.0])
+        upper_prio = max([self.p.limb_priority[n] for n in self._upper()] + [0.0])
         centres = np.concatenate([centres, trunk_centre[:, None]], axis=1)
-        radii = np.concatenate([radii, (self.reach["trunk"][rows] * (1.0 - self.settings.reach_margin))[:, None]], 1)
+        radii = np.concatenate([radii, (self.p.reach["trunk"][rows] * (1.0 - self.p.settings.reach_margin))[:, None]], 1)
         active = np.concatenate([active, trunk_active[:, None]], axis=1)
-        if self.settings.feet_first:
+        if self.p.settings.feet_first:
             prio = np.append(prio, -np.inf)  # ankle tasks first (variant 2 at the root)
             variant = "priority"
         else:
             prio = np.append(prio, upper_prio)
-            variant = self.settings.variant
+            variant = self.p.settings.variant
         use = np.zeros(len(rows), dtype=bool)
         if across is not None and any_set(across != 0.0):
             flat, _, meets = sub_base_point_in_plane(pref, across, centres, radii, active, prio, variant)
@@ -161,12 +166,12 @@ class SubBasePlacement:
         reach, but only because the SC moved). Returns (delta, sc_star, trunk joints, trunk solved, trunk status,
         trunk reason)."""
         upper = self._upper()
-        trunk0 = self.chain0["trunk"][rows]
+        trunk0 = self.p.chain0["trunk"][rows]
         sc0, base0 = trunk0[:, -1], trunk0[:, 0]
         b = len(rows)
         any_upper = np.zeros(b, dtype=bool)
         for n in upper:
-            any_upper |= self.limb_active[n][rows]
+            any_upper |= self.p.limb_active[n][rows]
 
         # SC: stays exactly unless some constrained arm cannot reach from its current base (rule (i)).
         need_sc = ~self._in_reach(upper, rows, {n: sc0 + offsets[n] for n in upper})
@@ -181,8 +186,8 @@ class SubBasePlacement:
 
         # Root: stays exactly while every constrained foot reaches from its hip and the trunk reaches sc*.
         legs = self._legs()
-        trunk_ok = ~need_sc | (norm(sc_star - base0) <= self.reach["trunk"][rows])
-        feet_reach = self._in_reach(legs, rows, {n: self.chain0[n][rows, 0] for n in legs})
+        trunk_ok = ~need_sc | (norm(sc_star - base0) <= self.p.reach["trunk"][rows])
+        feet_reach = self._in_reach(legs, rows, {n: self.p.chain0[n][rows, 0] for n in legs})
         need_root = ~(feet_reach & trunk_ok)
         delta = np.zeros((b, 3))
         if any_set(need_root):
@@ -218,7 +223,7 @@ class SubBasePlacement:
             lean = np.nonzero(leaned[solve])[0]
             if lean.size:
                 start[lean] = curl_start(start[lean], sc_star[solve[lean]], self._curl_shares(start[lean]))
-            res = self._solve("trunk", rows[solve], start, sc_star[solve])
+            res = self.limbs._solve("trunk", rows[solve], start, sc_star[solve])
             joints[solve] = res.positions
             status[solve] = res.status
             reason[solve] = res.reason
@@ -226,7 +231,7 @@ class SubBasePlacement:
             # remaining error, as far as the feet allow, sideways too (the trunk's limits held it from taking
             # that part). Not past obstacles: a blocked trunk stays.
             err = sc_star[solve] - res.positions[:, -1]
-            late = (norm(err) > self.settings.chain.tolerance) \
+            late = (norm(err) > self.p.settings.chain.tolerance) \
                 & ((res.status == "limited") | (res.status == "max_iterations"))
             if any_set(late):
                 s2 = solve[late]
@@ -234,9 +239,9 @@ class SubBasePlacement:
                                       np.zeros(s2.size, dtype=bool))
                 shift = d2 - delta[s2]
                 moved_chain = joints[s2] + shift[:, None, :]
-                if self.obstacles is not None:
+                if self.p.obstacles is not None:
                     segs = np.stack([np.arange(joints.shape[1] - 1), np.arange(1, joints.shape[1])], axis=1)
-                    boxes = self.obstacles.select(rows[s2])
+                    boxes = self.p.obstacles.select(rows[s2])
                     before = sum(penetrations(joints[s2], segs, boxes))
                     after = sum(penetrations(moved_chain, segs, boxes))
                     keep = after <= before
@@ -245,7 +250,7 @@ class SubBasePlacement:
                 joints[s2] = moved_chain
                 delta[s2] = delta[s2] + shift
                 res_err = norm(sc_star[s2] - moved_chain[:, -1])
-                fixed = res_err <= self.settings.chain.tolerance
+                fixed = res_err <= self.p.settings.chain.tolerance
                 status[s2[fixed]] = "reached"
                 reason[s2[fixed]] = "reached after the pelvis moved by the remaining error"
         return delta, sc_star, joints, need_sc, status, reason
@@ -260,32 +265,27 @@ class SubBasePlacement:
         priorities keep (the higher, or the earlier on a tie) is out of reach itself, the one they drop cannot
         be helped either (while the kept one can reach, the passes still refine its placement). Such a limb
         is re-placed only while that can still gain more than the reach margin (adjust._Problem._solve_once)."""
-        tol = self.settings.chain.tolerance
-        base0 = self.chain0["trunk"][:, 0]
+        tol = self.p.settings.chain.tolerance
+        base0 = self.p.chain0["trunk"][:, 0]
         legs = self._legs()
         # Where the trunk base may go: balls about each constrained ankle target, carried from hip to base.
-        centres = [self.limb_target[n] - (self.chain0[n][:, 0] - base0) for n in legs]
-        radii = [self.reach_eff[n] + tol for n in legs]
-        active = [self.limb_active[n] for n in legs]
+        centres = [self.p.limb_target[n] - (self.p.chain0[n][:, 0] - base0) for n in legs]
+        radii = [self.p.reach_eff[n] + tol for n in legs]
+        active = [self.p.limb_active[n] for n in legs]
         alone = {}
         for n in upper:
-            reach = self.reach["trunk"] + norm(offsets[n]) + self.reach_eff[n] + tol
-            _, alone[n] = nearest_in_balls(base0, np.stack(centres + [self.limb_target[n]], axis=1),
+            reach = self.p.reach["trunk"] + norm(offsets[n]) + self.p.reach_eff[n] + tol
+            _, alone[n] = nearest_in_balls(base0, np.stack(centres + [self.p.limb_target[n]], axis=1),
                                            np.stack(radii + [reach], axis=1),
-                                           np.stack(active + [self.limb_active[n]], axis=1))
+                                           np.stack(active + [self.p.limb_active[n]], axis=1))
         out = dict(alone)
         for i, a in enumerate(upper):
             for b in upper[i + 1:]:
-                kept, dropped = (a, b) if self.limb_priority[b] <= self.limb_priority[a] else (b, a)
-                apart = norm(self.limb_target[a] - self.limb_target[b]) > (
-                    norm(offsets[a] - offsets[b]) + self.reach_eff[a] + self.reach_eff[b] + tol)
-                out[dropped] = out[dropped] & ~(self.limb_active[kept] & ~alone[kept] & apart)
+                kept, dropped = (a, b) if self.p.limb_priority[b] <= self.p.limb_priority[a] else (b, a)
+                apart = norm(self.p.limb_target[a] - self.p.limb_target[b]) > (
+                    norm(offsets[a] - offsets[b]) + self.p.reach_eff[a] + self.p.reach_eff[b] + tol)
+                out[dropped] = out[dropped] & ~(self.p.limb_active[kept] & ~alone[kept] & apart)
         return out
-
-    # -- the whole solve -------------------------------------------------------------------------------------
-
-    _PER_FRAME = ("H0", "T0", "targets", "active_e", "iterations")
-    _PER_FRAME_DICTS = ("chain0", "reach", "reach_eff", "limb_target", "limb_active")
 
 
 def _rows_of(per_limb, rows):

@@ -1,6 +1,6 @@
 """Where a limb's clearance (AdjustSettings.clearance: its surface's radius plus Margin) keeps its chain solve from
-the target: the retries with less of it (ClearanceEasing, mixed into limb_placement.LimbPlacement, whose
-_solve_stacked, _limb_boxes, settings, obstacles, limits, chain0 and limb_pole it uses), each first from the limb's
+the target: the retries with less of it (ClearanceEasing, owned by limb_placement.LimbPlacement, whose
+_solve_stacked and _limb_boxes it calls, on the problem's settings, obstacles, limits, chain0 and limb_pole), each first from the limb's
 clearest swivel (obstacle_swivel), then from its own start; and where a limb reached its target with its mesh's
 surface (AdjustSettings.surface) in a box, the swivel round the target that keeps the surface out best."""
 
@@ -20,7 +20,12 @@ _EASED = (1.0, 0.5, 0.0)
 
 
 class ClearanceEasing:
-    """LimbPlacement's retries of limbs their clearance kept from their targets."""
+    """The retries of limbs their clearance kept from their targets, for the problem ``p`` (adjust._Problem),
+    through its limbs' solves (``limbs``: LimbPlacement)."""
+
+    def __init__(self, problem, limbs):
+        self.p = problem
+        self.limbs = limbs
 
     def _eased(self, tasks, results):
         """_eased_levels, then _surface_clear on what reached."""
@@ -40,7 +45,7 @@ class ClearanceEasing:
         `results` updated in place."""
         tries = []
         for t, r in zip(tasks, results):
-            surface = self.settings.surface_of(t.name)
+            surface = self.p.settings.surface_of(t.name)
             if surface is None or t.start.shape[1] < 3:
                 continue
             rows = np.nonzero(r.status == "reached")[0]
@@ -58,11 +63,11 @@ class ClearanceEasing:
                                                        still=None if t.still is None else t.still[every])))
         if not tries:
             return
-        kept, self.obstacles = self.obstacles, None
+        kept, self.p.obstacles = self.p.obstacles, None
         try:
-            solved = self._solve_stacked([task for *_t, task in tries], retry=True)
+            solved = self.limbs._solve_stacked([task for *_t, task in tries], retry=True)
         finally:
-            self.obstacles = kept
+            self.p.obstacles = kept
         for (t, r, rows, now, task), redo in zip(tries, solved):
             k = len(ANGLES)
             boxes = self._margin_boxes(t.rows[rows])
@@ -83,18 +88,18 @@ class ClearanceEasing:
 
     def _margin_boxes(self, frames):
         """The obstacle boxes of `frames` grown by the margin (per problem)."""
-        boxes = self.obstacles.select(frames)
-        return boxes.grown(np.full((len(frames), len(boxes)), self.settings.chain.margin))
+        boxes = self.p.obstacles.select(frames)
+        return boxes.grown(np.full((len(frames), len(boxes)), self.p.settings.chain.margin))
 
     def _surface_points(self, task, rows, chains):
         """surface.posed_points of `task`'s rows `rows` on chains (b,k,n,3), turned as the bones are written
         (from the frames' start pose chains, limb_rotations.chain_rotations)."""
         frames = task.rows[rows]
         b, k, n = chains.shape[:3]
-        start = self.chain0[task.name][frames]
+        start = self.p.chain0[task.name][frames]
         turns = chain_rotations(np.repeat(start, k, axis=0), chains.reshape(b * k, n, 3),
-                                self.limits.get(task.name), np.repeat(frames, k))
-        return posed_points(self.settings.surface_of(task.name), frames, start, chains,
+                                self.p.limits.get(task.name), np.repeat(frames, k))
+        return posed_points(self.p.settings.surface_of(task.name), frames, start, chains,
                             turns.reshape(b, k, n - 1, 3, 3))
 
     def _eased_levels(self, tasks, results):
@@ -106,13 +111,13 @@ class ClearanceEasing:
         comes nearer; its reason says how much clearance it kept. `results` (one ChainBatchResult per task) are
         updated in place."""
         for less in _EASED[1:]:
-            if not any(self.settings.clearance_of(t.name) > 0.0 and (r.status == "blocked").any()
+            if not any(self.p.settings.clearance_of(t.name) > 0.0 and (r.status == "blocked").any()
                        for t, r in zip(tasks, results)):
                 return
             for swivel in (True, False):
                 retries = []
                 for t, r in zip(tasks, results):
-                    clearance = self.settings.clearance_of(t.name)
+                    clearance = self.p.settings.clearance_of(t.name)
                     blocked = np.nonzero(r.status == "blocked")[0] if clearance > 0.0 else []
                     start = None if swivel or not len(blocked) else t.start[blocked]
                     if swivel and len(blocked):
@@ -125,7 +130,7 @@ class ClearanceEasing:
     def _retry(self, retries, less):
         """One stacked solve of the rows `blocked` of each (task, result, blocked, clearance, start chains) in
         `retries` with `less` of their clearance; taken as _eased says."""
-        again = self._solve_stacked([replace(t, rows=t.rows[b], start=start, targets=t.targets[b],
+        again = self.limbs._solve_stacked([replace(t, rows=t.rows[b], start=start, targets=t.targets[b],
                                              carry=None if t.carry is None else t.carry[b],
                                              still=None if t.still is None else t.still[b])
                                      for t, _r, b, _c, start in retries], less, retry=True)
@@ -146,9 +151,9 @@ class ClearanceEasing:
         if not len(rows):
             return rows, None
         swivels = swivel_starts(task.start[rows], task.targets[rows])
-        within = intrusion(swivels, self.obstacles.select(task.rows[rows]), np.full(len(rows), clearance))
+        within = intrusion(swivels, self.p.obstacles.select(task.rows[rows]), np.full(len(rows), clearance))
         best = swivels[np.arange(len(rows)), np.argmin(within, axis=1)]
-        boxes = self._limb_boxes([(task.name, task.rows[rows], best[:, 0], task.targets[rows])], less)
+        boxes = self.limbs._limb_boxes([(task.name, task.rows[rows], best[:, 0], task.targets[rows])], less)
         clear = ~points_inside(best, boxes).any(axis=(1, 2)) & ~segments_cross(best[:, :-1], best[:, 1:],
                                                                                  boxes).any(axis=(1, 2))
         return rows[clear], best[clear]
@@ -157,9 +162,9 @@ class ClearanceEasing:
         """(b,) bool: which rows `blocked` of `task` have a swivel (two or more segments, no pole)."""
         if task.start.shape[1] < 3:
             return np.zeros(len(blocked), dtype=bool)
-        if task.name not in self.limb_pole:
+        if task.name not in self.p.limb_pole:
             return np.ones(len(blocked), dtype=bool)
-        return ~np.isfinite(self.limb_pole[task.name][task.rows[blocked], 0])
+        return ~np.isfinite(self.p.limb_pole[task.name][task.rows[blocked], 0])
 
 
 def _first_least(depth, moved):
