@@ -94,6 +94,8 @@ def _tasks(args, clips):
     rows, tasks = [], []
     for clip in clips:
         name = args.new_action or os.path.splitext(os.path.basename(clip))[0]
+        if args.take and not args.new_action:
+            name = f"{name}_{args.take}"  # one file's takes retargeted one after another keep apart
         out = os.path.join(os.path.abspath(args.output_dir), f"{name}.blend") if args.output_dir else None
         done_before = os.path.exists(out) if out else name in bpy.data.actions
         if args.skip_existing and done_before:

@@ -137,7 +137,8 @@ def build_parser(prog=f"blender -b FILE.blend -c {COMMAND}"):
                             "scene takes the clip's frame rate (one .blend per clip)")
     clips.add_argument("--take", metavar="NAME",
                        help="the take to carry from FBX and glTF files that hold several, by the name the file "
-                            "gives it (e.g. Running_A; default: the longest take)")
+                            "gives it (e.g. Running_A; default: the longest take); the action (or file) is named "
+                            "<clip>_<take>")
     clips.add_argument("--clip-start-frame", type=int, default=1, metavar="N",
                        help="the scene frame the clip's first frame lands on (default: 1)")
     clips.add_argument("--jobs", type=_positive_int, metavar="N",

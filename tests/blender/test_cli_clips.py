@@ -409,6 +409,7 @@ def test_a_gltf_clip_carries_the_take_asked_for_or_its_longest(cli, capsys, tmp_
     for take, expected in (("Running_A", "Running_A"), (None, longest)):
         row = rows[take][1]
         assert row["status"] == "done", row["reason"]
+        assert row["action"] == "kaykit_Med_MovementBasic" + (f"_{take}" if take else "")
         start, end = takes[expected]
         assert row["frame_start"] == 1 and row["frames"] == int(np.floor(1 + end - start)), (take, row)
     code, row = rows["Nope"]
@@ -424,7 +425,7 @@ def test_a_gltf_clip_carries_the_take_asked_for_or_its_longest(cli, capsys, tmp_
     result = _leg_directions(hero, ["thigh.L", "shin.L", "foot.L"], frames)
     bpy.ops.import_scene.gltf(filepath=str(KAYKIT_CLIPS))
     clip = next(ob for ob in bpy.data.objects if ob.type == 'ARMATURE' and ob is not hero)
-    run_action = next(a for a in bpy.data.actions if "Running_A" in a.name)
+    run_action = next(a for a in bpy.data.actions if "Rig_Medium|Running_A" in a.name)
     assign_action(clip, run_action)
     source = _leg_directions(clip, ["upperleg.l", "lowerleg.l", "foot.l"], frames - 1.0 + run_action.frame_range[0])
     angles = np.degrees(np.arccos(np.clip(np.sum(result * source, axis=-1), -1.0, 1.0)))
