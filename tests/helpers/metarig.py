@@ -38,6 +38,18 @@ def wrists_and_ankles(model, heads):
     return out
 
 
+def left_hand_in_front(model, heads, tails):
+    """(targets (5,3) of EFFECTORS, the left arm's rest joints): every effector at its own joint but the left
+    hand, in front of the metarig with the elbow bent: 0.65 of the arm's reach from its base, up and forward (the
+    metarig faces -Y)."""
+    targets = wrists_and_ankles(model, heads)
+    joints = model.limbs["arm.L"].joints(heads, tails)
+    reach = np.linalg.norm(np.diff(joints, axis=0), axis=1).sum()
+    direction = (joints[-1] - joints[0]) / np.linalg.norm(joints[-1] - joints[0]) + np.array([0.0, -0.6, 0.5])
+    targets[0] = joints[0] + 0.65 * reach * direction / np.linalg.norm(direction)
+    return targets, joints
+
+
 def case(model, heads, tails, kind):
     """Targets (E,3) and obstacles (Boxes or None) of an Adjust Pose click with the feet planted:
     'near': both hands moved within their arms' reach; 'far': the left hand 3 body heights away (beyond any

@@ -104,12 +104,8 @@ def _fist_case():
     end), and a 4 cm box on the fist's side where it is when the arm reaches the target without the box, clear of the
     forearm's centre line and of the target."""
     model, heads, tails, x_axes = metarig.load()
-    targets = metarig.wrists_and_ankles(model, heads)
+    targets, joints = metarig.left_hand_in_front(model, heads, tails)
     arm = model.limbs["arm.L"]
-    joints = arm.joints(heads, tails)
-    reach = np.linalg.norm(np.diff(joints, axis=0), axis=1).sum()
-    direction = (joints[-1] - joints[0]) / np.linalg.norm(joints[-1] - joints[0]) + np.array([0.0, -0.6, 0.5])
-    targets[0] = joints[0] + 0.65 * reach * direction / np.linalg.norm(direction)  # the metarig faces -Y
     elbow, wrist = joints[-2], joints[-1]
     u = (wrist - elbow) / np.linalg.norm(wrist - elbow)
     e1 = np.cross(u, [0.0, 0.0, 1.0])

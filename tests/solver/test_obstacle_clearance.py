@@ -86,12 +86,8 @@ def _obstacle_case(along=0.25, turn=0.0):
     the arm's reach from its base, up and forward), and a 6 cm box `along` the way from the elbow to the wrist
     of the pose solved without it, turned by `turn` radians about the vertical (an oriented box)."""
     model, heads, tails, x_axes = metarig.load()
-    targets = metarig.wrists_and_ankles(model, heads)
+    targets, _ = metarig.left_hand_in_front(model, heads, tails)
     arm = model.limbs["arm.L"]
-    joints = arm.joints(heads, tails)
-    reach = np.linalg.norm(np.diff(joints, axis=0), axis=1).sum()
-    direction = (joints[-1] - joints[0]) / np.linalg.norm(joints[-1] - joints[0]) + np.array([0.0, -0.6, 0.5])
-    targets[0] = joints[0] + 0.65 * reach * direction / np.linalg.norm(direction)  # the metarig faces -Y
     free = adjust_pose(model, heads, tails, targets, metarig.EFFECTORS, metarig.PRIORITIES, bone_x_axes=x_axes)
     elbow, wrist = free.heads[arm.bones[-1]], free.heads[arm.end_bone]
     centre = elbow + along * (wrist - elbow)

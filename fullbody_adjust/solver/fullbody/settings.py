@@ -91,33 +91,36 @@ class AdjustSettings:
         return 0.0
 
 
+def _limb_pairs(value, what, values, kind, fits):
+    """``value`` (a mapping or pairs) as sorted (limb, value) pairs, each limb known and its value ``fits``
+    (else one line: '<what> of <limb> must be <kind>'; not a mapping: '<what> must map limb names to
+    <values>')."""
+    try:
+        pairs = dict(value.items() if hasattr(value, "items") else value)
+    except (TypeError, ValueError):
+        raise SolverInputError(f"{what} must map limb names to {values}") from None
+    for limb, item in pairs.items():
+        if limb not in LIMB_NAMES:
+            raise SolverInputError(f"{what} for unknown limb {limb!r} (use {', '.join(LIMB_NAMES)})")
+        if not fits(item):
+            raise SolverInputError(f"{what} of {limb} must be {kind}")
+    return tuple(sorted(pairs.items(), key=lambda pair: pair[0]))
+
+
+def _distance(x):
+    return (not isinstance(x, bool) and isinstance(x, (int, float, np.floating, np.integer)) and math.isfinite(x)
+            and x >= 0)
+
+
 def _clearance_pairs(clearance):
     """AdjustSettings.clearance as sorted (limb, float) pairs, checked."""
-    try:
-        pairs = dict(clearance.items() if hasattr(clearance, "items") else clearance)
-    except (TypeError, ValueError):
-        raise SolverInputError("clearance must map limb names to distances") from None
-    for limb, distance in pairs.items():
-        if limb not in LIMB_NAMES:
-            raise SolverInputError(f"clearance for unknown limb {limb!r} (use {', '.join(LIMB_NAMES)})")
-        if isinstance(distance, bool) or not isinstance(distance, (int, float, np.floating, np.integer)) \
-                or not math.isfinite(distance) or distance < 0:
-            raise SolverInputError(f"clearance of {limb} must be a finite number >= 0")
-    return tuple(sorted((limb, float(distance)) for limb, distance in pairs.items()))
+    pairs = _limb_pairs(clearance, "clearance", "distances", "a finite number >= 0", _distance)
+    return tuple((limb, float(distance)) for limb, distance in pairs)
 
 
 def _surface_pairs(surface):
     """AdjustSettings.surface as sorted (limb, LimbSurface) pairs, checked."""
-    try:
-        pairs = dict(surface.items() if hasattr(surface, "items") else surface)
-    except (TypeError, ValueError):
-        raise SolverInputError("surface must map limb names to LimbSurface") from None
-    for limb, points in pairs.items():
-        if limb not in LIMB_NAMES:
-            raise SolverInputError(f"surface for unknown limb {limb!r} (use {', '.join(LIMB_NAMES)})")
-        if not isinstance(points, LimbSurface):
-            raise SolverInputError(f"surface of {limb} must be a LimbSurface")
-    return tuple(sorted(pairs.items(), key=lambda pair: pair[0]))
+    return _limb_pairs(surface, "surface", "LimbSurface", "a LimbSurface", lambda x: isinstance(x, LimbSurface))
 
 
 @dataclass
