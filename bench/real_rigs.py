@@ -32,6 +32,9 @@ is used only through its operators and its command line, as a user would:
              `retarget FILE --target RIG --source-file CLIP --jobs 1`; exit code, pop frames of the written action
              and of the clip itself (as Blender's FBX importer gives it) on the same frames, limb directions
              against the clip (median degrees).
+  gltf_walk, gltf_run   the same for two takes of the corpus's glTF move library kaykit_Med_MovementBasic.glb
+             (KayKit's skeleton, in place; `--take Walking_A`, `--take Running_A`), the clip's first key on the
+             result's first frame.
 A row that fails records its error and the bench goes on.
 
 Run: .ci/with-bpy python bench/real_rigs.py [--rigs NAME,NAME] [--skip retarget]   (one JSON object on stdout)
@@ -60,7 +63,7 @@ from tests.helpers import real_rigs  # noqa: E402
 from tests.helpers.rig_scenarios import (FPS, WALK, Saved, clip_case, far_case, map_case,  # noqa: E402
                                          near_case, obstacle_case, retarget_case)
 
-CASES = ("mapping", "near", "far", "obstacle", "retarget", "fbx_clip")
+CASES = ("mapping", "near", "far", "obstacle", "retarget", "fbx_clip", "gltf_walk", "gltf_run")
 
 
 def parse():
@@ -92,7 +95,9 @@ def bench_rig(name, folder, skip):
                      "bones": len(saved.rig.armature.data.bones), "build_seconds": time.perf_counter() - started}
     cases = {"mapping": map_case, "near": near_case, "far": far_case, "obstacle": obstacle_case,
              "retarget": lambda s: retarget_case(s, folder, cli),
-             "fbx_clip": lambda s: clip_case(s, folder, cli)}
+             "fbx_clip": lambda s: clip_case(s, folder, cli),
+             "gltf_walk": lambda s: clip_case(s, folder, cli, "kaykit_moves", "Walking_A"),
+             "gltf_run": lambda s: clip_case(s, folder, cli, "kaykit_moves", "Running_A")}
     for case, run in cases.items():
         if case in skip:
             continue

@@ -102,8 +102,10 @@ CORPUS = {
         "pelvis", "l", "r", {"shoulder": "upperarm.{s}", "elbow": "lowerarm.{s}", "wrist": "hand.{s}",
                              "hip": "thigh.{s}", "knee": "calf.{s}", "ankle": "foot.{s}", "ball": "ball.{s}"})),
 }
-CLIP_FILES = {"kenney_run": "kenney_run.fbx"}  # animation-only FBX files of the corpus
-CLIP_CHARACTER = {"kenney_run": "kenney"}  # ... and the corpus character whose skeleton (and joints) they share
+CLIP_FILES = {"kenney_run": "kenney_run.fbx",  # animation-only files of the corpus
+              "kaykit_moves": "kaykit_Med_MovementBasic.glb"}  # 11 takes: --take picks one
+CLIP_CHARACTER = {"kenney_run": "kenney", "kaykit_moves": "kaykit_manny"}  # ... and the corpus character whose
+# skeleton (and joints) they share
 
 
 def to_rest(armature):

@@ -114,6 +114,21 @@ def assign_action(obj, action):
     bpy.context.view_layer.update()
 
 
+def shift_keys(obj, frames):
+    """Move every key of ``obj``'s action (its slot's F-Curves) by ``frames``."""
+    if not frames:
+        return
+    curves = animating_fcurves(obj)
+    for fc in curves:
+        for prop in ("co", "handle_left", "handle_right"):
+            values = np.empty(2 * len(fc.keyframe_points))
+            fc.keyframe_points.foreach_get(prop, values)
+            values[0::2] += frames
+            fc.keyframe_points.foreach_set(prop, values)
+        fc.update()
+    bpy.context.view_layer.update()
+
+
 def keys_snapshot(obj):
     """{(data_path, index): keyframe coordinates as bytes}."""
     out = {}

@@ -359,23 +359,25 @@ def measure_walk(saved, last, contacts):
     }
 
 
-def clip_case(saved, folder, cli, clip_name="kenney_run"):
-    """An FBX clip of the corpus (its own character's skeleton) retargeted onto the saved rig with
-    `retarget FILE --target RIG --source-file CLIP --jobs 1` (cli.main); the written action and the clip imported
-    again with Blender's FBX importer (defaults; the clip is given the longest action the import made, the take
-    the batch carries: Kenney's run, not the 1-frame 'Targeting Pose' the importer makes active; source_action
+def clip_case(saved, folder, cli, clip_name="kenney_run", take=None):
+    """A clip file of the corpus (its own character's skeleton) retargeted onto the saved rig with
+    `retarget FILE --target RIG --source-file CLIP [--take TAKE] --jobs 1` (cli.main); the written action and the
+    clip imported again with Blender's importer (defaults; the clip is given the take the batch carries: ``take``,
+    else the longest action the import made (Kenney's run, not the 1-frame 'Targeting Pose' the importer makes
+    active); its first key moved onto the result's first frame, as the batch does with a glTF take; source_action
     and frames say which) are measured on the same frames: pop frames of each, and the limb directions against
     each other."""
     saved.open()
     clip = real_rigs.RIGS_DIR / real_rigs.CLIP_FILES[clip_name]
     source_joints = real_rigs.CORPUS[real_rigs.CLIP_CHARACTER[clip_name]]["joints"]
-    path_in, path_out, report_path = (folder / f"{saved.name}_{clip_name}{ext}"
+    path_in, path_out, report_path = (folder / f"{saved.name}_{clip_name}_{take}{ext}"
                                       for ext in (".blend", "_out.blend", ".json"))
     bpy.ops.wm.save_as_mainfile(filepath=str(path_in))
     said = io.StringIO()
     with contextlib.redirect_stderr(said):
         code = cli.main(["retarget", str(path_in), "--target", saved.armature_name, "--source-file", str(clip),
-                         "--jobs", "1", "--output", str(path_out), "--report", str(report_path), "--quiet"])
+                         *(("--take", take) if take else ()), "--jobs", "1", "--output", str(path_out),
+                         "--report", str(report_path), "--quiet"])
     out = {"exit_code": code}
     row = json.loads(report_path.read_text())["rows"][0] if report_path.exists() else {}
     if row.get("status") != "done":
@@ -387,7 +389,9 @@ def clip_case(saved, folder, cli, clip_name="kenney_run"):
     before = set(bpy.data.actions)
     source = next(ob for ob in real_rigs.import_file(clip) if ob.type == 'ARMATURE')
     takes = [a for a in bpy.data.actions if a not in before]
-    rm.assign_action(source, max(takes, key=lambda a: a.frame_range[1] - a.frame_range[0]))
+    rm.assign_action(source, next(a for a in takes if a.name.rsplit("|", 1)[-1].startswith(take)) if take else
+                     max(takes, key=lambda a: a.frame_range[1] - a.frame_range[0]))
+    rm.shift_keys(source, row["frame_start"] - source.animation_data.action.frame_range[0])
     frames = np.arange(int(row["frame_start"]), int(row["frame_end"]) + 1)
     roles = [r for r, b in saved.rig.joints.items() if b and source_joints.get(r)]
     (heads, source_heads), (rots, source_rots), _ = rm.sample(
