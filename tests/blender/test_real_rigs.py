@@ -27,6 +27,8 @@ REQUIRED = ("root", "trunk", "arm.L", "arm.R", "hand.L", "hand.R", "leg.L", "leg
 # (test, rig) -> the figure measured on the code this file was written against (bpy 5.0.1).
 KNOWN = {
     ('obstacle', 'kaykit_manny'): '0 joints and 1 mesh vertices inside the box',
+    ('gltf_run', 'kenney'): '7 pop frames (the clip itself 6)',
+    ('gltf_run', 'matt_feet_parented'): '7 pop frames (the clip itself 6)',
 }
 
 
@@ -54,7 +56,9 @@ def _figures(rig, case, cli=None):
         saved = sc.Saved(rig, folder)
         run = {"mapping": sc.map_case, "near": sc.near_case, "far": sc.far_case, "obstacle": sc.obstacle_case,
                "walk": lambda s: sc.retarget_case(s, folder, cli),
-               "clip": lambda s: sc.clip_case(s, folder, cli)}[case]
+               "clip": lambda s: sc.clip_case(s, folder, cli),
+               "gltf_walk": lambda s: sc.clip_case(s, folder, cli, "kaykit_moves", "Walking_A"),
+               "gltf_run": lambda s: sc.clip_case(s, folder, cli, "kaykit_moves", "Running_A")}[case]
         try:
             return run(saved)
         except RuntimeError as ex:  # an operator's ERROR report: the figure is its line
@@ -217,6 +221,28 @@ def test_retarget_report_agrees_with_the_written_file_within_1_mm(rig, cli):
     agreement = found["report_vs_measured"]
     assert agreement["largest_disagreement_mm"] is not None and agreement["largest_disagreement_mm"] <= 1.0, \
         agreement
+
+
+@pytest.mark.parametrize("rig", cases("gltf_walk"))
+def test_a_gltf_walk_take_pops_no_more_than_itself(rig, cli):
+    """KayKit's Walking_A (a take of a glTF move library of another character, through --source-file and
+    --take): no more pop frames than the take itself on the same frames, and the limbs where its limbs are."""
+    _pops_within_the_clip(figures(rig, "gltf_walk", cli), "Walking_A")
+
+
+@pytest.mark.parametrize("rig", cases("gltf_run"))
+def test_a_gltf_run_take_pops_no_more_than_itself(rig, cli):
+    """KayKit's Running_A, in place: its stance feet slide under the body and never hold still, so no frame is
+    a contact, and where the floor would lift a foot the whole body rises instead (the legs keep the clip's
+    angles); no more pop frames than the take itself."""
+    _pops_within_the_clip(figures(rig, "gltf_run", cli), "Running_A")
+
+
+def _pops_within_the_clip(found, take):
+    assert found["exit_code"] == 0 and take in found["source_action"], found
+    assert found["largest_step_deg"] > 0.5 * found["source_largest_step_deg"], found  # it moves, as the clip does
+    assert found["pop_frames"] <= found["source_pop_frames"], found
+    assert found["limb_direction_median_deg"] < 5.0, found
 
 
 @pytest.mark.parametrize("rig", cases("clip_pops"))

@@ -221,6 +221,14 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     # The body first moves as its held hands and feet moved. The free trajectories ride on the shift and the
     # holds blend in on top of it, so the shift changes by at most half the blend speed a frame: together
     # they stay within what metrics counts as a pop (POP_SPEED).
+    if ground:
+        rise = _airborne_raise(free, soles, floor, contacts, step)
+        lifted = np.zeros((len(rise), 3))
+        lifted[:, 2] = rise
+        translate_body(target, start, lifted)
+        free += lifted[:, None]
+        own += lifted[:, None]
+        bases += lifted[:, None]
     targets = held(free)
     shift = body_shift(bases, targets, reach, feet_first, settings.reach_margin, settings.settle_margin, blend,
                        max_step=0.5 * step, preferred=_held_offset(targets, free, contacts, blend),
@@ -310,6 +318,17 @@ def _stand_in_place(free, found, s_points, soles, floor, leg, settings):
         if sum(c.stop - c.start for c in found[FEET[i]] if c.kind == GROUND) > _HELD_STANCE * len(free):
             continue  # its stances are held on the floor
         free[:, EFFECTORS.index(FEET[i]), 2] += offset
+
+
+def _airborne_raise(free, soles, floor, contacts, step):
+    """(F,) how far the whole body rises on the frames no foot holds a contact (a run's flight, an in-place
+    clip's sliding stance) where the floor would lift a foot (``free`` (F,E,3) its ankle, ``soles`` (F,2) the
+    ankles above their soles): the legs keep the source's angles, where lifting the ankle alone bends the knee
+    for a few frames. It rises and falls at the blend speed (``step`` a frame) around those frames."""
+    feet = [EFFECTORS.index(e) for e in FEET]
+    need = np.maximum(floor + soles - free[:, feet, 2], 0.0).max(axis=1)
+    need[contacts[:, feet].any(axis=1)] = 0.0
+    return np.maximum(_let_go(need, step), _let_go(need[::-1], step)[::-1])
 
 
 def _let_go(lift, step):
