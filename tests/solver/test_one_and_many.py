@@ -11,7 +11,9 @@ from hypothesis.extra.numpy import arrays
 from fullbody_adjust.solver.body import model as body
 from fullbody_adjust.solver.maths import lanes
 from fullbody_adjust.solver.fullbody import limb_rotations as lr
+from fullbody_adjust.solver.limits import joint_limits as jl
 from fullbody_adjust.solver.limits.joint_limits import CONE, FREE, HINGE
+from fullbody_adjust.solver.chain.fabrik import solve_chain_batch
 from fullbody_adjust.solver.fullbody.reach_balls import nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point
 from fullbody_adjust.solver.fullbody.trunk_curl import curl_chord, curl_start
 from fullbody_adjust.solver.chain.two_bone_start import two_bone_start
@@ -278,3 +280,66 @@ def test_primitives_on_one_value_as_numpy_on_many(a, b):
     for one, many in pairs:
         assert isinstance(one, float)
         np.testing.assert_array_equal(_bits(one), _bits(many[0]))
+
+
+def _limit_frames(rng, f):
+    """f unit parents, directions (some along the parent, opposite, along the axis), axes (some along the parent)
+    and fallbacks (some degenerate too)."""
+    unit = (lambda a: a / np.linalg.norm(a, axis=-1, keepdims=True))  # noqa: E731
+    parent, v, axis, fallback = (unit(rng.normal(size=(f, 3))) for _ in range(4))
+    v[1::7], v[2::7] = parent[1::7], -parent[2::7]
+    v[3::7] = unit(axis[3::7] - (axis[3::7] * parent[3::7]).sum(-1, keepdims=True) * parent[3::7])
+    axis[4::9] = parent[4::9]
+    fallback[2::14] = -parent[2::14]
+    return parent, v, axis, fallback
+
+
+@pytest.mark.parametrize("twist", [0.0, 0.4])
+def test_limits_one_and_many(twist):
+    """The joint limits' kernels (cone, hinge with and without twist, the hinge axis carried by the parent's swing)
+    on F directions at once and on each alone, bit for bit."""
+    rng = np.random.default_rng(int(twist * 10))
+    for f in (MANY, 300):
+        parent, v, axis, fallback = _limit_frames(rng, f)
+        ref = parent[::-1].copy()
+        calls = [lambda p, d, a, fb, r: jl.cone(p, d, 1.1, fb), lambda p, d, a, fb, r: jl.cone(p, d, 0.2, fb),
+                 lambda p, d, a, fb, r: jl.hinge(p, d, a, -0.3, 2.2, fb, twist),
+                 lambda p, d, a, fb, r: jl.hinge(p, d, a, 0.5, 0.5, fb, twist),
+                 lambda p, d, a, fb, r: (jl.carry(a, r, p), False)]
+        for call in calls:
+            together, bind_all = call(*(jl.parts(x) for x in (parent, v, axis, fallback, ref)))
+            together = jl.whole(together, (f, 3))
+            bind_all = np.broadcast_to(bind_all, (f,))
+            for k in range(f):
+                one, bind = call(*(tuple(x[k].tolist()) for x in (parent, v, axis, fallback, ref)))
+                assert isinstance(one[0], float) and bind == bind_all[k]
+                np.testing.assert_array_equal(_bits(np.array(one)), _bits(together[k]), err_msg=f"frame {k}")
+
+
+def _chain_batches(seed, count):
+    """Problems of tests/solver/test_obstacle_response.py (limits, boxes on the way) made MANY chains each (the
+    first chain's start toward jittered targets), with and without their boxes."""
+    from .test_obstacle_response import _problems
+    rng = np.random.default_rng(seed)
+    for k, (starts, targets, limits, parents, boxes) in enumerate(_problems(seed, count)):
+        starts = np.repeat(starts[:1], MANY, axis=0)
+        targets = targets[:1] + rng.normal(scale=0.3, size=(MANY, 3)) * (k % 3)
+        targets[1] = starts[1, -1]  # a start already at its target
+        targets[2] *= 10.0  # beyond reach
+        yield starts, targets, limits, np.repeat(parents[:1], MANY, axis=0), boxes if k % 2 else None
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_chain_solves_one_and_many(seed):
+    """FABRIK with limits (and boxes on every other problem): MANY chains solved together (on arrays) against each
+    solved alone (on Python floats), bit for bit: positions, iterations, residuals, statuses and reasons."""
+    for starts, targets, limits, parents, boxes in _chain_batches(seed, 12):
+        together = solve_chain_batch(starts, targets, limits=limits, parent_directions=parents, obstacles=boxes)
+        for k in range(MANY):
+            one = slice(k, k + 1)
+            alone = solve_chain_batch(starts[one], targets[one], limits=limits, parent_directions=parents[one],
+                                      obstacles=boxes)
+            np.testing.assert_array_equal(_bits(alone.positions[0]), _bits(together.positions[k]))
+            assert alone.iterations[0] == together.iterations[k]
+            np.testing.assert_array_equal(_bits(alone.residual[0]), _bits(together.residual[k]))
+            assert (alone.status[0], alone.reason[0]) == (together.status[k], together.reason[k])

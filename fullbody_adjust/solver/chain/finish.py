@@ -6,10 +6,10 @@ import math
 
 import numpy as np
 
-from ..maths import geometry_plain as g
-from ..limits import limits_plain
+from ..maths import lanes
+from ..maths import vectors as g
 from ..maths.geometry import any_set, cross, dot, norm, outward_angles, unit_or_perpendicular
-from ..limits.joint_limits import CONE, FREE, HINGE, apply_cone, apply_hinge, carry_axis, carry_axis_plain
+from ..limits.joint_limits import CONE, FREE, HINGE, apply_cone, apply_hinge, carry, carry_axis, cone, limit
 from ..obstacles.boxes import penetrates_one
 
 # Two-segment finish (ChainModel._two_bone_finish): swivel angles of the middle joint around the pivot ->
@@ -19,10 +19,6 @@ _SWIVEL_ANGLES = outward_angles(48)
 _SWIVEL_COS, _SWIVEL_SIN = np.cos(_SWIVEL_ANGLES), np.sin(_SWIVEL_ANGLES)
 _SWIVEL_COS_LIST, _SWIVEL_SIN_LIST = _SWIVEL_COS.tolist(), _SWIVEL_SIN.tolist()
 _MIN_FINISH_TWIST = math.radians(5)
-# Up to this many chains, the limits are first checked in plain floats (the same bits) on each chain's first
-# candidate clear of the boxes alone: where that one holds, it is the pick (every finish of bench/interactive.py's
-# obstacle case), and numpy's limit checks of all 48 candidates were half the finish's time.
-_FEW_CHAINS = 4
 
 
 class TwoBoneFinish:
@@ -149,7 +145,7 @@ class TwoBoneFinish:
         """clear & _limits_hold(...) (h,K), as far as the pick needs it: a few chains' first candidate clear of the
         boxes is checked in plain floats, and where it keeps the limits it is the only candidate left; the other
         chains get every candidate checked in numpy."""
-        if len(rows) > _FEW_CHAINS:
+        if not lanes.few(len(rows)):
             return clear & self._limits_hold(rows, P, E, S, a, v)
         ok = np.zeros_like(clear)
         rest = []
@@ -179,14 +175,14 @@ class TwoBoneFinish:
         j, k = self.n - 3, self.n - 2
         limits = self.limits
         if limits.kind[j] != FREE:
-            parent = self.parent_dirs[r].tolist() if j == 0 else g.divided_by_norm(g.sub(pose[j], pose[j - 1]))
-            if self._plain_limit_one(j, r, parent, u, first)[1]:
+            parent = self.parent_dirs[r].tolist() if j == 0 else g.divided(g.sub(pose[j], pose[j - 1]), g.norm(g.sub(pose[j], pose[j - 1])))
+            if self._limit_one(j, r, parent, u, first)[1]:
                 return False
         if limits.kind[k] == CONE:
-            return not limits_plain.apply_cone(u, v, float(limits.cone_angle[k]), v)[1]
+            return not cone(u, v, float(limits.cone_angle[k]), v)[1]
         if limits.kind[k] == HINGE:
-            axis = carry_axis_plain(self.hinge_axes[r, k].tolist(), self.hinge_refs[r, k].tolist(), u)
-            return not limits_plain.limit(limits, k, u, v, v, axis)[1]
+            axis = carry(self.hinge_axes[r, k].tolist(), self.hinge_refs[r, k].tolist(), u)
+            return not limit(limits, k, u, v, v, axis)[1]
         return True
 
     def _limits_hold(self, rows, P, E, S, a, v):

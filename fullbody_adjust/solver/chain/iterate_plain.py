@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from ..maths import geometry_plain as g
+from ..maths import vectors as g
 from ..obstacles.response import _CIRCLE_COS, _CIRCLE_SIN
 from .settings import _COINCIDENT, _NUDGES, _PATIENCE, _STALL
 from ..limits.joint_limits import FREE, HINGE
@@ -140,7 +140,7 @@ class PlainIterations:
             d = ((point[0] - a[0]) / L, (point[1] - a[1]) / L, (point[2] - a[2]) / L)
             d = g.divided(d, g.norm(d))
             if limit is not None:
-                d = self._plain_limit_one(limit[0], r, limit[1], d, limit[2])[0]
+                d = self._limit_one(limit[0], r, limit[1], d, limit[2])[0]
             q = (a[0] + L * d[0], a[1] + L * d[1], a[2] + L * d[2])
             if not penetrates_one(lo, hi, a, q, skip_point, skip_segment):
                 return q
@@ -166,7 +166,7 @@ class PlainIterations:
                 child = g.divided(child, g.norm(child))
                 fallback = g.sub(prev[i + 1], prev[i])
                 fallback = g.divided(fallback, g.norm(fallback))
-                u = self._plain_limit_one(i + 1, r, child, (-d[0] / dn, -d[1] / dn, -d[2] / dn), fallback,
+                u = self._limit_one(i + 1, r, child, (-d[0] / dn, -d[1] / dn, -d[2] / dn), fallback,
                                           reverse=True)[0]
                 cand = (anchor[0] - u[0] * L, anchor[1] - u[1] * L, anchor[2] - u[2] * L)
             else:
@@ -212,7 +212,7 @@ class PlainIterations:
                     parent = g.divided(parent, g.norm(parent))
                 fallback = g.sub(prev[i + 1], prev[i])
                 fallback = g.divided(fallback, g.norm(fallback))
-                u, bind = self._plain_limit_one(i, r, parent, g.divided(d, dn), fallback)
+                u, bind = self._limit_one(i, r, parent, g.divided(d, dn), fallback)
                 binding = binding or bool(bind)
                 cand = (anchor[0] + u[0] * L, anchor[1] + u[1] * L, anchor[2] + u[2] * L)
                 limit = (i, parent, fallback)

@@ -5,8 +5,8 @@ iterate in plain floats (chain/iterate_plain.py), with the same bits."""
 
 import numpy as np
 
-from ..maths import geometry_plain as g
-from ..limits import limits_plain
+from ..maths import lanes
+from ..maths import vectors as vec
 from .finish import _MIN_FINISH_TWIST, TwoBoneFinish
 from .iterate_plain import PlainIterations
 from ..obstacles.response import ObstacleResponse
@@ -15,8 +15,7 @@ from .settings import (_COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL, ChainBat
     _reach_bounds, _segment_lengths)
 from ..errors import SolverInputError
 from ..maths.geometry import all_set, any_perpendicular, any_set, cross, norm
-from ..limits.joint_limits import (CONE, FREE, HINGE, JointLimits, apply_cone, apply_hinge, carry_axis,
-    carry_axis_plain)
+from ..limits.joint_limits import FREE, HINGE, JointLimits, carry, limit, parts, whole
 from ..obstacles.boxes import as_boxes, count_penetrations_few, points_inside, segments_cross
 
 # Up to this many problems, the limit steps (of the passes and of the limit check) run in plain floats
@@ -113,21 +112,20 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
     # -- limits -----------------------------------------------------------------------------------------------
 
     def _limit(self, i, rows, parent, dirs, fallback):
-        """Apply joint i's limit to unit dirs (b,3) or (b,c,3). Returns (dirs, binding (b,...))."""
-        if dirs.ndim == 2 and len(rows) <= _FEW_CHAINS:
-            out = self._plain_limit(i, rows, parent, dirs, fallback)
-            if out is not None:
-                return out
-        kind = self.limits.kind[i]
+        """Apply joint i's limit to unit dirs (b,3) or (b,c,3). Returns (dirs, binding (b,...)). A few rows each on
+        Python floats, more on component arrays (maths/lanes.py decides): one kernel, limits.joint_limits.limit."""
+        if dirs.ndim == 2 and lanes.few(len(rows)):
+            return self._rows_limited(i, rows, parent, dirs, fallback, False)
         extra = dirs.ndim - 2
-        expand = (lambda a: a.reshape(a.shape[:1] + (1,) * extra + a.shape[1:]))
-        if kind == CONE:
-            return apply_cone(expand(parent), dirs, self.limits.cone_angle[i], expand(fallback))
-        axis = self.hinge_axes[rows, i]
-        if i > 0:
-            axis = carry_axis(axis, self.hinge_refs[rows, i], parent)
-        return apply_hinge(expand(parent), dirs, expand(axis), self.limits.hinge_min[i], self.limits.hinge_max[i],
-                           expand(fallback), self.limits.hinge_twist[i])
+        expand = (lambda v: tuple(x.reshape(x.shape[:1] + (1,) * extra) for x in v))
+        axis = None
+        if self.limits.kind[i] == HINGE:
+            axis = parts(self.hinge_axes[rows, i])
+            if i > 0:
+                axis = carry(axis, parts(self.hinge_refs[rows, i]), parts(parent))
+            axis = expand(axis)
+        u, binding = limit(self.limits, i, expand(parts(parent)), parts(dirs), expand(parts(fallback)), axis)
+        return whole(u, dirs.shape), np.broadcast_to(binding, dirs.shape[:-1])
 
     def _limit_reverse(self, j, rows, child, dirs, fallback):
         """Forward-pass counterpart of joint j's limit (FABRIK 2011 applies limits in both passes): segment j
@@ -135,56 +133,35 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
         it. A cone is symmetric; for a hinge the angle from child to parent is clamped to [-max, -min], about
         the axis carried by the proposed parent direction. Only steers the proposal the backward pass starts
         from: the backward pass enforces the limits exactly."""
-        if len(rows) <= _FEW_CHAINS:
-            out = self._plain_limit(j, rows, child, dirs, fallback, reverse=True)
-            if out is not None:
-                return out[0]
-        if self.limits.kind[j] == CONE:
-            return apply_cone(child, dirs, self.limits.cone_angle[j], fallback)[0]
-        axis = carry_axis(self.hinge_axes[rows, j], self.hinge_refs[rows, j], dirs)
-        return apply_hinge(child, dirs, axis, -self.limits.hinge_max[j], -self.limits.hinge_min[j], fallback,
-                           self.limits.hinge_twist[j])[0]
+        if lanes.few(len(rows)):
+            return self._rows_limited(j, rows, child, dirs, fallback, True)[0]
+        axis = None
+        if self.limits.kind[j] == HINGE:
+            axis = carry(parts(self.hinge_axes[rows, j]), parts(self.hinge_refs[rows, j]), parts(dirs))
+        return whole(limit(self.limits, j, parts(child), parts(dirs), parts(fallback), axis, True)[0], dirs.shape)
 
-    def _plain_limit(self, i, rows, parent, dirs, fallback, reverse=False):
-        """_limit (reverse: _limit_reverse) of a few rows' directions (b,3) in plain floats (limits/limits_plain.py: the
-        same bits); None where plain floats cannot take a row (the numpy path answers then)."""
-        out, binding = [], []
-        try:
-            for r, p, v, fb in zip(rows.tolist(), parent.tolist(), dirs.tolist(), fallback.tolist()):
-                u, bind = self._plain_limit_one(i, r, p, v, fb, reverse)
-                out.append(u)
-                binding.append(bind)
-        except ZeroDivisionError:
-            return None
-        return np.array(out, dtype=np.float64).reshape(dirs.shape), np.array(binding, dtype=bool)
+    def _rows_limited(self, i, rows, parent, dirs, fallback, reverse):
+        """_limit (reverse: _limit_reverse) of a few rows' directions (b,3), each row on Python floats."""
+        out = [self._limit_one(i, r, p, v, fb, reverse) for r, p, v, fb
+               in zip(rows.tolist(), parent.tolist(), dirs.tolist(), fallback.tolist())]
+        return (np.array([o[0] for o in out], dtype=np.float64).reshape(dirs.shape),
+                np.array([o[1] for o in out], dtype=bool))
 
-    def _plain_limit_one(self, i, r, parent, v, fallback, reverse=False):
-        """_plain_limit of problem r's one direction v (3-vectors as lists). ZeroDivisionError where numpy would
-        divide by zero."""
+    def _limit_one(self, i, r, parent, v, fallback, reverse=False):
+        """Joint i's limit on problem r's one direction v (3-vectors as tuples or lists of floats)."""
         axis = None
         if self.limits.kind[i] == HINGE:
             axis = self.hinge_axes[r, i].tolist()
             if reverse or i > 0:  # carried by the proposed parent direction, or by the parent
-                axis = carry_axis_plain(axis, self.hinge_refs[r, i].tolist(), v if reverse else parent)
-        return limits_plain.limit(self.limits, i, parent, v, fallback, axis, reverse)
-
-    def _plain_binding(self, P, rows):
-        """violations' limit test of a few problems `rows` with poses P (b,n,3) in plain floats (the same bits as
-        the numpy path); None where plain floats cannot take a row."""
-        limited = np.nonzero(self.limits.kind != FREE)[0].tolist()
-        parents = None if self.parent_dirs is None else self.parent_dirs.tolist()
-        try:
-            return np.array([self._breaks_limits(r, chain, lengths, parents, limited) for r, chain, lengths
-                             in zip(rows.tolist(), P.tolist(), self.lengths[rows].tolist())], dtype=bool)
-        except ZeroDivisionError:
-            return None
+                axis = carry(axis, self.hinge_refs[r, i].tolist(), v if reverse else parent)
+        return limit(self.limits, i, parent, v, fallback, axis, reverse)
 
     def _breaks_limits(self, r, chain, lengths, parents, limited):
         """The limit test of problem r's pose ``chain`` (lists) in plain floats: segment directions as violations
         computes them, each limited joint's binding (ZeroDivisionError where numpy would divide by zero)."""
-        dirs = [g.divided(g.sub(b, a), length) for a, b, length in zip(chain, chain[1:], lengths)]
-        dirs = [g.divided(d, g.norm(d)) for d in dirs]
-        return any(self._plain_limit_one(i, r, parents[r] if i == 0 else dirs[i - 1], dirs[i], dirs[i])[1]
+        dirs = [vec.divided(vec.sub(b, a), length) for a, b, length in zip(chain, chain[1:], lengths)]
+        dirs = [vec.divided(d, vec.norm(d)) for d in dirs]
+        return any(self._limit_one(i, r, parents[r] if i == 0 else dirs[i - 1], dirs[i], dirs[i])[1]
                    for i in limited)
 
     # -- passes -----------------------------------------------------------------------------------------
@@ -319,16 +296,12 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
         it does not ignore."""
         bad = np.zeros(len(rows), dtype=bool)
         if self.limits is not None:
-            plain = self._plain_binding(P, rows) if len(rows) <= _FEW_CHAINS else None
-            if plain is not None:
-                bad |= plain
-            else:
-                lengths = self.lengths[rows]
-                dirs = (P[:, 1:] - P[:, :-1]) / lengths[..., None]
-                dirs = dirs / norm(dirs)[..., None]
-                for i in np.nonzero(self.limits.kind != FREE)[0]:
-                    parent = self.parent_dirs[rows] if i == 0 else dirs[:, i - 1]
-                    bad |= self._limit(i, rows, parent, dirs[:, i], dirs[:, i])[1]
+            lengths = self.lengths[rows]
+            dirs = (P[:, 1:] - P[:, :-1]) / lengths[..., None]
+            dirs = dirs / norm(dirs)[..., None]
+            for i in np.nonzero(self.limits.kind != FREE)[0]:
+                parent = self.parent_dirs[rows] if i == 0 else dirs[:, i - 1]
+                bad |= self._limit(i, rows, parent, dirs[:, i], dirs[:, i])[1]
         if self.boxes is not None:
             inside, crossing = self.penetration_counts(P, rows)
             bad |= (inside + crossing) > 0

@@ -7,7 +7,7 @@ those of limits/limits_plain.py, so each call returns the numpy path's bits (tes
 
 import numpy as np
 
-from ..maths import geometry_plain as g
+from ..maths import vectors as g
 from .settings import ChainBatchResult, _final_status
 from ..limits.joint_limits import FREE
 
@@ -77,7 +77,7 @@ class SettledChains:
                     parent = g.divided(parent, g.norm(parent))
                 fallback = g.sub(chain[i + 1], chain[i])
                 fallback = g.divided(fallback, g.norm(fallback))
-                u = self._plain_limit_one(i, r, parent, g.divided(d, dn), fallback)[0]
+                u = self._limit_one(i, r, parent, g.divided(d, dn), fallback)[0]
                 P.append(g.add(anchor, g.scaled(u, length)))
             else:
                 P.append(g.add(anchor, g.scaled(d, length / dn)))

@@ -19,6 +19,11 @@ FEW = 4
 _ARRAY = np.ndarray
 
 
+def few(frames):
+    """Whether `frames` problems are solved one at a time on Python floats (else together on arrays)."""
+    return frames <= FEW
+
+
 def many(x):
     """True when x holds a lane per frame (an array), False for one frame's float or bool."""
     return isinstance(x, _ARRAY)
