@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from fullbody_adjust.solver.body import model as body
-from fullbody_adjust.solver.maths import lanes
+from fullbody_adjust.solver.maths import geometry, lanes, vectors
 from fullbody_adjust.solver.fullbody import limb_rotations as lr
 from fullbody_adjust.solver.limits import joint_limits as jl
 from fullbody_adjust.solver.limits.joint_limits import CONE, FREE, HINGE
@@ -297,7 +297,7 @@ def _limit_frames(rng, f):
 @pytest.mark.parametrize("twist", [0.0, 0.4])
 def test_limits_one_and_many(twist):
     """The joint limits' kernels (cone, hinge with and without twist, the hinge axis carried by the parent's swing)
-    on F directions at once and on each alone, bit for bit."""
+    on F directions at once (whole arrays (F,3), and components (F,)) and on each alone, bit for bit."""
     rng = np.random.default_rng(int(twist * 10))
     for f in (MANY, 300):
         parent, v, axis, fallback = _limit_frames(rng, f)
@@ -307,13 +307,14 @@ def test_limits_one_and_many(twist):
                  lambda p, d, a, fb, r: jl.hinge(p, d, a, 0.5, 0.5, fb, twist),
                  lambda p, d, a, fb, r: (jl.carry(a, r, p), False)]
         for call in calls:
-            together, bind_all = call(*(jl.parts(x) for x in (parent, v, axis, fallback, ref)))
-            together = jl.whole(together, (f, 3))
-            bind_all = np.broadcast_to(bind_all, (f,))
+            whole, whole_binding = call(parent, v, axis, fallback, ref)  # (F,3) arrays
+            lanes_out, lanes_binding = call(*((x[:, 0], x[:, 1], x[:, 2]) for x in (parent, v, axis, fallback, ref)))
+            np.testing.assert_array_equal(_bits(np.stack(lanes_out, axis=-1)), _bits(whole))
+            np.testing.assert_array_equal(np.broadcast_to(lanes_binding, (f,)), np.broadcast_to(whole_binding, (f,)))
             for k in range(f):
                 one, bind = call(*(tuple(x[k].tolist()) for x in (parent, v, axis, fallback, ref)))
-                assert isinstance(one[0], float) and bind == bind_all[k]
-                np.testing.assert_array_equal(_bits(np.array(one)), _bits(together[k]), err_msg=f"frame {k}")
+                assert isinstance(one[0], float) and bind == np.broadcast_to(whole_binding, (f,))[k]
+                np.testing.assert_array_equal(_bits(np.array(one)), _bits(whole[k]), err_msg=f"frame {k}")
 
 
 def _chain_batches(seed, count):
@@ -343,3 +344,18 @@ def test_chain_solves_one_and_many(seed):
             assert alone.iterations[0] == together.iterations[k]
             np.testing.assert_array_equal(_bits(alone.residual[0]), _bits(together.residual[k]))
             assert (alone.status[0], alone.reason[0]) == (together.status[k], together.reason[k])
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_matrix_times_vector_one_and_many(seed):
+    """geometry.apply_matrix on F matrices and vectors against vectors.apply_matrix on each frame's floats, bit for
+    bit, the sign of zero included (values over many magnitudes, a fifth of them +0.0 or -0.0)."""
+    rng = np.random.default_rng(seed)
+    values = (lambda shape: np.where(rng.random(shape) < 0.2, np.where(rng.random(shape) < 0.5, 0.0, -0.0),  # noqa: E731
+                                     rng.normal(size=shape) * np.exp(rng.normal(scale=4.0, size=shape))))
+    for f in (1, MANY, 2000):
+        m, v = values((f, 3, 3)), values((f, 3))
+        many = geometry.apply_matrix(m, v)
+        for k in range(f):
+            one = vectors.apply_matrix(tuple(map(tuple, m[k].tolist())), tuple(v[k].tolist()))
+            np.testing.assert_array_equal(_bits(np.array(one)), _bits(many[k]), err_msg=f"frame {k}")

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 from mathutils import Matrix
 
-from ...solver.maths import geometry_plain as g
+from ...solver.maths import vectors as g
 from ...solver.maths.geometry import affine_inverse
 from ..reading.pose import ROTATION_PROPERTY, continuous_rotation
 

@@ -15,7 +15,7 @@ from .settings import (_COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL, ChainBat
     _reach_bounds, _segment_lengths)
 from ..errors import SolverInputError
 from ..maths.geometry import all_set, any_perpendicular, any_set, cross, norm
-from ..limits.joint_limits import FREE, HINGE, JointLimits, carry, limit, parts, whole
+from ..limits.joint_limits import FREE, HINGE, JointLimits, carry, limit
 from ..obstacles.boxes import as_boxes, count_penetrations_few, points_inside, segments_cross
 
 # Up to this many problems, the limit steps (of the passes and of the limit check) run in plain floats
@@ -116,16 +116,15 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
         Python floats, more on component arrays (maths/lanes.py decides): one kernel, limits.joint_limits.limit."""
         if dirs.ndim == 2 and lanes.few(len(rows)):
             return self._rows_limited(i, rows, parent, dirs, fallback, False)
-        extra = dirs.ndim - 2
-        expand = (lambda v: tuple(x.reshape(x.shape[:1] + (1,) * extra) for x in v))
+        expand = (lambda v: v[:, None] if dirs.ndim == 3 else v)
         axis = None
         if self.limits.kind[i] == HINGE:
-            axis = parts(self.hinge_axes[rows, i])
+            axis = self.hinge_axes[rows, i]
             if i > 0:
-                axis = carry(axis, parts(self.hinge_refs[rows, i]), parts(parent))
+                axis = carry(axis, self.hinge_refs[rows, i], parent)
             axis = expand(axis)
-        u, binding = limit(self.limits, i, expand(parts(parent)), parts(dirs), expand(parts(fallback)), axis)
-        return whole(u, dirs.shape), np.broadcast_to(binding, dirs.shape[:-1])
+        u, binding = limit(self.limits, i, expand(parent), dirs, expand(fallback), axis)
+        return np.broadcast_to(u, dirs.shape), np.broadcast_to(binding, dirs.shape[:-1])
 
     def _limit_reverse(self, j, rows, child, dirs, fallback):
         """Forward-pass counterpart of joint j's limit (FABRIK 2011 applies limits in both passes): segment j
@@ -137,8 +136,8 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
             return self._rows_limited(j, rows, child, dirs, fallback, True)[0]
         axis = None
         if self.limits.kind[j] == HINGE:
-            axis = carry(parts(self.hinge_axes[rows, j]), parts(self.hinge_refs[rows, j]), parts(dirs))
-        return whole(limit(self.limits, j, parts(child), parts(dirs), parts(fallback), axis, True)[0], dirs.shape)
+            axis = carry(self.hinge_axes[rows, j], self.hinge_refs[rows, j], dirs)
+        return limit(self.limits, j, child, dirs, fallback, axis, True)[0]
 
     def _rows_limited(self, i, rows, parent, dirs, fallback, reverse):
         """_limit (reverse: _limit_reverse) of a few rows' directions (b,3), each row on Python floats."""

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..maths import geometry_plain as gp
+from ..maths import vectors as gp
 from ..body.model import CHAIN, ROOT
 from ..chain.fabrik import solve_chain_batch
 from ..chain.settings import ChainBatchResult, _final_status

@@ -181,9 +181,9 @@ def hinge_axis_from_bend(parent_dir, child_dir):
 
 def carry_axis(axis_at_start, start_parent_dir, parent_dir):
     """The hinge axis moved with its parent segment: the minimal swing from the start parent direction to the
-    current one, applied to the start axis. Arrays (...,3) (carry on components)."""
-    shape = np.broadcast_shapes(np.shape(axis_at_start), np.shape(start_parent_dir), np.shape(parent_dir))
-    return whole(carry(parts(axis_at_start), parts(start_parent_dir), parts(parent_dir)), shape)
+    current one, applied to the start axis. Arrays (...,3) (carry on the arrays)."""
+    axis, ref, parent = (np.asarray(a, dtype=np.float64) for a in (axis_at_start, start_parent_dir, parent_dir))
+    return np.broadcast_to(carry(axis, ref, parent), np.broadcast_shapes(axis.shape, ref.shape, parent.shape))
 
 
 def carry(axis, ref, parent):
@@ -209,25 +209,13 @@ def carry(axis, ref, parent):
     return vec.add(vec.add(axis, vec.scaled(turned, cos_less_1)), vec.scaled(side, sin_t))
 
 
-def parts(a):
-    """An array (...,3) as its components."""
-    a = np.asarray(a, dtype=np.float64)
-    return (a[..., 0], a[..., 1], a[..., 2])
-
-
-def whole(v, shape):
-    """Components as one array `shape` (...,3)."""
-    out = np.empty(shape)
-    out[..., 0], out[..., 1], out[..., 2] = v
-    return out
-
-
 def apply_cone(parent, v, angle, fallback):
-    """Clamp unit directions v (...,3) into the cone of half-angle `angle` about unit `parent` (cone on
-    components). Returns (limited directions, binding mask)."""
-    shape = np.broadcast_shapes(np.shape(parent), np.shape(v), np.shape(fallback))
-    u, over = cone(parts(parent), parts(v), angle, parts(fallback))
-    return whole(u, shape), np.broadcast_to(over, shape[:-1])
+    """Clamp unit directions v (...,3) into the cone of half-angle `angle` about unit `parent` (cone on the
+    arrays). Returns (limited directions, binding mask)."""
+    parent, v, fallback = (np.asarray(a, dtype=np.float64) for a in (parent, v, fallback))
+    shape = np.broadcast_shapes(parent.shape, v.shape, fallback.shape)
+    u, over = cone(parent, v, np.asarray(angle, dtype=np.float64), fallback)
+    return np.broadcast_to(u, shape), np.broadcast_to(over, shape[:-1])
 
 
 def cone(parent, v, angle, fallback):
@@ -266,11 +254,12 @@ def _clamp_angle(theta, lo, hi):
 
 
 def apply_hinge(parent, v, axis, lo, hi, fallback, twist=None):
-    """Put unit directions v (...,3) on the hinge (hinge on components). Returns (limited directions, binding
+    """Put unit directions v (...,3) on the hinge (hinge on the arrays). Returns (limited directions, binding
     mask: the direction had to change)."""
-    shape = np.broadcast_shapes(np.shape(parent), np.shape(v), np.shape(axis), np.shape(fallback))
-    u, binding = hinge(parts(parent), parts(v), parts(axis), lo, hi, parts(fallback), twist)
-    return whole(u, shape), np.broadcast_to(binding, shape[:-1])
+    parent, v, axis, fallback = (np.asarray(a, dtype=np.float64) for a in (parent, v, axis, fallback))
+    shape = np.broadcast_shapes(parent.shape, v.shape, axis.shape, fallback.shape)
+    u, binding = hinge(parent, v, axis, lo, hi, fallback, twist)
+    return np.broadcast_to(u, shape), np.broadcast_to(binding, shape[:-1])
 
 
 def hinge(parent, v, axis, lo, hi, fallback, twist=None):
