@@ -9,7 +9,6 @@ import numpy as np
 from ..maths import lanes
 from ..maths import vectors as g
 from ..maths.geometry import any_set, cross, dot, norm, outward_angles, unit_or_perpendicular
-from ..limits.joint_limits import CONE, FREE, HINGE, apply_cone, apply_hinge, carry, carry_axis, cone, limit
 from ..obstacles.boxes import penetrates_one
 
 # Two-segment finish (ChainModel._two_bone_finish): swivel angles of the middle joint around the pivot ->
@@ -134,8 +133,8 @@ class TwoBoneFinish:
                                           or penetrates_one(lo, hi, middle, end, skip_end, skip_end_segment)):
                     continue
                 u = g.divided(g.sub(middle, S), a)
-                holds = self._limits_hold_one(r, [list(joint) for joint in P], g.divided(u, g.norm(u)),
-                                              g.divided(first, g.norm(first)), list(v))
+                holds = self.limiting.finish_holds(r, [list(joint) for joint in P], g.divided(u, g.norm(u)),
+                                                   g.divided(first, g.norm(first)), list(v))
                 return (True, middle, end) if holds else None
         except ZeroDivisionError:
             return None
@@ -156,8 +155,8 @@ class TwoBoneFinish:
             u = g.divided(g.sub(E[q, c].tolist(), S[q].tolist()), float(a[q]))
             first = g.divided(g.sub(E[q, 0].tolist(), S[q].tolist()), float(a[q]))
             try:
-                holds = self._limits_hold_one(r, P[q].tolist(), g.divided(u, g.norm(u)),
-                                              g.divided(first, g.norm(first)), v[q, c].tolist())
+                holds = self.limiting.finish_holds(r, P[q].tolist(), g.divided(u, g.norm(u)),
+                                                   g.divided(first, g.norm(first)), v[q, c].tolist())
             except ZeroDivisionError:  # where numpy would divide by zero: numpy decides
                 holds = False
             if holds:
@@ -169,43 +168,11 @@ class TwoBoneFinish:
             ok[rest] = clear[rest] & self._limits_hold(rows[rest], P[rest], E[rest], S[rest], a[rest], v[rest])
         return ok
 
-    def _limits_hold_one(self, r, pose, u, first, v):
-        """_limits_hold of problem r's one candidate in plain floats (pose: its chain as lists): u the unit direction
-        pivot -> middle, first that of the first candidate (the pivot limit's fallback there), v middle -> target."""
-        j, k = self.n - 3, self.n - 2
-        limits = self.limits
-        if limits.kind[j] != FREE:
-            parent = self.parent_dirs[r].tolist() if j == 0 else g.divided(g.sub(pose[j], pose[j - 1]), g.norm(g.sub(pose[j], pose[j - 1])))
-            if self._limit_one(j, r, parent, u, first)[1]:
-                return False
-        if limits.kind[k] == CONE:
-            return not cone(u, v, float(limits.cone_angle[k]), v)[1]
-        if limits.kind[k] == HINGE:
-            axis = carry(self.hinge_axes[r, k].tolist(), self.hinge_refs[r, k].tolist(), u)
-            return not limit(limits, k, u, v, v, axis)[1]
-        return True
-
     def _limits_hold(self, rows, P, E, S, a, v):
-        """(h,K) bool: the pivot joint n-3 (toward the middle joints E from the pivot S, segment length a) and the
-        middle joint n-2 (toward the target along the unit v) keep their limits, for the finish candidates of
-        problems `rows` (P their poses)."""
-        j, k = self.n - 3, self.n - 2
+        """(h,K) bool: the finish candidates E (middle joints, from the pivots S, segment length a; v toward the
+        target) of problems `rows` (P their poses) keep the limits (ChainLimits.finish_holds)."""
         u = (E - S[:, None]) / a[:, None, None]
         u = u / norm(u)[..., None]
-        ok = np.ones(E.shape[:2], dtype=bool)
-        if self.limits.kind[j] != FREE:
-            if j == 0:
-                parent = self.parent_dirs[rows]
-            else:
-                parent = P[:, j] - P[:, j - 1]
-                parent = parent / norm(parent)[:, None]
-            ok &= ~self._limit(j, rows, parent, u, u[:, 0])[1]
-        if any_set(ok) and self.limits.kind[k] == CONE:
-            ok &= ~apply_cone(u, v, self.limits.cone_angle[k], v)[1]
-        elif any_set(ok) and self.limits.kind[k] == HINGE:
-            axis = carry_axis(self.hinge_axes[rows, k][:, None], self.hinge_refs[rows, k][:, None], u)
-            ok &= ~apply_hinge(u, v, axis, self.limits.hinge_min[k], self.limits.hinge_max[k], v,
-                               self.limits.hinge_twist[k])[1]
-        return ok
+        return self.limiting.finish_holds(rows, P, u, u[:, 0], v)
 
     # -- solve -------------------------------------------------------------------------------------------------

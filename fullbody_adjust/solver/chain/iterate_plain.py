@@ -107,7 +107,7 @@ class PlainIterations:
             i, parent, fallback = limit
 
             def limit_fn(h, dirs):  # backward()'s, on this one row
-                return self._limit(i, np.array([r])[h], np.array([parent])[h], dirs, np.array([fallback])[h])[0]
+                return self.limiting.step(i, np.array([r])[h], np.array([parent])[h], dirs, np.array([fallback])[h])[0]
         out, responded, _ = self._avoid(np.array([r]), np.array([anchor]), np.array([cand]), np.array([L]),
                                         np.array([ref]), joint, segment, limit_fn)
         return tuple(out[0].tolist()), bool(responded[0])
@@ -140,7 +140,7 @@ class PlainIterations:
             d = ((point[0] - a[0]) / L, (point[1] - a[1]) / L, (point[2] - a[2]) / L)
             d = g.divided(d, g.norm(d))
             if limit is not None:
-                d = self._limit_one(limit[0], r, limit[1], d, limit[2])[0]
+                d = self.limiting.step(limit[0], r, limit[1], d, limit[2])[0]
             q = (a[0] + L * d[0], a[1] + L * d[1], a[2] + L * d[2])
             if not penetrates_one(lo, hi, a, q, skip_point, skip_segment):
                 return q
@@ -166,8 +166,7 @@ class PlainIterations:
                 child = g.divided(child, g.norm(child))
                 fallback = g.sub(prev[i + 1], prev[i])
                 fallback = g.divided(fallback, g.norm(fallback))
-                u = self._limit_one(i + 1, r, child, (-d[0] / dn, -d[1] / dn, -d[2] / dn), fallback,
-                                          reverse=True)[0]
+                u = self.limiting.step(i + 1, r, child, (-d[0] / dn, -d[1] / dn, -d[2] / dn), fallback, True)[0]
                 cand = (anchor[0] - u[0] * L, anchor[1] - u[1] * L, anchor[2] - u[2] * L)
             else:
                 k = L / dn
@@ -212,7 +211,7 @@ class PlainIterations:
                     parent = g.divided(parent, g.norm(parent))
                 fallback = g.sub(prev[i + 1], prev[i])
                 fallback = g.divided(fallback, g.norm(fallback))
-                u, bind = self._limit_one(i, r, parent, g.divided(d, dn), fallback)
+                u, bind = self.limiting.step(i, r, parent, g.divided(d, dn), fallback)
                 binding = binding or bool(bind)
                 cand = (anchor[0] + u[0] * L, anchor[1] + u[1] * L, anchor[2] + u[2] * L)
                 limit = (i, parent, fallback)

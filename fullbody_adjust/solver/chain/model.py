@@ -5,8 +5,6 @@ iterate in plain floats (chain/iterate_plain.py), with the same bits."""
 
 import numpy as np
 
-from ..maths import lanes
-from ..maths import vectors as vec
 from .finish import _MIN_FINISH_TWIST, TwoBoneFinish
 from .iterate_plain import PlainIterations
 from ..obstacles.response import ObstacleResponse
@@ -15,7 +13,8 @@ from .settings import (_COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL, ChainBat
     _reach_bounds, _segment_lengths)
 from ..errors import SolverInputError
 from ..maths.geometry import all_set, any_perpendicular, any_set, cross, norm
-from ..limits.joint_limits import FREE, HINGE, JointLimits, carry, limit
+from ..limits.joint_limits import FREE, HINGE, JointLimits
+from .limited import ChainLimits
 from ..obstacles.boxes import as_boxes, count_penetrations_few, points_inside, segments_cross
 
 # Up to this many problems, the limit steps (of the passes and of the limit check) run in plain floats
@@ -39,12 +38,6 @@ def _nudge_directions(v, first, k):
     return q / norm(q)[:, None]
 
 
-def _per_problem(a, b, m):
-    """Per-joint vectors a (m,3) or (b,m,3) as (b,m,3); as they are when they are so already (a solver's own
-    limits carry per-problem arrays), without numpy's broadcast_to cost on every chain solve."""
-    return a if a.shape == (b, m, 3) else np.broadcast_to(a, (b, m, 3))
-
-
 class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations):
     """Per-solve constant data of B chains and the two FABRIK passes on any subset of them.
 
@@ -66,25 +59,6 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
         if limits is not None and len(limits) != m:
             raise SolverInputError(f"limits cover {len(limits)} joints but the chain has {m} limitable joints")
         self.limits = limits if limits is not None and limits.any_active else None
-        self._finishes = False
-        if self.limits is not None:
-            axes = self.limits.hinge_axis
-            if axes.ndim == 3 and axes.shape[0] != self.B:
-                raise SolverInputError(f"per-problem hinge axes have batch size {axes.shape[0]}, expected {self.B}")
-            self.hinge_axes = _per_problem(axes, self.B, m)
-            # The analytic two-segment finish needs a swivel range to pick from: not a hinge whose plane is fixed.
-            self._finishes = self.n >= 3 and (self.limits.kind[m - 1] != HINGE
-                                              or self.limits.hinge_twist[m - 1] >= _MIN_FINISH_TWIST)
-            # Where each hinge axis is given: its parent direction at the start pose, or the caller's.
-            ref = self.limits.hinge_reference
-            if ref is None:
-                self.hinge_refs = np.concatenate([self.start_dirs[:, :1], self.start_dirs[:, :-1]], axis=1)
-            else:
-                if ref.ndim == 3 and ref.shape[0] != self.B:
-                    raise SolverInputError(
-                        f"per-problem hinge references have batch size {ref.shape[0]}, expected {self.B}")
-                ref = _per_problem(ref, self.B, m)
-                self.hinge_refs = ref / np.maximum(norm(ref), 1e-300)[..., None]
         self.parent_dirs = None
         if parent_directions is not None:
             pd = np.asarray(parent_directions, dtype=np.float64)
@@ -98,6 +72,10 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
             self.parent_dirs = pd / pn[:, None]
         if self.limits is not None and self.limits.kind[0] != FREE and self.parent_dirs is None:
             raise SolverInputError("joint 0 has a limit but no parent_direction was given")
+        self.limiting = None if self.limits is None else ChainLimits(self.limits, self.start_dirs, self.parent_dirs)
+        # The analytic two-segment finish needs a swivel range to pick from: not a hinge whose plane is fixed.
+        self._finishes = self.limits is not None and self.n >= 3 and (
+            self.limits.kind[m - 1] != HINGE or self.limits.hinge_twist[m - 1] >= _MIN_FINISH_TWIST)
 
         obstacles = as_boxes(obstacles)
         self.boxes = obstacles if obstacles is not None and len(obstacles) > 0 else None
@@ -108,60 +86,6 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
             self.ignore_end = points_inside(targets, self.boxes)  # (B,K)
             self.ignore_base = points_inside(self.base, self.boxes)
             self.corners = self.boxes.corners()
-
-    # -- limits -----------------------------------------------------------------------------------------------
-
-    def _limit(self, i, rows, parent, dirs, fallback):
-        """Apply joint i's limit to unit dirs (b,3) or (b,c,3). Returns (dirs, binding (b,...)). A few rows each on
-        Python floats, more on component arrays (maths/lanes.py decides): one kernel, limits.joint_limits.limit."""
-        if dirs.ndim == 2 and lanes.few(len(rows)):
-            return self._rows_limited(i, rows, parent, dirs, fallback, False)
-        expand = (lambda v: v[:, None] if dirs.ndim == 3 else v)
-        axis = None
-        if self.limits.kind[i] == HINGE:
-            axis = self.hinge_axes[rows, i]
-            if i > 0:
-                axis = carry(axis, self.hinge_refs[rows, i], parent)
-            axis = expand(axis)
-        u, binding = limit(self.limits, i, expand(parent), dirs, expand(fallback), axis)
-        return np.broadcast_to(u, dirs.shape), np.broadcast_to(binding, dirs.shape[:-1])
-
-    def _limit_reverse(self, j, rows, child, dirs, fallback):
-        """Forward-pass counterpart of joint j's limit (FABRIK 2011 applies limits in both passes): segment j
-        is placed, so bend the parent direction dirs (b,3) of segment j-1 until segment j is a valid child of
-        it. A cone is symmetric; for a hinge the angle from child to parent is clamped to [-max, -min], about
-        the axis carried by the proposed parent direction. Only steers the proposal the backward pass starts
-        from: the backward pass enforces the limits exactly."""
-        if lanes.few(len(rows)):
-            return self._rows_limited(j, rows, child, dirs, fallback, True)[0]
-        axis = None
-        if self.limits.kind[j] == HINGE:
-            axis = carry(self.hinge_axes[rows, j], self.hinge_refs[rows, j], dirs)
-        return limit(self.limits, j, child, dirs, fallback, axis, True)[0]
-
-    def _rows_limited(self, i, rows, parent, dirs, fallback, reverse):
-        """_limit (reverse: _limit_reverse) of a few rows' directions (b,3), each row on Python floats."""
-        out = [self._limit_one(i, r, p, v, fb, reverse) for r, p, v, fb
-               in zip(rows.tolist(), parent.tolist(), dirs.tolist(), fallback.tolist())]
-        return (np.array([o[0] for o in out], dtype=np.float64).reshape(dirs.shape),
-                np.array([o[1] for o in out], dtype=bool))
-
-    def _limit_one(self, i, r, parent, v, fallback, reverse=False):
-        """Joint i's limit on problem r's one direction v (3-vectors as tuples or lists of floats)."""
-        axis = None
-        if self.limits.kind[i] == HINGE:
-            axis = self.hinge_axes[r, i].tolist()
-            if reverse or i > 0:  # carried by the proposed parent direction, or by the parent
-                axis = carry(axis, self.hinge_refs[r, i].tolist(), v if reverse else parent)
-        return limit(self.limits, i, parent, v, fallback, axis, reverse)
-
-    def _breaks_limits(self, r, chain, lengths, parents, limited):
-        """The limit test of problem r's pose ``chain`` (lists) in plain floats: segment directions as violations
-        computes them, each limited joint's binding (ZeroDivisionError where numpy would divide by zero)."""
-        dirs = [vec.divided(vec.sub(b, a), length) for a, b, length in zip(chain, chain[1:], lengths)]
-        dirs = [vec.divided(d, vec.norm(d)) for d in dirs]
-        return any(self._limit_one(i, r, parents[r] if i == 0 else dirs[i - 1], dirs[i], dirs[i])[1]
-                   for i in limited)
 
     # -- passes -----------------------------------------------------------------------------------------
 
@@ -187,7 +111,7 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
                 child = child / norm(child)[:, None]
                 fallback = prev[:, i + 1] - prev[:, i]
                 fallback = fallback / norm(fallback)[:, None]
-                u = self._limit_reverse(i + 1, rows, child, -d / dn[:, None], fallback)
+                u = self.limiting.step(i + 1, rows, child, -d / dn[:, None], fallback, True)[0]
                 cand = anchor - u * L[:, None]
             else:
                 cand = anchor + d * (L / dn)[:, None]
@@ -237,12 +161,12 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
                     parent = parent / norm(parent)[:, None]
                 fallback = prev[:, i + 1] - prev[:, i]
                 fallback = fallback / norm(fallback)[:, None]
-                u, bind = self._limit(i, rows, parent, d / dn[:, None], fallback)
+                u, bind = self.limiting.step(i, rows, parent, d / dn[:, None], fallback)
                 binding |= bind
                 cand = anchor + u * L[:, None]
 
                 def limit_fn(h, dirs, i=i, rows=rows, parent=parent, fallback=fallback):
-                    return self._limit(i, rows[h], parent[h], dirs, fallback[h])[0]
+                    return self.limiting.step(i, rows[h], parent[h], dirs, fallback[h])[0]
             else:
                 cand = anchor + d * (L / dn)[:, None]
             if self.boxes is not None:
@@ -295,12 +219,7 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
         it does not ignore."""
         bad = np.zeros(len(rows), dtype=bool)
         if self.limits is not None:
-            lengths = self.lengths[rows]
-            dirs = (P[:, 1:] - P[:, :-1]) / lengths[..., None]
-            dirs = dirs / norm(dirs)[..., None]
-            for i in np.nonzero(self.limits.kind != FREE)[0]:
-                parent = self.parent_dirs[rows] if i == 0 else dirs[:, i - 1]
-                bad |= self._limit(i, rows, parent, dirs[:, i], dirs[:, i])[1]
+            bad |= self.limiting.broken(rows, P, self.lengths[rows])
         if self.boxes is not None:
             inside, crossing = self.penetration_counts(P, rows)
             bad |= (inside + crossing) > 0

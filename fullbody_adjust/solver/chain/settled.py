@@ -40,7 +40,7 @@ class SettledChains:
                     chain = self._stretched(r, chain, lengths, target, base, None if parents is None else parents[r],
                                             limited)
                     iterations = 1
-                elif limited and self._breaks_limits(r, chain, lengths, parents, limited):
+                elif limited and self.limiting.broken(r, chain, lengths):
                     return None
                 else:
                     iterations = 0
@@ -77,7 +77,7 @@ class SettledChains:
                     parent = g.divided(parent, g.norm(parent))
                 fallback = g.sub(chain[i + 1], chain[i])
                 fallback = g.divided(fallback, g.norm(fallback))
-                u = self._limit_one(i, r, parent, g.divided(d, dn), fallback)[0]
+                u = self.limiting.step(i, r, parent, g.divided(d, dn), fallback)[0]
                 P.append(g.add(anchor, g.scaled(u, length)))
             else:
                 P.append(g.add(anchor, g.scaled(d, length / dn)))
