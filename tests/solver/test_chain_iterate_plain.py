@@ -71,7 +71,7 @@ def test_chains_among_boxes_iterate_the_same_in_plain_floats(seed, monkeypatch):
     chain the boxes pushed is not nudged, and the best iterate (fewest penetrations, then the nearest), its
     penetrations and the notes are the same."""
     calls, responses = [], []
-    avoid = ObstacleResponse._avoid
+    avoid = ObstacleResponse.avoid
 
     def counted_avoid(self, *args):
         out = avoid(self, *args)
@@ -84,7 +84,7 @@ def test_chains_among_boxes_iterate_the_same_in_plain_floats(seed, monkeypatch):
         for scale, limited, obstacles in ((1.0, True, boxes), (1.0, False, boxes), (1.6, True, boxes),
                                           (0.5, True, boxes), (1.0, True, held)):
             kwargs = {"limits": limits, "parent_directions": parents} if limited else {}
-            monkeypatch.setattr(ObstacleResponse, "_avoid", counted_avoid)
+            monkeypatch.setattr(ObstacleResponse, "avoid", counted_avoid)
 
             def solve(goals=targets * scale, obstacles=obstacles, kwargs=kwargs):
                 return solve_chain_batch(starts, goals, obstacles=obstacles, **kwargs)

@@ -74,8 +74,8 @@ class TwoBoneFinish:
             for seg, (p0, p1) in ((j, (S[:, None], E)), (k, (E, wrist))):
                 if not any_set(ok):
                     break
-                ign_joint, ign_seg = self._ignored(rows[h], seg + 1, seg)
-                inside, crossing = self._violations(
+                ign_joint, ign_seg = self.obstacles.ignored(rows[h], seg + 1, seg)
+                inside, crossing = self.obstacles.violations(
                     boxes, np.broadcast_to(p0, p1.shape), p1,
                     None if ign_joint is None else ign_joint[:, None], None if ign_seg is None else ign_seg[:, None])
                 ok &= ~(inside.any(axis=-1) | crossing.any(axis=-1))
@@ -115,11 +115,11 @@ class TwoBoneFinish:
             wn = g.norm(w)
             e1 = g.divided(w, wn) if wn > 1e-12 * a else g.any_perpendicular(e)
             e2 = g.cross(e, e1)
-            boxes = None if self.boxes is None else self._boxes_one(r)
+            boxes = None if self.boxes is None else self.obstacles.boxes_of(r)
             if boxes is not None:  # what the two segments (and the joints at their ends) ignore, as _ignored says
                 lo, hi = boxes[0], boxes[1]
-                skip_middle, skip_pivot_segment = self._ignored_one(boxes, j + 1, j)
-                skip_end, skip_end_segment = self._ignored_one(boxes, j + 2, j + 1)
+                skip_middle, skip_pivot_segment = self.obstacles.ignored_of(boxes, j + 1, j)
+                skip_end, skip_end_segment = self.obstacles.ignored_of(boxes, j + 2, j + 1)
             first = None
             for cos_k, sin_k in zip(_SWIVEL_COS_LIST, _SWIVEL_SIN_LIST):
                 ring = (cos_k * e1[0] + sin_k * e2[0], cos_k * e1[1] + sin_k * e2[1], cos_k * e1[2] + sin_k * e2[2])

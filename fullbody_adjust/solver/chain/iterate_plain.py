@@ -53,7 +53,7 @@ class PlainIterations:
         stall = tol * _STALL
         target = self.targets[r].tolist()
         lengths = self.lengths[r].tolist()
-        boxes = None if self.boxes is None else self._boxes_one(r)
+        boxes = None if self.boxes is None else self.obstacles.boxes_of(r)
         residual = g.norm(g.sub(chain[-1], target))
         if not (residual > tol or forced):
             return chain, 0, residual, False, False, False, self._penetrations_one(chain, boxes)
@@ -96,7 +96,7 @@ class PlainIterations:
         floats (_circle_point_one); numpy's whole response where that finds no clear point. ``limit``: (joint,
         parent direction, fallback) of the backward pass's limit on the joint's direction, or None."""
         lo, hi = boxes[0], boxes[1]
-        skip_point, skip_segment = self._ignored_one(boxes, joint, segment)
+        skip_point, skip_segment = self.obstacles.ignored_of(boxes, joint, segment)
         if not penetrates_one(lo, hi, anchor, cand, skip_point, skip_segment):
             return cand, False
         point = self._circle_point_one(r, anchor, cand, L, ref, lo, hi, skip_point, skip_segment, limit)
@@ -108,7 +108,7 @@ class PlainIterations:
 
             def limit_fn(h, dirs):  # backward()'s, on this one row
                 return self.limiting.step(i, np.array([r])[h], np.array([parent])[h], dirs, np.array([fallback])[h])[0]
-        out, responded, _ = self._avoid(np.array([r]), np.array([anchor]), np.array([cand]), np.array([L]),
+        out, responded, _ = self.obstacles.avoid(np.array([r]), np.array([anchor]), np.array([cand]), np.array([L]),
                                         np.array([ref]), joint, segment, limit_fn)
         return tuple(out[0].tolist()), bool(responded[0])
 
@@ -118,7 +118,7 @@ class PlainIterations:
         k = first_box_holding(lo, hi, p, skip_point)
         if k < 0:
             return None  # only the segment crosses a box: every candidate is weighed (numpy)
-        corners = (self.corners[r, k] if self.boxes.batched else self.corners[k]).tolist()
+        corners = (self.obstacles.corners[r, k] if self.boxes.batched else self.obstacles.corners[k]).tolist()
         dis = max(g.norm(g.sub(corner, p)) for corner in corners) + self.settings.margin
         axis = g.sub(p, a)
         dd = g.norm(axis)

@@ -15,7 +15,7 @@ from ..errors import SolverInputError
 from ..maths.geometry import all_set, any_perpendicular, any_set, cross, norm
 from ..limits.joint_limits import FREE, HINGE, JointLimits
 from .limited import ChainLimits
-from ..obstacles.boxes import as_boxes, count_penetrations_few, points_inside, segments_cross
+from ..obstacles.boxes import as_boxes
 
 # Up to this many problems, the limit steps (of the passes and of the limit check) run in plain floats
 # (limits/limits_plain.py).
@@ -38,7 +38,7 @@ def _nudge_directions(v, first, k):
     return q / norm(q)[:, None]
 
 
-class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations):
+class ChainModel(TwoBoneFinish, SettledChains, PlainIterations):
     """Per-solve constant data of B chains and the two FABRIK passes on any subset of them.
 
     Built from the start positions: segment lengths and directions, limits (per joint), obstacles, and the
@@ -79,13 +79,8 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
 
         obstacles = as_boxes(obstacles)
         self.boxes = obstacles if obstacles is not None and len(obstacles) > 0 else None
-        if self.boxes is not None:
-            if self.boxes.batched and self.boxes.mins.shape[0] != self.B:
-                raise SolverInputError(
-                    f"per-problem boxes have batch size {self.boxes.mins.shape[0]}, expected {self.B}")
-            self.ignore_end = points_inside(targets, self.boxes)  # (B,K)
-            self.ignore_base = points_inside(self.base, self.boxes)
-            self.corners = self.boxes.corners()
+        self.obstacles = None if self.boxes is None else ObstacleResponse(self.boxes, targets, self.base, self.n,
+                                                                          settings.margin)
 
     # -- passes -----------------------------------------------------------------------------------------
 
@@ -116,7 +111,7 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
             else:
                 cand = anchor + d * (L / dn)[:, None]
             if self.boxes is not None and i > 0:  # joint 0 is re-pinned by the backward pass anyway
-                cand, resp, fail = self._avoid(rows, anchor, cand, L, ref[:, i], i, i, None)
+                cand, resp, fail = self.obstacles.avoid(rows, anchor, cand, L, ref[:, i], i, i, None)
                 responded |= resp
                 failed |= fail
             P[:, i] = cand
@@ -170,7 +165,7 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
             else:
                 cand = anchor + d * (L / dn)[:, None]
             if self.boxes is not None:
-                cand, resp, fail = self._avoid(rows, anchor, cand, L, ref[:, i + 1], i + 1, i, limit_fn)
+                cand, resp, fail = self.obstacles.avoid(rows, anchor, cand, L, ref[:, i + 1], i + 1, i, limit_fn)
                 responded |= resp
                 failed |= fail
             if finished is not None and i >= pivot:
@@ -190,16 +185,7 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
         if self.boxes is None:
             z = np.zeros(P.shape[0], dtype=np.int64)
             return z, z.copy()
-        boxes = self.boxes.select(rows)
-        few = count_penetrations_few(P, boxes, self.ignore_end[rows], self.ignore_base[rows])
-        if few is not None:
-            return np.array(few[0], dtype=np.int64), np.array(few[1], dtype=np.int64)
-        inside = points_inside(P[:, 1:], boxes)  # (b,n-1,K): joint 0 is fixed, reported separately
-        inside[:, -1] &= ~self.ignore_end[rows]
-        crossing = segments_cross(P[:, :-1], P[:, 1:], boxes)  # (b,n-1,K)
-        crossing[:, -1] &= ~self.ignore_end[rows]
-        crossing[:, 0] &= ~self.ignore_base[rows]
-        return inside.any(axis=-1).sum(axis=-1), crossing.any(axis=-1).sum(axis=-1)
+        return self.obstacles.penetration_counts(P, rows)
 
     def _nudge(self, P, rows, nudges, slots):
         """Push the interior joints of stalled problems `rows` sideways (see _NUDGES), in place; nudges[slots]
@@ -376,9 +362,9 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
                 if inside[j] or crossing[j]:
                     notes.append(f"could not avoid obstacles: {inside[j]} joints inside, "
                                  f"{crossing[j]} segments crossing")
-                if any_set(self.ignore_end[j]):
+                if any_set(self.obstacles.ignore_end[j]):
                     notes.append("target inside obstacle")
-                if any_set(self.ignore_base[j]):
+                if any_set(self.obstacles.ignore_base[j]):
                     notes.append("base inside obstacle")
                 if notes:
                     st, why = "blocked", "; ".join(notes + [why])
