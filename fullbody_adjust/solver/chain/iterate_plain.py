@@ -13,8 +13,7 @@ import numpy as np
 
 from ..maths import vectors as g
 from ..obstacles.response import _CIRCLE_COS, _CIRCLE_SIN
-from .settings import _COINCIDENT, _NUDGES, _PATIENCE, _STALL
-from ..limits.joint_limits import FREE, HINGE
+from .settings import _NUDGES, _PATIENCE, _STALL
 from ..obstacles.boxes import count_penetrations_one, first_box_holding, penetrates_one
 
 _CIRCLE_COS_LIST, _CIRCLE_SIN_LIST = _CIRCLE_COS.tolist(), _CIRCLE_SIN.tolist()
@@ -52,7 +51,6 @@ class PlainIterations:
         tol = s.tolerance
         stall = tol * _STALL
         target = self.targets[r].tolist()
-        lengths = self.lengths[r].tolist()
         boxes = None if self.boxes is None else self.obstacles.boxes_of(r)
         residual = g.norm(g.sub(chain[-1], target))
         if not (residual > tol or forced):
@@ -62,8 +60,8 @@ class PlainIterations:
         while True:
             prev = chain
             placed = list(prev)
-            responded = self._forward_one(r, placed, prev, target, lengths, boxes)
-            binding, responded_back = self._backward_one(r, placed, list(placed), prev, lengths, boxes)
+            responded = self.forward(placed, r, prev, prev)[0]
+            binding, responded_back, _ = self.backward(placed, r, list(placed), prev, prev)
             responded = responded or responded_back
             iterations += 1
             res = g.norm(g.sub(placed[-1], target))
@@ -145,87 +143,6 @@ class PlainIterations:
             if not penetrates_one(lo, hi, a, q, skip_point, skip_segment):
                 return q
         return None
-
-    def _forward_one(self, r, P, prev, target, lengths, boxes):
-        """forward() of problem r in place on its pose P (a list of joints); returns whether the obstacles moved
-        a joint."""
-        limits = self.limits
-        n = self.n
-        P[-1] = target
-        responded = False
-        for i in range(n - 2, -1, -1):
-            anchor = P[i + 1]
-            d = g.sub(P[i], anchor)
-            L = lengths[i]
-            dn = g.norm(d)
-            if not dn > L * _COINCIDENT:
-                d = g.sub(prev[i], prev[i + 1])
-                dn = g.norm(d)
-            if limits is not None and i < n - 2 and limits.kind[i + 1] != FREE:
-                child = g.divided(g.sub(P[i + 2], anchor), lengths[i + 1])
-                child = g.divided(child, g.norm(child))
-                fallback = g.sub(prev[i + 1], prev[i])
-                fallback = g.divided(fallback, g.norm(fallback))
-                u = self.limiting.step(i + 1, r, child, (-d[0] / dn, -d[1] / dn, -d[2] / dn), fallback, True)[0]
-                cand = (anchor[0] - u[0] * L, anchor[1] - u[1] * L, anchor[2] - u[2] * L)
-            else:
-                k = L / dn
-                cand = (anchor[0] + d[0] * k, anchor[1] + d[1] * k, anchor[2] + d[2] * k)
-            if boxes is not None and i > 0:  # joint 0 is re-pinned by the backward pass anyway
-                cand, moved = self._avoid_one(r, anchor, cand, L, prev[i], i, i, boxes, None)
-                responded = responded or moved
-            P[i] = cand
-        return responded
-
-    def _backward_one(self, r, P, aims, prev, lengths, boxes):
-        """backward() of problem r in place on its pose P, aiming at ``aims`` (the forward pass's joints), without
-        root or stretch; returns (a limit bound, the obstacles moved a joint)."""
-        limits = self.limits
-        n = self.n
-        P[0] = tuple(self.base[r].tolist())
-        binding = responded = False
-        pivot = n - 3 if self._finishes else -1
-        finished = False
-        for i in range(n - 1):
-            if i == pivot:
-                one = self._two_bone_finish_one(r, P, aims)
-                if one is None:  # numpy's finish on the one chain
-                    done, elbow, wrist = self._two_bone_finish(np.array([P]), np.array([r]), np.array([aims]))
-                    one = bool(done[0]), tuple(elbow[0].tolist()), tuple(wrist[0].tolist())
-                finished, elbow, wrist = one
-            anchor = P[i]
-            d = g.sub(aims[i + 1], anchor)
-            if limits is not None and i + 1 < n - 1 and limits.kind[i + 1] == HINGE:
-                d = g.sub(aims[i + 1], aims[i])  # as backward(): the hinge's parent keeps its forward direction
-            L = lengths[i]
-            dn = g.norm(d)
-            if not dn > L * _COINCIDENT:
-                d = g.sub(prev[i + 1], prev[i])
-                dn = g.norm(d)
-            limit = None
-            if limits is not None and limits.kind[i] != FREE:
-                if i == 0:
-                    parent = self.parent_dirs[r].tolist()
-                else:
-                    parent = g.divided(g.sub(P[i], P[i - 1]), lengths[i - 1])
-                    parent = g.divided(parent, g.norm(parent))
-                fallback = g.sub(prev[i + 1], prev[i])
-                fallback = g.divided(fallback, g.norm(fallback))
-                u, bind = self.limiting.step(i, r, parent, g.divided(d, dn), fallback)
-                binding = binding or bool(bind)
-                cand = (anchor[0] + u[0] * L, anchor[1] + u[1] * L, anchor[2] + u[2] * L)
-                limit = (i, parent, fallback)
-            else:
-                k = L / dn
-                cand = (anchor[0] + d[0] * k, anchor[1] + d[1] * k, anchor[2] + d[2] * k)
-            if boxes is not None:
-                cand, moved = self._avoid_one(r, anchor, cand, L, prev[i + 1], i + 1, i, boxes, limit)
-                responded = responded or moved
-            if finished and i >= pivot:
-                cand = elbow if i == pivot else wrist
-                binding = responded = False
-            P[i + 1] = cand
-        return binding, responded
 
     def _nudged_one(self, r, P, nudges):
         """Problem r's pose P after its nudges-th nudge: ChainModel._nudge itself, on problem r's row of a batch."""

@@ -12,6 +12,8 @@ from .settled import SettledChains
 from .settings import (_COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL, ChainBatchResult, _final_status,
     _reach_bounds, _segment_lengths)
 from ..errors import SolverInputError
+from ..maths import lanes
+from ..maths import vectors as vec
 from ..maths.geometry import all_set, any_perpendicular, any_set, cross, norm
 from ..limits.joint_limits import FREE, HINGE, JointLimits
 from .limited import ChainLimits
@@ -72,6 +74,7 @@ class ChainModel(TwoBoneFinish, SettledChains, PlainIterations):
             self.parent_dirs = pd / pn[:, None]
         if self.limits is not None and self.limits.kind[0] != FREE and self.parent_dirs is None:
             raise SolverInputError("joint 0 has a limit but no parent_direction was given")
+        self._floats = {}
         self.limiting = None if self.limits is None else ChainLimits(self.limits, self.start_dirs, self.parent_dirs)
         # The analytic two-segment finish needs a swivel range to pick from: not a hinge whose plane is fixed.
         self._finishes = self.limits is not None and self.n >= 3 and (
@@ -84,97 +87,146 @@ class ChainModel(TwoBoneFinish, SettledChains, PlainIterations):
 
     # -- passes -----------------------------------------------------------------------------------------
 
+    def _problem(self, r):
+        """Problem r's (segment lengths, target, base, parent direction) as Python floats (passes on one problem)."""
+        if r not in self._floats:
+            self._floats[r] = (self.lengths[r].tolist(), tuple(self.targets[r].tolist()),
+                               tuple(self.base[r].tolist()),
+                               None if self.parent_dirs is None else self.parent_dirs[r].tolist())
+        return self._floats[r]
+
+    def _columns(self, rows, P, *poses):
+        """The passes' view of problems `rows`: (segment lengths, one per segment, and each pose as a list of joints).
+        One problem (rows an int): its floats, P and poses lists of joints already; many: (b,) and (b,3) views of
+        the arrays (P's joints written through P itself)."""
+        if rows.__class__ is int:
+            return (self._problem(rows)[0], P) + poses
+        return (list(self.lengths[rows].T), [P[:, i] for i in range(self.n)]) + tuple(
+            None if Q is None else [Q[:, i] for i in range(self.n)] for Q in poses)
+
+    def _place(self, P, joints, i, point):
+        """Joint i of the pose being placed at `point` (P: many problems' array, joints: one problem's list)."""
+        if joints is P:
+            P[i] = point
+        else:
+            P[:, i] = point
+
     def forward(self, P, rows, prev, ref, tip=None):
-        """Forward pass in place on P (b,n,3) of problems `rows`: effector to the target (or to `tip` (b,3)),
-        joints toward the base. prev: positions at the start of the iteration (fallback directions); ref:
-        obstacle-response reference."""
-        lengths = self.lengths[rows]
-        P[:, -1] = self.targets[rows] if tip is None else tip
-        responded = np.zeros(len(rows), dtype=bool)
-        failed = np.zeros(len(rows), dtype=bool)
+        """Forward pass in place on P of problems `rows`: effector to the target (or to `tip`), joints toward the
+        base. prev: positions at the start of the iteration (fallback directions); ref: obstacle-response reference.
+        Many problems: rows an index array, P, prev, ref (b,n,3), tip (b,3); one: rows an int, P, prev, ref lists of
+        n joints, tip a joint. Returns (obstacles responded, failed), per problem."""
+        lengths, joints, prev, ref = self._columns(rows, P, prev, ref)
+        one = joints is P
+        target = (self._problem(rows)[1] if one else self.targets[rows]) if tip is None else tip
+        self._place(P, joints, self.n - 1, target)
+        responded = failed = False if one else np.zeros(len(rows), dtype=bool)
+        kind = None if self.limits is None else self.limiting.kind
         for i in range(self.n - 2, -1, -1):
-            anchor = P[:, i + 1]
-            d = P[:, i] - anchor
-            L = lengths[:, i]
-            dn = norm(d)
-            bad = ~(dn > L * _COINCIDENT)
-            if any_set(bad):
-                d = np.where(bad[:, None], prev[:, i] - prev[:, i + 1], d)
-                dn = norm(d)
-            if self.limits is not None and i < self.n - 2 and self.limits.kind[i + 1] != FREE:
-                child = (P[:, i + 2] - anchor) / lengths[:, i + 1, None]
-                child = child / norm(child)[:, None]
-                fallback = prev[:, i + 1] - prev[:, i]
-                fallback = fallback / norm(fallback)[:, None]
-                u = self.limiting.step(i + 1, rows, child, -d / dn[:, None], fallback, True)[0]
-                cand = anchor - u * L[:, None]
+            anchor = joints[i + 1]
+            d = vec.sub(joints[i], anchor)
+            L = lengths[i]
+            dn = vec.norm(d)
+            bad = lanes.not_(dn > L * _COINCIDENT)
+            if lanes.any_(bad):
+                d = lanes.pick(bad, vec.sub(prev[i], prev[i + 1]), d)
+                dn = vec.norm(d)
+            if kind is not None and i < self.n - 2 and kind[i + 1] != FREE:
+                child = vec.divided(vec.sub(joints[i + 2], anchor), lengths[i + 1])
+                child = vec.divided(child, vec.norm(child))
+                fallback = vec.sub(prev[i + 1], prev[i])
+                fallback = vec.divided(fallback, vec.norm(fallback))
+                u = self.limiting.step(i + 1, rows, child, vec.divided(vec.neg(d), dn), fallback, True)[0]
+                cand = vec.sub(anchor, vec.scaled(u, L))
             else:
-                cand = anchor + d * (L / dn)[:, None]
+                cand = vec.add(anchor, vec.scaled(d, L / dn))
             if self.boxes is not None and i > 0:  # joint 0 is re-pinned by the backward pass anyway
-                cand, resp, fail = self.obstacles.avoid(rows, anchor, cand, L, ref[:, i], i, i, None)
-                responded |= resp
-                failed |= fail
-            P[:, i] = cand
+                cand, resp, fail = self._avoid(rows, anchor, cand, L, ref[i], i, i, None)
+                responded, failed = responded | resp, failed | fail
+            self._place(P, joints, i, cand)
         return responded, failed
 
     def backward(self, P, rows, aims, prev, ref, root=None, stretch=False):
-        """Backward pass in place on P (b,n,3): base pinned (to `root` (b,3) if given), joint i+1 placed toward
-        aims[:, i+1] (the forward-pass positions, or with `stretch` the target for every joint), limits then
-        obstacles applied. Returns (limit binding, obstacle responded, obstacle failed), each (b,)."""
-        lengths = self.lengths[rows]
-        P[:, 0] = self.base[rows] if root is None else root
-        b = len(rows)
-        binding = np.zeros(b, dtype=bool)
-        responded = np.zeros(b, dtype=bool)
-        failed = np.zeros(b, dtype=bool)
-        pivot = self.n - 3 if not stretch and root is None and self._finishes else -1
+        """Backward pass in place on P (as forward takes it): base pinned (to `root` if given), joint i+1 placed
+        toward aims[i+1] (the forward-pass positions, or with `stretch` the target for every joint), limits then
+        obstacles applied. Returns (limit binding, obstacle responded, obstacle failed), per problem."""
+        finish_on = None if stretch or root is not None or not self._finishes else (P, aims)
+        lengths, joints, aims, prev, ref = self._columns(rows, P, aims, prev, ref)
+        one = joints is P
+        self._place(P, joints, 0, (self._problem(rows)[2] if one else self.base[rows]) if root is None else root)
+        binding = responded = failed = False if one else np.zeros(len(rows), dtype=bool)
+        kind = None if self.limits is None else self.limiting.kind
+        pivot = self.n - 3 if finish_on is not None else -1
         finished = None
         for i in range(self.n - 1):
             if i == pivot:
-                finished, elbow, wrist = self._two_bone_finish(P, rows, aims)
-            anchor = P[:, i]
-            d = aims[:, i + 1] - anchor
-            if not stretch and self.limits is not None and i + 1 < self.n - 1 and self.limits.kind[i + 1] == HINGE:
+                finished, elbow, wrist = self._finish(rows, *finish_on)
+            anchor = joints[i]
+            d = vec.sub(aims[i + 1], anchor)
+            if not stretch and kind is not None and i + 1 < self.n - 1 and kind[i + 1] == HINGE:
                 # The parent segment of a hinge keeps its forward-pass direction instead of aiming at the
                 # forward-pass joint from the moved anchor: the hinge plane is carried by this direction, and
-                # the forward pass fitted that plane to the child (_limit_reverse). Re-aiming would turn the
-                # plane away from the target every iteration (measured: a limb with an elbow hinge and
+                # the forward pass fitted that plane to the child (the reverse limit step). Re-aiming would turn
+                # the plane away from the target every iteration (measured: a limb with an elbow hinge and
                 # perturbed targets went from about 1 in 3 reached to nearly all).
-                d = aims[:, i + 1] - aims[:, i]
-            L = lengths[:, i]
-            dn = norm(d)
-            bad = ~(dn > L * _COINCIDENT)
-            if any_set(bad):
-                d = np.where(bad[:, None], prev[:, i + 1] - prev[:, i], d)
-                dn = norm(d)
-            limit_fn = None
-            if self.limits is not None and self.limits.kind[i] != FREE:
+                d = vec.sub(aims[i + 1], aims[i])
+            L = lengths[i]
+            dn = vec.norm(d)
+            bad = lanes.not_(dn > L * _COINCIDENT)
+            if lanes.any_(bad):
+                d = lanes.pick(bad, vec.sub(prev[i + 1], prev[i]), d)
+                dn = vec.norm(d)
+            limit = None
+            if kind is not None and kind[i] != FREE:
                 if i == 0:
-                    parent = self.parent_dirs[rows]
+                    parent = self._problem(rows)[3] if one else self.parent_dirs[rows]
                 else:
-                    parent = (P[:, i] - P[:, i - 1]) / lengths[:, i - 1, None]
-                    parent = parent / norm(parent)[:, None]
-                fallback = prev[:, i + 1] - prev[:, i]
-                fallback = fallback / norm(fallback)[:, None]
-                u, bind = self.limiting.step(i, rows, parent, d / dn[:, None], fallback)
-                binding |= bind
-                cand = anchor + u * L[:, None]
-
-                def limit_fn(h, dirs, i=i, rows=rows, parent=parent, fallback=fallback):
-                    return self.limiting.step(i, rows[h], parent[h], dirs, fallback[h])[0]
+                    parent = vec.divided(vec.sub(joints[i], joints[i - 1]), lengths[i - 1])
+                    parent = vec.divided(parent, vec.norm(parent))
+                fallback = vec.sub(prev[i + 1], prev[i])
+                fallback = vec.divided(fallback, vec.norm(fallback))
+                u, bind = self.limiting.step(i, rows, parent, vec.divided(d, dn), fallback)
+                binding = binding | bind
+                cand = vec.add(anchor, vec.scaled(u, L))
+                limit = (i, parent, fallback)
             else:
-                cand = anchor + d * (L / dn)[:, None]
+                cand = vec.add(anchor, vec.scaled(d, L / dn))
             if self.boxes is not None:
-                cand, resp, fail = self.obstacles.avoid(rows, anchor, cand, L, ref[:, i + 1], i + 1, i, limit_fn)
-                responded |= resp
-                failed |= fail
+                cand, resp, fail = self._avoid(rows, anchor, cand, L, ref[i + 1], i + 1, i, limit)
+                responded, failed = responded | resp, failed | fail
             if finished is not None and i >= pivot:
-                cand[finished] = (elbow if i == pivot else wrist)[finished]
-                binding &= ~finished
-                responded &= ~finished
-                failed &= ~finished
-            P[:, i + 1] = cand
+                cand = lanes.pick(finished, elbow if i == pivot else wrist, cand)
+                kept = lanes.not_(finished)
+                binding, responded, failed = binding & kept, responded & kept, failed & kept
+            self._place(P, joints, i + 1, cand)
         return binding, responded, failed
+
+    def _finish(self, rows, P, aims):
+        """The two-segment finish (chain/finish.py) of one problem (its lists) or many (arrays): (finished, middle,
+        end)."""
+        if rows.__class__ is not int:
+            return self._two_bone_finish(P, rows, aims)
+        one = self._two_bone_finish_one(rows, P, aims)
+        if one is None:  # the finish on arrays, of the one chain
+            done, elbow, wrist = self._two_bone_finish(np.array([P]), np.array([rows]), np.array([aims]))
+            one = bool(done[0]), tuple(elbow[0].tolist()), tuple(wrist[0].tolist())
+        return one
+
+    def _avoid(self, rows, anchor, cand, L, ref, joint, segment, limit):
+        """The obstacle response (obstacles/response.py) for the joints at `cand`: one problem's in plain floats
+        where the paper's circle has a clear point (chain/iterate_plain.py), else on arrays; limit: the backward
+        pass's (joint, parent direction, fallback) or None. (positions, responded, failed)."""
+        if rows.__class__ is int:
+            point, moved = self._avoid_one(rows, anchor, cand, L, ref, joint, segment,
+                                           self.obstacles.boxes_of(rows), limit)
+            return point, moved, False
+        limit_fn = None
+        if limit is not None:
+            i, parent, fallback = limit
+
+            def limit_fn(h, dirs):
+                return self.limiting.step(i, rows[h], parent[h], dirs, fallback[h])[0]
+        return self.obstacles.avoid(rows, anchor, cand, L, ref, joint, segment, limit_fn)
 
     # -- solve ------------------------------------------------------------------------------------------
 

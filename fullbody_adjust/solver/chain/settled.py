@@ -22,7 +22,6 @@ class SettledChains:
         within reach and not met, a limit broken at the start) or a step numpy would divide by zero in."""
         tol = self.settings.tolerance
         limited = [] if self.limits is None else np.nonzero(self.limits.kind != FREE)[0].tolist()
-        parents = None if self.parent_dirs is None else self.parent_dirs.tolist()
         problems = []
         for chain, lengths, target, base in zip(start.tolist(), self.lengths.tolist(), self.targets.tolist(),
                                                 self.base.tolist()):
@@ -37,8 +36,9 @@ class SettledChains:
         try:
             for r, (chain, lengths, target, base, total, dist) in enumerate(problems):
                 if dist > total:
-                    chain = self._stretched(r, chain, lengths, target, base, None if parents is None else parents[r],
-                                            limited)
+                    stretched = list(chain)  # every joint aimed at the target, limited where its joint is
+                    self.backward(stretched, r, [target] * self.n, chain, chain, stretch=True)
+                    chain = stretched
                     iterations = 1
                 elif limited and self.limiting.broken(r, chain, lengths):
                     return None
@@ -59,26 +59,3 @@ class SettledChains:
                                 np.array([row[3] for row in rows], dtype=bool),
                                 np.array([row[4][0] for row in rows], dtype=str),
                                 np.array([row[4][1] for row in rows], dtype=str))
-
-    def _stretched(self, r, chain, lengths, target, base, parent_dir, limited):
-        """ChainModel.backward with ``stretch`` on problem r: every segment aimed at the target from the base,
-        limited where its joint is. The target lies beyond every joint's reach, so no aim is shorter than
-        _COINCIDENT of its segment (the numpy pass's fallback for one never applies)."""
-        P = [base]
-        for i, length in enumerate(lengths):
-            anchor = P[i]
-            d = g.sub(target, anchor)
-            dn = g.norm(d)
-            if i in limited:
-                if i == 0:
-                    parent = parent_dir
-                else:
-                    parent = g.divided(g.sub(P[i], P[i - 1]), lengths[i - 1])
-                    parent = g.divided(parent, g.norm(parent))
-                fallback = g.sub(chain[i + 1], chain[i])
-                fallback = g.divided(fallback, g.norm(fallback))
-                u = self.limiting.step(i, r, parent, g.divided(d, dn), fallback)[0]
-                P.append(g.add(anchor, g.scaled(u, length)))
-            else:
-                P.append(g.add(anchor, g.scaled(d, length / dn)))
-        return P

@@ -31,6 +31,8 @@ def add(a, b):
 
 
 def neg(a):
+    if a.__class__ is _ARRAY:
+        return -a
     return (-a[0], -a[1], -a[2])
 
 
