@@ -6,9 +6,8 @@ iterate in plain floats (chain/iterate_plain.py), with the same bits."""
 import numpy as np
 
 from .finish import _MIN_FINISH_TWIST, TwoBoneFinish
-from .iterate_plain import PlainIterations
+from .one_problem import OneProblem
 from ..obstacles.response import ObstacleResponse
-from .settled import SettledChains
 from .settings import (_COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL, ChainBatchResult, _final_status,
     _reach_bounds, _segment_lengths)
 from ..errors import SolverInputError
@@ -40,7 +39,7 @@ def _nudge_directions(v, first, k):
     return q / norm(q)[:, None]
 
 
-class ChainModel(TwoBoneFinish, SettledChains, PlainIterations):
+class ChainModel:
     """Per-solve constant data of B chains and the two FABRIK passes on any subset of them.
 
     Built from the start positions: segment lengths and directions, limits (per joint), obstacles, and the
@@ -75,10 +74,12 @@ class ChainModel(TwoBoneFinish, SettledChains, PlainIterations):
         if self.limits is not None and self.limits.kind[0] != FREE and self.parent_dirs is None:
             raise SolverInputError("joint 0 has a limit but no parent_direction was given")
         self._floats = {}
+        self.one = OneProblem(self)
         self.limiting = None if self.limits is None else ChainLimits(self.limits, self.start_dirs, self.parent_dirs)
         # The analytic two-segment finish needs a swivel range to pick from: not a hinge whose plane is fixed.
         self._finishes = self.limits is not None and self.n >= 3 and (
             self.limits.kind[m - 1] != HINGE or self.limits.hinge_twist[m - 1] >= _MIN_FINISH_TWIST)
+        self.finish = TwoBoneFinish(self) if self._finishes else None
 
         obstacles = as_boxes(obstacles)
         self.boxes = obstacles if obstacles is not None and len(obstacles) > 0 else None
@@ -160,7 +161,7 @@ class ChainModel(TwoBoneFinish, SettledChains, PlainIterations):
         finished = None
         for i in range(self.n - 1):
             if i == pivot:
-                finished, elbow, wrist = self._finish(rows, *finish_on)
+                finished, elbow, wrist = self.finish.place(rows, *finish_on)
             anchor = joints[i]
             d = vec.sub(aims[i + 1], anchor)
             if not stretch and kind is not None and i + 1 < self.n - 1 and kind[i + 1] == HINGE:
@@ -201,23 +202,12 @@ class ChainModel(TwoBoneFinish, SettledChains, PlainIterations):
             self._place(P, joints, i + 1, cand)
         return binding, responded, failed
 
-    def _finish(self, rows, P, aims):
-        """The two-segment finish (chain/finish.py) of one problem (its lists) or many (arrays): (finished, middle,
-        end)."""
-        if rows.__class__ is not int:
-            return self._two_bone_finish(P, rows, aims)
-        one = self._two_bone_finish_one(rows, P, aims)
-        if one is None:  # the finish on arrays, of the one chain
-            done, elbow, wrist = self._two_bone_finish(np.array([P]), np.array([rows]), np.array([aims]))
-            one = bool(done[0]), tuple(elbow[0].tolist()), tuple(wrist[0].tolist())
-        return one
-
     def _avoid(self, rows, anchor, cand, L, ref, joint, segment, limit):
         """The obstacle response (obstacles/response.py) for the joints at `cand`: one problem's in plain floats
         where the paper's circle has a clear point (chain/iterate_plain.py), else on arrays; limit: the backward
         pass's (joint, parent direction, fallback) or None. (positions, responded, failed)."""
         if rows.__class__ is int:
-            point, moved = self._avoid_one(rows, anchor, cand, L, ref, joint, segment,
+            point, moved = self.one.avoid(rows, anchor, cand, L, ref, joint, segment,
                                            self.obstacles.boxes_of(rows), limit)
             return point, moved, False
         limit_fn = None
@@ -270,7 +260,7 @@ class ChainModel(TwoBoneFinish, SettledChains, PlainIterations):
         iterate)."""
         few_boxes = self.boxes is None or (self.boxes.axes is None and len(self.boxes) <= _FEW_BOXES)
         if (self.limits is not None or self.boxes is not None) and few_boxes and rows.size <= _FEW_CHAINS:
-            plain = self._iterate_plain(P, rows, force)  # the same bits (chain/iterate_plain.py)
+            plain = self.one.iterate(P, rows, force)  # the same bits (chain/iterate_plain.py)
             if plain is not None:
                 return plain
         s = self.settings
@@ -335,7 +325,7 @@ class ChainModel(TwoBoneFinish, SettledChains, PlainIterations):
 
     def solve(self, start):
         if self.boxes is None and self.B <= _FEW_CHAINS:
-            settled = self._solve_settled(start)  # no iteration needed: plain floats, the same bits
+            settled = self.one.settled(start)  # no iteration needed: plain floats, the same bits
             if settled is not None:
                 return settled
         B = self.B
