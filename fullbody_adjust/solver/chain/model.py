@@ -1,14 +1,15 @@
-"""The batch-first numpy chain solver: B chains (B, n, 3) with joint limits and obstacles, each problem leaving
-the active set when it converges, so a problem's result does not depend on what else is in the batch. A few
-problems' joint limits are applied in plain floats (limits/limits_plain.py), and a few limited or obstructed chains
-iterate in plain floats (chain/iterate_plain.py), with the same bits."""
+"""The chain solver: B chains (B, n, 3) with joint limits and obstacles, each problem leaving the active set when it
+converges, so a problem's result does not depend on what else is in the batch. FABRIK's passes are written once, on
+one problem's floats or many problems' arrays; a few problems are solved one at a time on floats (OneProblem), with
+the same bits as among many. The model owns its limits (ChainLimits), obstacles (ObstacleResponse), two-segment
+finish (TwoBoneFinish) and one-problem driver (OneProblem)."""
 
 import numpy as np
 
 from .finish import _MIN_FINISH_TWIST, TwoBoneFinish
 from .one_problem import OneProblem
 from ..obstacles.response import ObstacleResponse
-from .settings import (_COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL, ChainBatchResult, _final_status,
+from .settings import (_COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL, ChainBatchResult, statuses,
     _reach_bounds, _segment_lengths)
 from ..errors import SolverInputError
 from ..maths import lanes
@@ -18,9 +19,6 @@ from ..limits.joint_limits import FREE, HINGE, JointLimits
 from .limited import ChainLimits
 from ..obstacles.boxes import as_boxes
 
-# Up to this many problems, the limit steps (of the passes and of the limit check) run in plain floats
-# (limits/limits_plain.py).
-_FEW_CHAINS = 4
 # Up to this many axis-aligned boxes, a few chains iterate in plain floats among them too (each joint is tested
 # against every box in plain floats: beyond a few, numpy's one test of all of them costs less).
 _FEW_BOXES = 16
@@ -259,7 +257,7 @@ class ChainModel:
         stalled, limit binding, obstacle responses in the returned iterate, penetrations of the returned
         iterate)."""
         few_boxes = self.boxes is None or (self.boxes.axes is None and len(self.boxes) <= _FEW_BOXES)
-        if (self.limits is not None or self.boxes is not None) and few_boxes and rows.size <= _FEW_CHAINS:
+        if (self.limits is not None or self.boxes is not None) and few_boxes and lanes.few(rows.size):
             plain = self.one.iterate(P, rows, force)  # the same bits (chain/iterate_plain.py)
             if plain is not None:
                 return plain
@@ -324,7 +322,7 @@ class ChainModel:
         return iterations, residual, stalled, binding_out, obstacle_out, pen
 
     def solve(self, start):
-        if self.boxes is None and self.B <= _FEW_CHAINS:
+        if self.boxes is None and lanes.few(self.B):
             settled = self.one.settled(start)  # no iteration needed: plain floats, the same bits
             if settled is not None:
                 return settled
@@ -391,25 +389,10 @@ class ChainModel:
                 limit_binding[keep], obstacle_active[keep] = bind2[better], obst2[better]
 
         inside, crossing = self.penetration_counts(P)
-        status = np.empty(B, dtype=object)
-        reason = np.empty(B, dtype=object)
         # Plain Python values: indexing numpy arrays element by element costs more than the status logic.
-        per_problem = zip((residual <= tol).tolist(), reachable.tolist(), dist.tolist(), total.tolist(),
-                          inner.tolist(), stalled.tolist(), iterations.tolist(), obstacle_active.tolist(),
-                          limit_binding.tolist())
-        for j, args in enumerate(per_problem):
-            st, why = _final_status(*args)
-            if self.boxes is not None:
-                notes = []
-                if inside[j] or crossing[j]:
-                    notes.append(f"could not avoid obstacles: {inside[j]} joints inside, "
-                                 f"{crossing[j]} segments crossing")
-                if any_set(self.obstacles.ignore_end[j]):
-                    notes.append("target inside obstacle")
-                if any_set(self.obstacles.ignore_base[j]):
-                    notes.append("base inside obstacle")
-                if notes:
-                    st, why = "blocked", "; ".join(notes + [why])
-            status[j], reason[j] = st, why
-        return ChainBatchResult(P, iterations, residual, reachable, status.astype(str), reason.astype(str))
+        status, reason = statuses(zip((residual <= tol).tolist(), reachable.tolist(), dist.tolist(), total.tolist(),
+                                      inner.tolist(), stalled.tolist(), iterations.tolist(),
+                                      obstacle_active.tolist(), limit_binding.tolist()),
+                                  self.obstacles, inside, crossing)
+        return ChainBatchResult(P, iterations, residual, reachable, status, reason)
 
