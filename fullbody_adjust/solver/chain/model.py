@@ -202,7 +202,7 @@ class ChainModel:
 
     def _avoid(self, rows, anchor, cand, L, ref, joint, segment, limit):
         """The obstacle response (obstacles/response.py) for the joints at `cand`: one problem's in plain floats
-        where the paper's circle has a clear point (chain/iterate_plain.py), else on arrays; limit: the backward
+        where the paper's circle has a clear point (chain/one_problem.py), else on arrays; limit: the backward
         pass's (joint, parent direction, fallback) or None. (positions, responded, failed)."""
         if rows.__class__ is int:
             point, moved = self.one.avoid(rows, anchor, cand, L, ref, joint, segment,
@@ -258,7 +258,7 @@ class ChainModel:
         iterate)."""
         few_boxes = self.boxes is None or (self.boxes.axes is None and len(self.boxes) <= _FEW_BOXES)
         if (self.limits is not None or self.boxes is not None) and few_boxes and lanes.few(rows.size):
-            plain = self.one.iterate(P, rows, force)  # the same bits (chain/iterate_plain.py)
+            plain = self.one.iterate(P, rows, force)  # the same bits (chain/one_problem.py)
             if plain is not None:
                 return plain
         s = self.settings

@@ -163,7 +163,7 @@ class LimbPlacement(ClearanceEasing):
 
     def _propagate_one_frame(self, delta, trunk):
         """_propagate on one frame with its levels' per-bone steps in plain floats (the same operations:
-        geometry_plain's products add as einsum does); the limbs' solves, the leaves (fingers, face: many bones
+        vectors.apply_matrix adds as geometry.apply_matrix does); the limbs' solves, the leaves (fingers, face: many bones
         at once) and the tails in numpy as there."""
         model, H0, T0 = self.model, self.H0, self.T0
         J = len(model.names)

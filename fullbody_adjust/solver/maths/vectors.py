@@ -44,6 +44,8 @@ def scaled(v, s):
 
 def divided(v, s):
     """v / s, inf or NaN where s is zero (as numpy divides)."""
+    if s.__class__ is float and s != 0.0 and v.__class__ is not _ARRAY:
+        return (v[0] / s, v[1] / s, v[2] / s)
     if v.__class__ is _ARRAY:
         return v / s[..., None] if s.__class__ is _ARRAY else v / s  # as geometry's callers divide
     if not lanes.many(s) and s != 0.0:
