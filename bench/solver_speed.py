@@ -17,11 +17,21 @@ beyond any reach), 'obstacle' (a box where the left forearm would go). For each 
 Timings are process CPU time (time.process_time), medians of --repeats runs taken in turn with the figure they
 are compared to, so other processes on a shared machine disturb them less; compare figures only within one run.
 
-Run: .ci/with-bpy python bench/solver_speed.py [--repeats 30] [--frames 32]   (prints one JSON object)
+With --reference REV (a git revision of this repository, e.g. main), the same figures of that revision's solver
+are taken in the same run, each reference call alternated with the call it is compared to, and reported under
+"reference" with the ratios new / reference ("ratio_to_reference": medians; "min_ratio_to_reference": the
+fastest runs').
+
+Run: .ci/with-bpy python bench/solver_speed.py [--repeats 30] [--frames 32] [--reference REV]
+(prints one JSON object)
 """
 
+import argparse
+import importlib
 import json
+import subprocess
 import sys
+import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -30,13 +40,16 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.command_line import whole_number_options  # noqa: E402
-from fullbody_adjust.solver.fullbody.adjust import adjust_frames, adjust_pose  # noqa: E402
+import fullbody_adjust.solver.fullbody.adjust as current  # noqa: E402
 from tests.helpers import metarig  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+_MINIMA = {}
 
 
 def median_us(repeats, *fns):
-    """Median µs of each function, run in turn (a, b, a, b, ...) so a change of machine load hits them alike."""
+    """Median µs of each function, run in turn (a, b, a, b, ...) so a change of machine load hits them alike (each
+    one's fastest run is kept in _MINIMA)."""
     for fn in fns:
         fn()  # warm-up
     times = [[] for _ in fns]
@@ -45,7 +58,31 @@ def median_us(repeats, *fns):
             t0 = time.process_time()
             fn()
             out.append(time.process_time() - t0)
+    for fn, t in zip(fns, times):
+        _MINIMA[fn] = 1e6 * float(np.min(t))
     return [1e6 * float(np.median(t)) for t in times]
+
+
+def reference_solver(rev, into):
+    """The solver package of git revision `rev` as its own package (fullbody_adjust_ref, unpacked under `into`):
+    (its adjust module, its BodyModel, its Boxes)."""
+    archive = subprocess.run(["git", "-C", str(REPO), "archive", rev, "fullbody_adjust"], check=True,
+                             capture_output=True).stdout
+    subprocess.run(["tar", "-x", "-C", into], input=archive, check=True)
+    Path(into, "fullbody_adjust").rename(Path(into, "fullbody_adjust_ref"))
+    sys.path.insert(0, into)
+    adjust = importlib.import_module("fullbody_adjust_ref.solver.fullbody.adjust")
+    body = importlib.import_module("fullbody_adjust_ref.solver.body.model")
+    boxes = importlib.import_module("fullbody_adjust_ref.solver.obstacles.boxes")
+    return adjust, body.BodyModel, boxes.Boxes
+
+
+def options():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=30, help="timed runs per figure")
+    parser.add_argument("--frames", type=int, default=32, help="frames in the batch timing")
+    parser.add_argument("--reference", default=None, help="a git revision whose solver is timed alongside")
+    return parser.parse_args()
 
 
 def max_difference(a, b):
@@ -57,52 +94,86 @@ def max_difference(a, b):
     return worst
 
 
-def main():
-    args = whole_number_options(__doc__, ("--repeats", 30, "timed runs per figure"),
-                                ("--frames", 32, "frames in the batch timing"))
+def timed_functions(solver, model, heads, tails, x_axes, targets, frames_targets, kwargs):
+    """(single, batch_one, cold, new_start, batch_many) of one solver (an adjust module) on one case."""
+    adjust_frames, adjust_pose = solver.adjust_frames, solver.adjust_pose
+    n = len(frames_targets)
 
+    def single(t=targets, solving=model):
+        return adjust_pose(solving, heads, tails, t, metarig.EFFECTORS, metarig.PRIORITIES,
+                           bone_x_axes=x_axes, **kwargs)
+
+    def cold():
+        return single(solving=replace(model))
+
+    wrist, starts = model.limbs["arm.R"].end_bone, [0]
+
+    def new_start():
+        # A start seen for the first time whose other limbs are as in the one before (a click after a click
+        # that moved the right hand; the left arm's box makes its solve's cost depend on the tiniest change of
+        # its own start): prepared again, the unchanged limbs' limits and checks kept.
+        starts[0] += 1
+        h = heads.copy()
+        h[wrist] += 1e-7 * starts[0]
+        return adjust_pose(model, h, tails, targets, metarig.EFFECTORS, metarig.PRIORITIES, bone_x_axes=x_axes,
+                           **kwargs)
+
+    def batch_one():
+        return adjust_frames(model, heads[None], tails[None], targets[None], metarig.EFFECTORS,
+                             metarig.PRIORITIES, bone_x_axes=x_axes[None], **kwargs)
+
+    def batch_many():
+        return adjust_frames(model, np.repeat(heads[None], n, 0), np.repeat(tails[None], n, 0), frames_targets,
+                             metarig.EFFECTORS, metarig.PRIORITIES, bone_x_axes=np.repeat(x_axes[None], n, 0),
+                             **kwargs)
+
+    return single, batch_one, cold, new_start, batch_many
+
+
+def main():
+    args = options()
     model, heads, tails, x_axes = metarig.load()
     rng = np.random.default_rng(7)
     out = {"rig": f"Rigify human metarig, {len(model.names)} bones", "cases": {}}
+    reference = None
+    if args.reference:
+        tmp = tempfile.TemporaryDirectory()
+        ref_adjust, ref_body, ref_boxes = reference_solver(args.reference, tmp.name)
+        with np.load(metarig.DATA) as data:
+            ref_model = ref_body.from_description([str(n) for n in data["names"]], data["parents"].tolist(),
+                                                  json.loads(str(data["groups"])))
+        out["reference"] = {"revision": args.reference, "cases": {}}
     for kind in metarig.CASES:
         targets, boxes = metarig.case(model, heads, tails, kind)
-        kwargs = dict(obstacles=boxes)
-
-        def single(t=targets, solving=model):
-            return adjust_pose(solving, heads, tails, t, metarig.EFFECTORS, metarig.PRIORITIES,
-                               bone_x_axes=x_axes, **kwargs)
-
-        def cold():
-            return single(solving=replace(model))
-
-        wrist, starts = model.limbs["arm.R"].end_bone, [0]
-
-        def new_start():
-            # A start seen for the first time whose other limbs are as in the one before (a click after a click
-            # that moved the right hand; the left arm's box makes its solve's cost depend on the tiniest change of
-            # its own start): prepared again, the unchanged limbs' limits and checks kept.
-            starts[0] += 1
-            h = heads.copy()
-            h[wrist] += 1e-7 * starts[0]
-            return adjust_pose(model, h, tails, targets, metarig.EFFECTORS, metarig.PRIORITIES, bone_x_axes=x_axes,
-                               **kwargs)
-
-        def batch_one():
-            return adjust_frames(model, heads[None], tails[None], targets[None], metarig.EFFECTORS,
-                                 metarig.PRIORITIES, bone_x_axes=x_axes[None], **kwargs)
-
         jitter = rng.normal(scale=0.02, size=(args.frames, len(metarig.EFFECTORS), 3))
         jitter[0] = 0.0
         frames_targets = targets[None] + jitter  # the head's NaN row stays NaN (no target)
         n = args.frames
-
-        def batch_many():
-            return adjust_frames(model, np.repeat(heads[None], n, 0), np.repeat(tails[None], n, 0), frames_targets,
-                                 metarig.EFFECTORS, metarig.PRIORITIES, bone_x_axes=np.repeat(x_axes[None], n, 0),
-                                 **kwargs)
-
-        single_us, batch1_us, cold_us, new_us = median_us(args.repeats, single, batch_one, cold, new_start)
-        many_us = median_us(max(3, args.repeats // 10), batch_many)[0] / n
+        fns = timed_functions(current, model, heads, tails, x_axes, targets, frames_targets, dict(obstacles=boxes))
+        single, batch_one, cold, new_start, batch_many = fns
+        if args.reference:
+            ref_kwargs = dict(obstacles=None if boxes is None else ref_boxes(boxes.mins, boxes.maxs, boxes.axes))
+            reference = timed_functions(ref_adjust, ref_model, heads, tails, x_axes, targets, frames_targets,
+                                        ref_kwargs)
+            pairs = [f for pair in zip(fns[:4], reference[:4]) for f in pair]
+            times = median_us(args.repeats, *pairs)
+            single_us, batch1_us, cold_us, new_us = times[0::2]
+            ref_times = times[1::2]
+            many_pair = median_us(max(3, args.repeats // 10), batch_many, reference[4])
+            many_us, ref_many = many_pair[0] / n, many_pair[1] / n
+            names = ("single_pose_us", "batch_one_frame_us", "single_pose_cold_us", "single_pose_new_start_us",
+                     "batch_per_frame_us")
+            mins = [_MINIMA[f] for f in fns[:4]] + [_MINIMA[batch_many] / n]
+            ref_mins = [_MINIMA[f] for f in reference[:4]] + [_MINIMA[reference[4]] / n]
+            new_all = [single_us, batch1_us, cold_us, new_us, many_us]
+            ref_all = ref_times + [ref_many]
+            out["reference"]["cases"][kind] = {
+                name: {"new": round(a, 1), "reference": round(b, 1), "ratio_to_reference": round(a / b, 3),
+                       "min_ratio_to_reference": round(m / mr, 3)}
+                for name, a, b, m, mr in zip(names, new_all, ref_all, mins, ref_mins)}
+        else:
+            single_us, batch1_us, cold_us, new_us = median_us(args.repeats, single, batch_one, cold, new_start)
+            many_us = median_us(max(3, args.repeats // 10), batch_many)[0] / n
         many = batch_many()
         diff = max_difference(single(), batch_one()[0])
         for f in range(n):

@@ -1,13 +1,14 @@
 """The chain solver's two-segment finish checks a few chains' limits in plain floats first, on each chain's first
 candidate clear of the boxes (solver/chain/finish.py, _first_clear_holds): chain solves with joint limits, with and
-without boxes in the way, give the very same positions, iterations and statuses as when numpy checks every
-candidate."""
+without boxes in the way, give the very same positions, iterations and statuses as when every candidate is checked
+on arrays."""
 
 import numpy as np
 import pytest
 
 from fullbody_adjust.solver.chain.fabrik import solve_chain_batch
-from fullbody_adjust.solver.chain import finish as chain_finish
+from fullbody_adjust.solver.chain.limited import ChainLimits
+from fullbody_adjust.solver.maths import lanes
 
 from .test_obstacle_response import _problems
 
@@ -31,17 +32,19 @@ def _solve(problem):
 @pytest.mark.parametrize("problems", [_problems, _near_full_stretch])
 def test_the_first_clear_candidate_checked_alone_gives_what_checking_every_candidate_gives(problems, seed,
                                                                                           monkeypatch):
-    one = chain_finish.TwoBoneFinish._limits_hold_one
+    holds = ChainLimits.finish_holds
     answers = []
 
-    def counted(self, *args):
-        answers.append(one(self, *args))
-        return answers[-1]
+    def counted(self, rows, *args):
+        out = holds(self, rows, *args)
+        if rows.__class__ is int:  # one chain's first clear candidate
+            answers.append(out)
+        return out
 
     for problem in problems(seed):
-        monkeypatch.setattr(chain_finish.TwoBoneFinish, "_limits_hold_one", counted)
+        monkeypatch.setattr(ChainLimits, "finish_holds", counted)
         first = _solve(problem)
-        monkeypatch.setattr(chain_finish, "_FEW_CHAINS", 0)
+        monkeypatch.setattr(lanes, "FEW", 0)  # every candidate checked on arrays
         every = _solve(problem)
         monkeypatch.undo()
         np.testing.assert_array_equal(first.positions, every.positions)

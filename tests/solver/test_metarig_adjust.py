@@ -29,8 +29,8 @@ def _frames(rig, targets, boxes, **kwargs):
                          metarig.PRIORITIES, obstacles=boxes, bone_x_axes=np.repeat(x[None], n, 0), **kwargs)
 
 
-# Six frames: their stacked limbs (12 rows) take the numpy path, one frame alone the plain-float one (a few rows:
-# limits_plain, chain_settled, chain_iterate_plain).
+# Six frames: their stacked limbs (12 rows) are solved on arrays, one frame alone one problem at a time on floats
+# (chain/one_problem.py).
 offsets = arrays(np.float64, (6, 2, 3), elements=st.floats(-0.25, 0.25))
 
 

@@ -9,9 +9,11 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from fullbody_adjust.solver.limits import human
-from fullbody_adjust.solver.maths import lanes
+from fullbody_adjust.solver.maths import geometry, lanes, vectors
 from fullbody_adjust.solver.fullbody import limb_rotations as lr
-from fullbody_adjust.solver.limits.joint_limits import CONE, FREE, HINGE
+from fullbody_adjust.solver.limits import joint_limits as jl
+from fullbody_adjust.solver.limits.joint_limits import CONE, FREE, HINGE, JointLimits
+from fullbody_adjust.solver.chain.fabrik import solve_chain_batch
 from fullbody_adjust.solver.fullbody.reach_balls import nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point
 from fullbody_adjust.solver.fullbody.trunk_curl import curl_chord, curl_start
 from fullbody_adjust.solver.chain.two_bone_start import two_bone_start
@@ -278,3 +280,180 @@ def test_primitives_on_one_value_as_numpy_on_many(a, b):
     for one, many in pairs:
         assert isinstance(one, float)
         np.testing.assert_array_equal(_bits(one), _bits(many[0]))
+
+
+def _limit_frames(rng, f):
+    """f unit parents, directions (some along the parent, opposite, along the axis), axes (some along the parent)
+    and fallbacks (some degenerate too)."""
+    unit = (lambda a: a / np.linalg.norm(a, axis=-1, keepdims=True))  # noqa: E731
+    parent, v, axis, fallback = (unit(rng.normal(size=(f, 3))) for _ in range(4))
+    v[1::7], v[2::7] = parent[1::7], -parent[2::7]
+    v[3::7] = unit(axis[3::7] - (axis[3::7] * parent[3::7]).sum(-1, keepdims=True) * parent[3::7])
+    axis[4::9] = parent[4::9]
+    fallback[2::14] = -parent[2::14]
+    return parent, v, axis, fallback
+
+
+@pytest.mark.parametrize("twist", [0.0, 0.4])
+def test_limits_one_and_many(twist):
+    """The joint limits' kernels (cone, hinge with and without twist, the hinge axis carried by the parent's swing)
+    on F directions at once (whole arrays (F,3), and components (F,)) and on each alone, bit for bit."""
+    rng = np.random.default_rng(int(twist * 10))
+    for f in (MANY, 300):
+        parent, v, axis, fallback = _limit_frames(rng, f)
+        ref = parent[::-1].copy()
+        calls = [lambda p, d, a, fb, r: jl.cone(p, d, 1.1, fb), lambda p, d, a, fb, r: jl.cone(p, d, 0.2, fb),
+                 lambda p, d, a, fb, r: jl.hinge(p, d, a, -0.3, 2.2, fb, twist),
+                 lambda p, d, a, fb, r: jl.hinge(p, d, a, 0.5, 0.5, fb, twist),
+                 lambda p, d, a, fb, r: (jl.carry(a, r, p), False)]
+        for call in calls:
+            whole, whole_binding = call(parent, v, axis, fallback, ref)  # (F,3) arrays
+            lanes_out, lanes_binding = call(*((x[:, 0], x[:, 1], x[:, 2]) for x in (parent, v, axis, fallback, ref)))
+            np.testing.assert_array_equal(_bits(np.stack(lanes_out, axis=-1)), _bits(whole))
+            np.testing.assert_array_equal(np.broadcast_to(lanes_binding, (f,)), np.broadcast_to(whole_binding, (f,)))
+            for k in range(f):
+                one, bind = call(*(tuple(x[k].tolist()) for x in (parent, v, axis, fallback, ref)))
+                assert isinstance(one[0], float) and bind == np.broadcast_to(whole_binding, (f,))[k]
+                np.testing.assert_array_equal(_bits(np.array(one)), _bits(whole[k]), err_msg=f"frame {k}")
+
+
+def _chain_batches(seed, count):
+    """Problems of tests/solver/test_obstacle_response.py (limits, boxes on the way) made MANY chains each (the
+    first chain's start toward jittered targets), with and without their boxes."""
+    from .test_obstacle_response import _problems
+    rng = np.random.default_rng(seed)
+    for k, (starts, targets, limits, parents, boxes) in enumerate(_problems(seed, count)):
+        starts = np.repeat(starts[:1], MANY, axis=0)
+        targets = targets[:1] + rng.normal(scale=0.3, size=(MANY, 3)) * (k % 3)
+        targets[1] = starts[1, -1]  # a start already at its target
+        targets[2] *= 10.0  # beyond reach
+        yield starts, targets, limits, np.repeat(parents[:1], MANY, axis=0), boxes if k % 2 else None
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_chain_solves_one_and_many(seed):
+    """FABRIK with limits (and boxes on every other problem): MANY chains solved together (on arrays) against each
+    solved alone (on Python floats), bit for bit: positions, iterations, residuals, statuses and reasons."""
+    for starts, targets, limits, parents, boxes in _chain_batches(seed, 12):
+        together = solve_chain_batch(starts, targets, limits=limits, parent_directions=parents, obstacles=boxes)
+        for k in range(MANY):
+            one = slice(k, k + 1)
+            alone = solve_chain_batch(starts[one], targets[one], limits=limits, parent_directions=parents[one],
+                                      obstacles=boxes)
+            np.testing.assert_array_equal(_bits(alone.positions[0]), _bits(together.positions[k]))
+            assert alone.iterations[0] == together.iterations[k]
+            np.testing.assert_array_equal(_bits(alone.residual[0]), _bits(together.residual[k]))
+            assert (alone.status[0], alone.reason[0]) == (together.status[k], together.reason[k])
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_matrix_times_vector_one_and_many(seed):
+    """geometry.apply_matrix on F matrices and vectors against vectors.apply_matrix on each frame's floats, bit for
+    bit, the sign of zero included (values over many magnitudes, a fifth of them +0.0 or -0.0)."""
+    rng = np.random.default_rng(seed)
+    values = (lambda shape: np.where(rng.random(shape) < 0.2, np.where(rng.random(shape) < 0.5, 0.0, -0.0),  # noqa: E731
+                                     rng.normal(size=shape) * np.exp(rng.normal(scale=4.0, size=shape))))
+    for f in (1, MANY, 2000):
+        m, v = values((f, 3, 3)), values((f, 3))
+        many = geometry.apply_matrix(m, v)
+        for k in range(f):
+            one = vectors.apply_matrix(tuple(map(tuple, m[k].tolist())), tuple(v[k].tolist()))
+            np.testing.assert_array_equal(_bits(np.array(one)), _bits(many[k]), err_msg=f"frame {k}")
+
+
+def test_body_solves_with_a_rigs_locks_one_and_many():
+    """The elbow locked, so the arm is held short of most goals and the limited passes iterate long: every result
+    field of the whole-body solve of the frames as one batch equals that of each frame solved alone (as clicks
+    solve)."""
+    from fullbody_adjust.solver.limits.human import default_limits
+    from fullbody_adjust.solver.fullbody.adjust import adjust_frames
+    from fullbody_adjust.solver.limits.rig_limits import rig_limits
+    from .test_adjust import EFFECTORS
+    from .test_rig_limits import bone_axes, pulled, spec, synthetic_humanoid
+
+    model, h0, t0 = synthetic_humanoid()
+    a0 = bone_axes(model, h0, t0)
+    heads, tails, axes, targets = pulled(model, h0, t0, a0)
+    locked = spec(model, a0, "forearm.L", locked=(True, False, True))
+
+    def solve(frames):
+        h, t, x = heads[frames], tails[frames], axes[frames]
+        limits = rig_limits(default_limits(model, h, t, bone_x_axes=x[..., 0]), model, h, t, x, locked)
+        return adjust_frames(model, h, t, targets[frames], EFFECTORS, limits=limits)
+
+    together = solve(list(range(len(targets))))
+    assert len(targets) > lanes.FEW and np.max(together.iterations) >= 10
+    for f in range(len(targets)):
+        alone = solve([f])
+        for field in ("heads", "tails", "rotations", "residuals", "iterations", "sc_displacement",
+                      "root_displacement"):
+            np.testing.assert_array_equal(_bits(getattr(alone, field)[0]), _bits(getattr(together, field)[f]),
+                                          err_msg=f"{field}, frame {f}")
+        assert (alone.status[0] == together.status[f]).all() and (alone.reasons[0] == together.reasons[f]).all()
+
+
+def test_straight_chains_nudged_off_their_line_one_and_many(monkeypatch):
+    """Straight chains whose targets lie on their own line, short of the last two segments' range: FABRIK stalls
+    there and pushes the joints sideways (the nudge); together and alone, the same bits."""
+    from fullbody_adjust.solver.chain.model import ChainModel
+    nudge, nudged = ChainModel._nudge, []
+    monkeypatch.setattr(ChainModel, "_nudge", lambda self, *args: nudged.append(1) or nudge(self, *args))
+    rng = np.random.default_rng(7)
+    d = rng.normal(size=(MANY, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    lengths = rng.uniform(0.3, 1.0, (MANY, 4))
+    starts = np.concatenate([np.zeros((MANY, 1, 3)), np.cumsum(d[:, None] * lengths[..., None], axis=1)], axis=1)
+    targets = d * lengths.sum(axis=1, keepdims=True) * 0.2
+    limits = JointLimits.free(5).with_cone(0, 2.5)
+    together = solve_chain_batch(starts, targets, limits=limits, parent_directions=d)
+    for k in range(MANY):
+        one = slice(k, k + 1)
+        alone = solve_chain_batch(starts[one], targets[one], limits=limits, parent_directions=d[one])
+        np.testing.assert_array_equal(_bits(alone.positions[0]), _bits(together.positions[k]))
+        assert alone.iterations[0] == together.iterations[k] and alone.status[0] == together.status[k]
+    assert len(nudged) >= 2
+
+
+def test_two_segment_finish_one_and_many():
+    """The two-segment finish of one chain on floats (TwoBoneFinish._two_bone_finish_one) against the arrays' on the
+    same chain: random chains among boxes (some with a box around the base), forward-pass joints off the chain,
+    targets within the last two segments' range, just inside and just outside its ends (where the finish
+    declines), and a middle joint on the pivot-target line. Where it answers, the same joints, bit for bit."""
+    from fullbody_adjust.solver.chain.model import ChainModel
+    from fullbody_adjust.solver.chain.settings import ChainSettings
+    from fullbody_adjust.solver.obstacles.boxes import Boxes
+    from .test_obstacle_response import _problems
+    rng = np.random.default_rng(11)
+    answers = []
+    for k, (starts, targets, limits, parents, boxes) in enumerate(_problems(3, 60)):
+        if k % 2:  # a box around the base (at the origin), which the base's segment ignores
+            boxes = Boxes(np.concatenate([boxes.mins, [[-0.05] * 3]]), np.concatenate([boxes.maxs, [[0.05] * 3]]))
+        model = ChainModel(starts, targets, ChainSettings(), limits, boxes, parents)
+        if model.finish is None:
+            continue
+        j = model.n - 3
+        for r in range(model.B):
+            a, c = model.lengths[r, j], model.lengths[r, j + 1]
+            pivot = starts[r, j]
+            for case in range(5):
+                P = starts[r] + rng.normal(scale=0.05, size=starts[r].shape)
+                aims = starts[r] + rng.normal(scale=0.2, size=starts[r].shape)
+                P[j] = pivot
+                direction = rng.normal(size=3)
+                direction /= np.linalg.norm(direction)
+                reach = [rng.uniform(abs(a - c), a + c), (a + c) * (1 - 5e-10), (a + c) * (1 - 2e-9),
+                         abs(a - c) * (1 + 5e-10), rng.uniform(abs(a - c), a + c)][case]
+                model.targets[r] = pivot + direction * reach
+                if case == 4:
+                    aims[j + 1] = pivot + direction * 0.3 * reach
+                one = model.finish._two_bone_finish_one(r, P.tolist(), aims.tolist())
+                done, middle, end = model.finish._two_bone_finish(P[None], np.array([r]), aims[None])
+                if one is None:
+                    answers.append("arrays")
+                    continue
+                assert one[0] == bool(done[0])
+                if one[0]:
+                    np.testing.assert_array_equal(_bits(np.array(one[1])), _bits(middle[0]))
+                    np.testing.assert_array_equal(_bits(np.array(one[2])), _bits(end[0]))
+                answers.append(("declined", "finished")[one[0]])
+    assert answers.count("finished") >= 20 and answers.count("declined") >= 20

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 from mathutils import Matrix
 
-from ...solver.maths import geometry_plain as g
+from ...solver.maths import vectors as g
 from ...solver.maths.geometry import affine_inverse
 from ...solver.vocabulary import ROTATION_PROPERTY
 from ..writing.channels import continuous_rotation

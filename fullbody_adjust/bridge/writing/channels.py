@@ -25,7 +25,7 @@ import math
 import numpy as np
 from mathutils import Euler, Matrix, Vector
 
-from ...solver.maths import geometry_plain as gp
+from ...solver.maths import vectors as gp
 from ...solver.maths.geometry import affine_inverse, cross, dot, norm
 from ...solver.vocabulary import ROTATION_PROPERTY
 from ..errors import AdjustError
@@ -240,7 +240,7 @@ def _head_moved(bone, local, location, current, rest, pose_matrix, parent_kwargs
 
 def _reachable_one_frame(snapshot, armature, idx):
     """_reachable_armature_matrices of one frame (``armature`` (k,4,4)) in plain floats, with the same operations
-    (geometry_plain): numpy's per-call cost on a few bones was most of it."""
+    (solver/maths/vectors.py): numpy's per-call cost on a few bones was most of it."""
     out = []
     for matrix, pose_matrix in zip(armature.tolist(), snapshot.pose_matrices[0, idx].tolist()):
         y = _unit((matrix[0][1], matrix[1][1], matrix[2][1]), "a bone's Y axis")

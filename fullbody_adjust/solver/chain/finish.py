@@ -6,10 +6,9 @@ import math
 
 import numpy as np
 
-from ..maths import geometry_plain as g
-from ..limits import limits_plain
+from ..maths import lanes
+from ..maths import vectors as g
 from ..maths.geometry import any_set, cross, dot, norm, outward_angles, unit_or_perpendicular
-from ..limits.joint_limits import CONE, FREE, HINGE, apply_cone, apply_hinge, carry_axis, carry_axis_plain
 from ..obstacles.boxes import penetrates_one
 
 # Two-segment finish (ChainModel._two_bone_finish): swivel angles of the middle joint around the pivot ->
@@ -19,15 +18,25 @@ _SWIVEL_ANGLES = outward_angles(48)
 _SWIVEL_COS, _SWIVEL_SIN = np.cos(_SWIVEL_ANGLES), np.sin(_SWIVEL_ANGLES)
 _SWIVEL_COS_LIST, _SWIVEL_SIN_LIST = _SWIVEL_COS.tolist(), _SWIVEL_SIN.tolist()
 _MIN_FINISH_TWIST = math.radians(5)
-# Up to this many chains, the limits are first checked in plain floats (the same bits) on each chain's first
-# candidate clear of the boxes alone: where that one holds, it is the pick (every finish of bench/interactive.py's
-# obstacle case), and numpy's limit checks of all 48 candidates were half the finish's time.
-_FEW_CHAINS = 4
 
 
 class TwoBoneFinish:
-    """ChainModel's two-segment finish; it uses the model's lengths, targets, limits, hinge axes and references,
-    parent directions and obstacle checks."""
+    """The two-segment finish of a chain batch's backward pass (owned by chain.model.ChainModel, the `chain` whose
+    lengths, targets, limits and obstacles it reads)."""
+
+    def __init__(self, chain):
+        self.chain = chain
+
+    def place(self, rows, P, aims):
+        """The finish of one problem (rows an int; P, aims its lists of joints) or many (arrays): (finished, middle,
+        end)."""
+        if rows.__class__ is not int:
+            return self._two_bone_finish(P, rows, aims)
+        one = self._two_bone_finish_one(rows, P, aims)
+        if one is None:  # the finish on arrays, of the one chain
+            done, elbow, wrist = self._two_bone_finish(np.array([P]), np.array([rows]), np.array([aims]))
+            one = bool(done[0]), tuple(elbow[0].tolist()), tuple(wrist[0].tolist())
+        return one
 
     def _two_bone_finish(self, P, rows, aims):
         """Analytic placement of the last two segments in the backward pass, once their pivot joint n-3 is
@@ -39,20 +48,20 @@ class TwoBoneFinish:
         joint, the one FABRIK aims at, outward) the first is taken where the pivot's limit, the hinge (bend
         and twist) and the obstacles all hold exactly. Returns (finished (b,), middle (b,3), end (b,3)); rows
         with no such point (target out of the two segments' range, limits or boxes) are left to FABRIK."""
-        j = self.n - 3
+        j = self.chain.n - 3
         b = len(rows)
         finished = np.zeros(b, dtype=bool)
         middle = np.zeros((b, 3))
         end = np.zeros((b, 3))
-        lengths = self.lengths[rows]
+        lengths = self.chain.lengths[rows]
         a, c = lengths[:, j], lengths[:, j + 1]
         S = P[:, j]
-        to_t = self.targets[rows] - S
+        to_t = self.chain.targets[rows] - S
         d = norm(to_t)
         h = np.nonzero((d > np.abs(a - c) * (1.0 + 1e-9)) & (d < (a + c) * (1.0 - 1e-9)))[0]
         if h.size == 0:
             return finished, middle, end
-        a, c, d, S, T = a[h], c[h], d[h], S[h], self.targets[rows[h]]
+        a, c, d, S, T = a[h], c[h], d[h], S[h], self.chain.targets[rows[h]]
         e = to_t[h] / d[:, None]
         along = (a * a + d * d - c * c) / (2.0 * d)
         rho = np.sqrt(np.maximum(a * a - along * along, 0.0))
@@ -74,13 +83,13 @@ class TwoBoneFinish:
         # finish fails among obstacles, the lower segment's box test is what fails it (every failing finish of
         # bench/solver_speed.py's obstacle case and of three jittered copies of it), and it costs less than
         # the limits.
-        if self.boxes is not None:
-            boxes = self.boxes.select(rows[h])
+        if self.chain.boxes is not None:
+            boxes = self.chain.boxes.select(rows[h])
             for seg, (p0, p1) in ((j, (S[:, None], E)), (k, (E, wrist))):
                 if not any_set(ok):
                     break
-                ign_joint, ign_seg = self._ignored(rows[h], seg + 1, seg)
-                inside, crossing = self._violations(
+                ign_joint, ign_seg = self.chain.obstacles.ignored(rows[h], seg + 1, seg)
+                inside, crossing = self.chain.obstacles.violations(
                     boxes, np.broadcast_to(p0, p1.shape), p1,
                     None if ign_joint is None else ign_joint[:, None], None if ign_seg is None else ign_seg[:, None])
                 ok &= ~(inside.any(axis=-1) | crossing.any(axis=-1))
@@ -98,14 +107,14 @@ class TwoBoneFinish:
         end), or None where numpy decides (the first candidate clear of the boxes breaks a limit, or a division by
         zero). The candidates are made and tested against the boxes in order, up to the first clear one: numpy
         made and tested all 48 first, most of a finish's cost where the boxes leave an early one clear."""
-        if self.boxes is not None and self.boxes.axes is not None:
+        if self.chain.boxes is not None and self.chain.boxes.axes is not None:
             return None  # oriented boxes: numpy's tests
-        j = self.n - 3
+        j = self.chain.n - 3
         none = (0.0, 0.0, 0.0)
-        lengths = self.lengths[r].tolist()
+        lengths = self.chain.lengths[r].tolist()
         a, c = lengths[j], lengths[j + 1]
         S = tuple(P[j])
-        T = self.targets[r].tolist()
+        T = self.chain.targets[r].tolist()
         to_t = g.sub(T, S)
         d = g.norm(to_t)
         if not (d > abs(a - c) * (1.0 + 1e-9) and d < (a + c) * (1.0 - 1e-9)):
@@ -120,11 +129,11 @@ class TwoBoneFinish:
             wn = g.norm(w)
             e1 = g.divided(w, wn) if wn > 1e-12 * a else g.any_perpendicular(e)
             e2 = g.cross(e, e1)
-            boxes = None if self.boxes is None else self._boxes_one(r)
+            boxes = None if self.chain.boxes is None else self.chain.obstacles.boxes_of(r)
             if boxes is not None:  # what the two segments (and the joints at their ends) ignore, as _ignored says
                 lo, hi = boxes[0], boxes[1]
-                skip_middle, skip_pivot_segment = self._ignored_one(boxes, j + 1, j)
-                skip_end, skip_end_segment = self._ignored_one(boxes, j + 2, j + 1)
+                skip_middle, skip_pivot_segment = self.chain.obstacles.ignored_of(boxes, j + 1, j)
+                skip_end, skip_end_segment = self.chain.obstacles.ignored_of(boxes, j + 2, j + 1)
             first = None
             for cos_k, sin_k in zip(_SWIVEL_COS_LIST, _SWIVEL_SIN_LIST):
                 ring = (cos_k * e1[0] + sin_k * e2[0], cos_k * e1[1] + sin_k * e2[1], cos_k * e1[2] + sin_k * e2[2])
@@ -138,8 +147,8 @@ class TwoBoneFinish:
                                           or penetrates_one(lo, hi, middle, end, skip_end, skip_end_segment)):
                     continue
                 u = g.divided(g.sub(middle, S), a)
-                holds = self._limits_hold_one(r, [list(joint) for joint in P], g.divided(u, g.norm(u)),
-                                              g.divided(first, g.norm(first)), list(v))
+                holds = self.chain.limiting.finish_holds(r, [list(joint) for joint in P], g.divided(u, g.norm(u)),
+                                                   g.divided(first, g.norm(first)), list(v))
                 return (True, middle, end) if holds else None
         except ZeroDivisionError:
             return None
@@ -149,7 +158,7 @@ class TwoBoneFinish:
         """clear & _limits_hold(...) (h,K), as far as the pick needs it: a few chains' first candidate clear of the
         boxes is checked in plain floats, and where it keeps the limits it is the only candidate left; the other
         chains get every candidate checked in numpy."""
-        if len(rows) > _FEW_CHAINS:
+        if not lanes.few(len(rows)):
             return clear & self._limits_hold(rows, P, E, S, a, v)
         ok = np.zeros_like(clear)
         rest = []
@@ -160,8 +169,8 @@ class TwoBoneFinish:
             u = g.divided(g.sub(E[q, c].tolist(), S[q].tolist()), float(a[q]))
             first = g.divided(g.sub(E[q, 0].tolist(), S[q].tolist()), float(a[q]))
             try:
-                holds = self._limits_hold_one(r, P[q].tolist(), g.divided(u, g.norm(u)),
-                                              g.divided(first, g.norm(first)), v[q, c].tolist())
+                holds = self.chain.limiting.finish_holds(r, P[q].tolist(), g.divided(u, g.norm(u)),
+                                                   g.divided(first, g.norm(first)), v[q, c].tolist())
             except ZeroDivisionError:  # where numpy would divide by zero: numpy decides
                 holds = False
             if holds:
@@ -173,43 +182,11 @@ class TwoBoneFinish:
             ok[rest] = clear[rest] & self._limits_hold(rows[rest], P[rest], E[rest], S[rest], a[rest], v[rest])
         return ok
 
-    def _limits_hold_one(self, r, pose, u, first, v):
-        """_limits_hold of problem r's one candidate in plain floats (pose: its chain as lists): u the unit direction
-        pivot -> middle, first that of the first candidate (the pivot limit's fallback there), v middle -> target."""
-        j, k = self.n - 3, self.n - 2
-        limits = self.limits
-        if limits.kind[j] != FREE:
-            parent = self.parent_dirs[r].tolist() if j == 0 else g.divided_by_norm(g.sub(pose[j], pose[j - 1]))
-            if self._plain_limit_one(j, r, parent, u, first)[1]:
-                return False
-        if limits.kind[k] == CONE:
-            return not limits_plain.apply_cone(u, v, float(limits.cone_angle[k]), v)[1]
-        if limits.kind[k] == HINGE:
-            axis = carry_axis_plain(self.hinge_axes[r, k].tolist(), self.hinge_refs[r, k].tolist(), u)
-            return not limits_plain.limit(limits, k, u, v, v, axis)[1]
-        return True
-
     def _limits_hold(self, rows, P, E, S, a, v):
-        """(h,K) bool: the pivot joint n-3 (toward the middle joints E from the pivot S, segment length a) and the
-        middle joint n-2 (toward the target along the unit v) keep their limits, for the finish candidates of
-        problems `rows` (P their poses)."""
-        j, k = self.n - 3, self.n - 2
+        """(h,K) bool: the finish candidates E (middle joints, from the pivots S, segment length a; v toward the
+        target) of problems `rows` (P their poses) keep the limits (ChainLimits.finish_holds)."""
         u = (E - S[:, None]) / a[:, None, None]
         u = u / norm(u)[..., None]
-        ok = np.ones(E.shape[:2], dtype=bool)
-        if self.limits.kind[j] != FREE:
-            if j == 0:
-                parent = self.parent_dirs[rows]
-            else:
-                parent = P[:, j] - P[:, j - 1]
-                parent = parent / norm(parent)[:, None]
-            ok &= ~self._limit(j, rows, parent, u, u[:, 0])[1]
-        if any_set(ok) and self.limits.kind[k] == CONE:
-            ok &= ~apply_cone(u, v, self.limits.cone_angle[k], v)[1]
-        elif any_set(ok) and self.limits.kind[k] == HINGE:
-            axis = carry_axis(self.hinge_axes[rows, k][:, None], self.hinge_refs[rows, k][:, None], u)
-            ok &= ~apply_hinge(u, v, axis, self.limits.hinge_min[k], self.limits.hinge_max[k], v,
-                               self.limits.hinge_twist[k])[1]
-        return ok
+        return self.chain.limiting.finish_holds(rows, P, u, u[:, 0], v)
 
     # -- solve -------------------------------------------------------------------------------------------------

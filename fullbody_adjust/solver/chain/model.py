@@ -1,27 +1,24 @@
-"""The batch-first numpy chain solver: B chains (B, n, 3) with joint limits and obstacles, each problem leaving
-the active set when it converges, so a problem's result does not depend on what else is in the batch. A few
-problems' joint limits are applied in plain floats (limits/limits_plain.py), and a few limited or obstructed chains
-iterate in plain floats (chain/iterate_plain.py), with the same bits."""
+"""The chain solver: B chains (B, n, 3) with joint limits and obstacles, each problem leaving the active set when it
+converges, so a problem's result does not depend on what else is in the batch. FABRIK's passes are written once, on
+one problem's floats or many problems' arrays; a few problems are solved one at a time on floats (OneProblem), with
+the same bits as among many. The model owns its limits (ChainLimits), obstacles (ObstacleResponse), two-segment
+finish (TwoBoneFinish) and one-problem driver (OneProblem)."""
 
 import numpy as np
 
-from ..maths import geometry_plain as g
-from ..limits import limits_plain
 from .finish import _MIN_FINISH_TWIST, TwoBoneFinish
-from .iterate_plain import PlainIterations
+from .one_problem import OneProblem
 from ..obstacles.response import ObstacleResponse
-from .settled import SettledChains
-from .settings import (_COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL, ChainBatchResult, _final_status,
+from .settings import (_COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL, ChainBatchResult, statuses,
     _reach_bounds, _segment_lengths)
 from ..errors import SolverInputError
+from ..maths import lanes
+from ..maths import vectors as vec
 from ..maths.geometry import all_set, any_perpendicular, any_set, cross, norm
-from ..limits.joint_limits import (CONE, FREE, HINGE, JointLimits, apply_cone, apply_hinge, carry_axis,
-    carry_axis_plain)
-from ..obstacles.boxes import as_boxes, count_penetrations_few, points_inside, segments_cross
+from ..limits.joint_limits import FREE, HINGE, JointLimits
+from .limited import ChainLimits
+from ..obstacles.boxes import as_boxes
 
-# Up to this many problems, the limit steps (of the passes and of the limit check) run in plain floats
-# (limits/limits_plain.py).
-_FEW_CHAINS = 4
 # Up to this many axis-aligned boxes, a few chains iterate in plain floats among them too (each joint is tested
 # against every box in plain floats: beyond a few, numpy's one test of all of them costs less).
 _FEW_BOXES = 16
@@ -40,13 +37,7 @@ def _nudge_directions(v, first, k):
     return q / norm(q)[:, None]
 
 
-def _per_problem(a, b, m):
-    """Per-joint vectors a (m,3) or (b,m,3) as (b,m,3); as they are when they are so already (a solver's own
-    limits carry per-problem arrays), without numpy's broadcast_to cost on every chain solve."""
-    return a if a.shape == (b, m, 3) else np.broadcast_to(a, (b, m, 3))
-
-
-class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations):
+class ChainModel:
     """Per-solve constant data of B chains and the two FABRIK passes on any subset of them.
 
     Built from the start positions: segment lengths and directions, limits (per joint), obstacles, and the
@@ -67,25 +58,6 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
         if limits is not None and len(limits) != m:
             raise SolverInputError(f"limits cover {len(limits)} joints but the chain has {m} limitable joints")
         self.limits = limits if limits is not None and limits.any_active else None
-        self._finishes = False
-        if self.limits is not None:
-            axes = self.limits.hinge_axis
-            if axes.ndim == 3 and axes.shape[0] != self.B:
-                raise SolverInputError(f"per-problem hinge axes have batch size {axes.shape[0]}, expected {self.B}")
-            self.hinge_axes = _per_problem(axes, self.B, m)
-            # The analytic two-segment finish needs a swivel range to pick from: not a hinge whose plane is fixed.
-            self._finishes = self.n >= 3 and (self.limits.kind[m - 1] != HINGE
-                                              or self.limits.hinge_twist[m - 1] >= _MIN_FINISH_TWIST)
-            # Where each hinge axis is given: its parent direction at the start pose, or the caller's.
-            ref = self.limits.hinge_reference
-            if ref is None:
-                self.hinge_refs = np.concatenate([self.start_dirs[:, :1], self.start_dirs[:, :-1]], axis=1)
-            else:
-                if ref.ndim == 3 and ref.shape[0] != self.B:
-                    raise SolverInputError(
-                        f"per-problem hinge references have batch size {ref.shape[0]}, expected {self.B}")
-                ref = _per_problem(ref, self.B, m)
-                self.hinge_refs = ref / np.maximum(norm(ref), 1e-300)[..., None]
         self.parent_dirs = None
         if parent_directions is not None:
             pd = np.asarray(parent_directions, dtype=np.float64)
@@ -99,187 +71,150 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
             self.parent_dirs = pd / pn[:, None]
         if self.limits is not None and self.limits.kind[0] != FREE and self.parent_dirs is None:
             raise SolverInputError("joint 0 has a limit but no parent_direction was given")
+        self._floats = {}
+        self.one = OneProblem(self)
+        self.limiting = None if self.limits is None else ChainLimits(self.limits, self.start_dirs, self.parent_dirs)
+        # The analytic two-segment finish needs a swivel range to pick from: not a hinge whose plane is fixed.
+        self._finishes = self.limits is not None and self.n >= 3 and (
+            self.limits.kind[m - 1] != HINGE or self.limits.hinge_twist[m - 1] >= _MIN_FINISH_TWIST)
+        self.finish = TwoBoneFinish(self) if self._finishes else None
 
         obstacles = as_boxes(obstacles)
         self.boxes = obstacles if obstacles is not None and len(obstacles) > 0 else None
-        if self.boxes is not None:
-            if self.boxes.batched and self.boxes.mins.shape[0] != self.B:
-                raise SolverInputError(
-                    f"per-problem boxes have batch size {self.boxes.mins.shape[0]}, expected {self.B}")
-            self.ignore_end = points_inside(targets, self.boxes)  # (B,K)
-            self.ignore_base = points_inside(self.base, self.boxes)
-            self.corners = self.boxes.corners()
-
-    # -- limits -----------------------------------------------------------------------------------------------
-
-    def _limit(self, i, rows, parent, dirs, fallback):
-        """Apply joint i's limit to unit dirs (b,3) or (b,c,3). Returns (dirs, binding (b,...))."""
-        if dirs.ndim == 2 and len(rows) <= _FEW_CHAINS:
-            out = self._plain_limit(i, rows, parent, dirs, fallback)
-            if out is not None:
-                return out
-        kind = self.limits.kind[i]
-        extra = dirs.ndim - 2
-        expand = (lambda a: a.reshape(a.shape[:1] + (1,) * extra + a.shape[1:]))
-        if kind == CONE:
-            return apply_cone(expand(parent), dirs, self.limits.cone_angle[i], expand(fallback))
-        axis = self.hinge_axes[rows, i]
-        if i > 0:
-            axis = carry_axis(axis, self.hinge_refs[rows, i], parent)
-        return apply_hinge(expand(parent), dirs, expand(axis), self.limits.hinge_min[i], self.limits.hinge_max[i],
-                           expand(fallback), self.limits.hinge_twist[i])
-
-    def _limit_reverse(self, j, rows, child, dirs, fallback):
-        """Forward-pass counterpart of joint j's limit (FABRIK 2011 applies limits in both passes): segment j
-        is placed, so bend the parent direction dirs (b,3) of segment j-1 until segment j is a valid child of
-        it. A cone is symmetric; for a hinge the angle from child to parent is clamped to [-max, -min], about
-        the axis carried by the proposed parent direction. Only steers the proposal the backward pass starts
-        from: the backward pass enforces the limits exactly."""
-        if len(rows) <= _FEW_CHAINS:
-            out = self._plain_limit(j, rows, child, dirs, fallback, reverse=True)
-            if out is not None:
-                return out[0]
-        if self.limits.kind[j] == CONE:
-            return apply_cone(child, dirs, self.limits.cone_angle[j], fallback)[0]
-        axis = carry_axis(self.hinge_axes[rows, j], self.hinge_refs[rows, j], dirs)
-        return apply_hinge(child, dirs, axis, -self.limits.hinge_max[j], -self.limits.hinge_min[j], fallback,
-                           self.limits.hinge_twist[j])[0]
-
-    def _plain_limit(self, i, rows, parent, dirs, fallback, reverse=False):
-        """_limit (reverse: _limit_reverse) of a few rows' directions (b,3) in plain floats (limits/limits_plain.py: the
-        same bits); None where plain floats cannot take a row (the numpy path answers then)."""
-        out, binding = [], []
-        try:
-            for r, p, v, fb in zip(rows.tolist(), parent.tolist(), dirs.tolist(), fallback.tolist()):
-                u, bind = self._plain_limit_one(i, r, p, v, fb, reverse)
-                out.append(u)
-                binding.append(bind)
-        except ZeroDivisionError:
-            return None
-        return np.array(out, dtype=np.float64).reshape(dirs.shape), np.array(binding, dtype=bool)
-
-    def _plain_limit_one(self, i, r, parent, v, fallback, reverse=False):
-        """_plain_limit of problem r's one direction v (3-vectors as lists). ZeroDivisionError where numpy would
-        divide by zero."""
-        axis = None
-        if self.limits.kind[i] == HINGE:
-            axis = self.hinge_axes[r, i].tolist()
-            if reverse or i > 0:  # carried by the proposed parent direction, or by the parent
-                axis = carry_axis_plain(axis, self.hinge_refs[r, i].tolist(), v if reverse else parent)
-        return limits_plain.limit(self.limits, i, parent, v, fallback, axis, reverse)
-
-    def _plain_binding(self, P, rows):
-        """violations' limit test of a few problems `rows` with poses P (b,n,3) in plain floats (the same bits as
-        the numpy path); None where plain floats cannot take a row."""
-        limited = np.nonzero(self.limits.kind != FREE)[0].tolist()
-        parents = None if self.parent_dirs is None else self.parent_dirs.tolist()
-        try:
-            return np.array([self._breaks_limits(r, chain, lengths, parents, limited) for r, chain, lengths
-                             in zip(rows.tolist(), P.tolist(), self.lengths[rows].tolist())], dtype=bool)
-        except ZeroDivisionError:
-            return None
-
-    def _breaks_limits(self, r, chain, lengths, parents, limited):
-        """The limit test of problem r's pose ``chain`` (lists) in plain floats: segment directions as violations
-        computes them, each limited joint's binding (ZeroDivisionError where numpy would divide by zero)."""
-        dirs = [g.divided(g.sub(b, a), length) for a, b, length in zip(chain, chain[1:], lengths)]
-        dirs = [g.divided(d, g.norm(d)) for d in dirs]
-        return any(self._plain_limit_one(i, r, parents[r] if i == 0 else dirs[i - 1], dirs[i], dirs[i])[1]
-                   for i in limited)
+        self.obstacles = None if self.boxes is None else ObstacleResponse(self.boxes, targets, self.base, self.n,
+                                                                          settings.margin)
 
     # -- passes -----------------------------------------------------------------------------------------
 
+    def _problem(self, r):
+        """Problem r's (segment lengths, target, base, parent direction) as Python floats (passes on one problem)."""
+        if r not in self._floats:
+            self._floats[r] = (self.lengths[r].tolist(), tuple(self.targets[r].tolist()),
+                               tuple(self.base[r].tolist()),
+                               None if self.parent_dirs is None else self.parent_dirs[r].tolist())
+        return self._floats[r]
+
+    def _columns(self, rows, P, *poses):
+        """The passes' view of problems `rows`: (segment lengths, one per segment, and each pose as a list of joints).
+        One problem (rows an int): its floats, P and poses lists of joints already; many: (b,) and (b,3) views of
+        the arrays (P's joints written through P itself)."""
+        if rows.__class__ is int:
+            return (self._problem(rows)[0], P) + poses
+        return (list(self.lengths[rows].T), [P[:, i] for i in range(self.n)]) + tuple(
+            None if Q is None else [Q[:, i] for i in range(self.n)] for Q in poses)
+
+    def _place(self, P, joints, i, point):
+        """Joint i of the pose being placed at `point` (P: many problems' array, joints: one problem's list)."""
+        if joints is P:
+            P[i] = point
+        else:
+            P[:, i] = point
+
     def forward(self, P, rows, prev, ref, tip=None):
-        """Forward pass in place on P (b,n,3) of problems `rows`: effector to the target (or to `tip` (b,3)),
-        joints toward the base. prev: positions at the start of the iteration (fallback directions); ref:
-        obstacle-response reference."""
-        lengths = self.lengths[rows]
-        P[:, -1] = self.targets[rows] if tip is None else tip
-        responded = np.zeros(len(rows), dtype=bool)
-        failed = np.zeros(len(rows), dtype=bool)
+        """Forward pass in place on P of problems `rows`: effector to the target (or to `tip`), joints toward the
+        base. prev: positions at the start of the iteration (fallback directions); ref: obstacle-response reference.
+        Many problems: rows an index array, P, prev, ref (b,n,3), tip (b,3); one: rows an int, P, prev, ref lists of
+        n joints, tip a joint. Returns (obstacles responded, failed), per problem."""
+        lengths, joints, prev, ref = self._columns(rows, P, prev, ref)
+        one = joints is P
+        target = (self._problem(rows)[1] if one else self.targets[rows]) if tip is None else tip
+        self._place(P, joints, self.n - 1, target)
+        responded = failed = False if one else np.zeros(len(rows), dtype=bool)
+        kind = None if self.limits is None else self.limiting.kind
         for i in range(self.n - 2, -1, -1):
-            anchor = P[:, i + 1]
-            d = P[:, i] - anchor
-            L = lengths[:, i]
-            dn = norm(d)
-            bad = ~(dn > L * _COINCIDENT)
-            if any_set(bad):
-                d = np.where(bad[:, None], prev[:, i] - prev[:, i + 1], d)
-                dn = norm(d)
-            if self.limits is not None and i < self.n - 2 and self.limits.kind[i + 1] != FREE:
-                child = (P[:, i + 2] - anchor) / lengths[:, i + 1, None]
-                child = child / norm(child)[:, None]
-                fallback = prev[:, i + 1] - prev[:, i]
-                fallback = fallback / norm(fallback)[:, None]
-                u = self._limit_reverse(i + 1, rows, child, -d / dn[:, None], fallback)
-                cand = anchor - u * L[:, None]
+            anchor = joints[i + 1]
+            d = vec.sub(joints[i], anchor)
+            L = lengths[i]
+            dn = vec.norm(d)
+            bad = lanes.not_(dn > L * _COINCIDENT)
+            if lanes.any_(bad):
+                d = lanes.pick(bad, vec.sub(prev[i], prev[i + 1]), d)
+                dn = vec.norm(d)
+            if kind is not None and i < self.n - 2 and kind[i + 1] != FREE:
+                child = vec.divided(vec.sub(joints[i + 2], anchor), lengths[i + 1])
+                child = vec.divided(child, vec.norm(child))
+                fallback = vec.sub(prev[i + 1], prev[i])
+                fallback = vec.divided(fallback, vec.norm(fallback))
+                u = self.limiting.step(i + 1, rows, child, vec.divided(vec.neg(d), dn), fallback, True)[0]
+                cand = vec.sub(anchor, vec.scaled(u, L))
             else:
-                cand = anchor + d * (L / dn)[:, None]
+                cand = vec.add(anchor, vec.scaled(d, L / dn))
             if self.boxes is not None and i > 0:  # joint 0 is re-pinned by the backward pass anyway
-                cand, resp, fail = self._avoid(rows, anchor, cand, L, ref[:, i], i, i, None)
-                responded |= resp
-                failed |= fail
-            P[:, i] = cand
+                cand, resp, fail = self._avoid(rows, anchor, cand, L, ref[i], i, i, None)
+                responded, failed = responded | resp, failed | fail
+            self._place(P, joints, i, cand)
         return responded, failed
 
     def backward(self, P, rows, aims, prev, ref, root=None, stretch=False):
-        """Backward pass in place on P (b,n,3): base pinned (to `root` (b,3) if given), joint i+1 placed toward
-        aims[:, i+1] (the forward-pass positions, or with `stretch` the target for every joint), limits then
-        obstacles applied. Returns (limit binding, obstacle responded, obstacle failed), each (b,)."""
-        lengths = self.lengths[rows]
-        P[:, 0] = self.base[rows] if root is None else root
-        b = len(rows)
-        binding = np.zeros(b, dtype=bool)
-        responded = np.zeros(b, dtype=bool)
-        failed = np.zeros(b, dtype=bool)
-        pivot = self.n - 3 if not stretch and root is None and self._finishes else -1
+        """Backward pass in place on P (as forward takes it): base pinned (to `root` if given), joint i+1 placed
+        toward aims[i+1] (the forward-pass positions, or with `stretch` the target for every joint), limits then
+        obstacles applied. Returns (limit binding, obstacle responded, obstacle failed), per problem."""
+        finish_on = None if stretch or root is not None or not self._finishes else (P, aims)
+        lengths, joints, aims, prev, ref = self._columns(rows, P, aims, prev, ref)
+        one = joints is P
+        self._place(P, joints, 0, (self._problem(rows)[2] if one else self.base[rows]) if root is None else root)
+        binding = responded = failed = False if one else np.zeros(len(rows), dtype=bool)
+        kind = None if self.limits is None else self.limiting.kind
+        pivot = self.n - 3 if finish_on is not None else -1
         finished = None
         for i in range(self.n - 1):
             if i == pivot:
-                finished, elbow, wrist = self._two_bone_finish(P, rows, aims)
-            anchor = P[:, i]
-            d = aims[:, i + 1] - anchor
-            if not stretch and self.limits is not None and i + 1 < self.n - 1 and self.limits.kind[i + 1] == HINGE:
+                finished, elbow, wrist = self.finish.place(rows, *finish_on)
+            anchor = joints[i]
+            d = vec.sub(aims[i + 1], anchor)
+            if not stretch and kind is not None and i + 1 < self.n - 1 and kind[i + 1] == HINGE:
                 # The parent segment of a hinge keeps its forward-pass direction instead of aiming at the
                 # forward-pass joint from the moved anchor: the hinge plane is carried by this direction, and
-                # the forward pass fitted that plane to the child (_limit_reverse). Re-aiming would turn the
-                # plane away from the target every iteration (measured: a limb with an elbow hinge and
+                # the forward pass fitted that plane to the child (the reverse limit step). Re-aiming would turn
+                # the plane away from the target every iteration (measured: a limb with an elbow hinge and
                 # perturbed targets went from about 1 in 3 reached to nearly all).
-                d = aims[:, i + 1] - aims[:, i]
-            L = lengths[:, i]
-            dn = norm(d)
-            bad = ~(dn > L * _COINCIDENT)
-            if any_set(bad):
-                d = np.where(bad[:, None], prev[:, i + 1] - prev[:, i], d)
-                dn = norm(d)
-            limit_fn = None
-            if self.limits is not None and self.limits.kind[i] != FREE:
+                d = vec.sub(aims[i + 1], aims[i])
+            L = lengths[i]
+            dn = vec.norm(d)
+            bad = lanes.not_(dn > L * _COINCIDENT)
+            if lanes.any_(bad):
+                d = lanes.pick(bad, vec.sub(prev[i + 1], prev[i]), d)
+                dn = vec.norm(d)
+            limit = None
+            if kind is not None and kind[i] != FREE:
                 if i == 0:
-                    parent = self.parent_dirs[rows]
+                    parent = self._problem(rows)[3] if one else self.parent_dirs[rows]
                 else:
-                    parent = (P[:, i] - P[:, i - 1]) / lengths[:, i - 1, None]
-                    parent = parent / norm(parent)[:, None]
-                fallback = prev[:, i + 1] - prev[:, i]
-                fallback = fallback / norm(fallback)[:, None]
-                u, bind = self._limit(i, rows, parent, d / dn[:, None], fallback)
-                binding |= bind
-                cand = anchor + u * L[:, None]
-
-                def limit_fn(h, dirs, i=i, rows=rows, parent=parent, fallback=fallback):
-                    return self._limit(i, rows[h], parent[h], dirs, fallback[h])[0]
+                    parent = vec.divided(vec.sub(joints[i], joints[i - 1]), lengths[i - 1])
+                    parent = vec.divided(parent, vec.norm(parent))
+                fallback = vec.sub(prev[i + 1], prev[i])
+                fallback = vec.divided(fallback, vec.norm(fallback))
+                u, bind = self.limiting.step(i, rows, parent, vec.divided(d, dn), fallback)
+                binding = binding | bind
+                cand = vec.add(anchor, vec.scaled(u, L))
+                limit = (i, parent, fallback)
             else:
-                cand = anchor + d * (L / dn)[:, None]
+                cand = vec.add(anchor, vec.scaled(d, L / dn))
             if self.boxes is not None:
-                cand, resp, fail = self._avoid(rows, anchor, cand, L, ref[:, i + 1], i + 1, i, limit_fn)
-                responded |= resp
-                failed |= fail
+                cand, resp, fail = self._avoid(rows, anchor, cand, L, ref[i + 1], i + 1, i, limit)
+                responded, failed = responded | resp, failed | fail
             if finished is not None and i >= pivot:
-                cand[finished] = (elbow if i == pivot else wrist)[finished]
-                binding &= ~finished
-                responded &= ~finished
-                failed &= ~finished
-            P[:, i + 1] = cand
+                cand = lanes.pick(finished, elbow if i == pivot else wrist, cand)
+                kept = lanes.not_(finished)
+                binding, responded, failed = binding & kept, responded & kept, failed & kept
+            self._place(P, joints, i + 1, cand)
         return binding, responded, failed
+
+    def _avoid(self, rows, anchor, cand, L, ref, joint, segment, limit):
+        """The obstacle response (obstacles/response.py) for the joints at `cand`: one problem's in plain floats
+        where the paper's circle has a clear point (chain/one_problem.py), else on arrays; limit: the backward
+        pass's (joint, parent direction, fallback) or None. (positions, responded, failed)."""
+        if rows.__class__ is int:
+            point, moved = self.one.avoid(rows, anchor, cand, L, ref, joint, segment,
+                                           self.obstacles.boxes_of(rows), limit)
+            return point, moved, False
+        limit_fn = None
+        if limit is not None:
+            i, parent, fallback = limit
+
+            def limit_fn(h, dirs):
+                return self.limiting.step(i, rows[h], parent[h], dirs, fallback[h])[0]
+        return self.obstacles.avoid(rows, anchor, cand, L, ref, joint, segment, limit_fn)
 
     # -- solve ------------------------------------------------------------------------------------------
 
@@ -290,16 +225,7 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
         if self.boxes is None:
             z = np.zeros(P.shape[0], dtype=np.int64)
             return z, z.copy()
-        boxes = self.boxes.select(rows)
-        few = count_penetrations_few(P, boxes, self.ignore_end[rows], self.ignore_base[rows])
-        if few is not None:
-            return np.array(few[0], dtype=np.int64), np.array(few[1], dtype=np.int64)
-        inside = points_inside(P[:, 1:], boxes)  # (b,n-1,K): joint 0 is fixed, reported separately
-        inside[:, -1] &= ~self.ignore_end[rows]
-        crossing = segments_cross(P[:, :-1], P[:, 1:], boxes)  # (b,n-1,K)
-        crossing[:, -1] &= ~self.ignore_end[rows]
-        crossing[:, 0] &= ~self.ignore_base[rows]
-        return inside.any(axis=-1).sum(axis=-1), crossing.any(axis=-1).sum(axis=-1)
+        return self.obstacles.penetration_counts(P, rows)
 
     def _nudge(self, P, rows, nudges, slots):
         """Push the interior joints of stalled problems `rows` sideways (see _NUDGES), in place; nudges[slots]
@@ -319,16 +245,7 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
         it does not ignore."""
         bad = np.zeros(len(rows), dtype=bool)
         if self.limits is not None:
-            plain = self._plain_binding(P, rows) if len(rows) <= _FEW_CHAINS else None
-            if plain is not None:
-                bad |= plain
-            else:
-                lengths = self.lengths[rows]
-                dirs = (P[:, 1:] - P[:, :-1]) / lengths[..., None]
-                dirs = dirs / norm(dirs)[..., None]
-                for i in np.nonzero(self.limits.kind != FREE)[0]:
-                    parent = self.parent_dirs[rows] if i == 0 else dirs[:, i - 1]
-                    bad |= self._limit(i, rows, parent, dirs[:, i], dirs[:, i])[1]
+            bad |= self.limiting.broken(rows, P, self.lengths[rows])
         if self.boxes is not None:
             inside, crossing = self.penetration_counts(P, rows)
             bad |= (inside + crossing) > 0
@@ -340,8 +257,8 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
         stalled, limit binding, obstacle responses in the returned iterate, penetrations of the returned
         iterate)."""
         few_boxes = self.boxes is None or (self.boxes.axes is None and len(self.boxes) <= _FEW_BOXES)
-        if (self.limits is not None or self.boxes is not None) and few_boxes and rows.size <= _FEW_CHAINS:
-            plain = self._iterate_plain(P, rows, force)  # the same bits (chain/iterate_plain.py)
+        if (self.limits is not None or self.boxes is not None) and few_boxes and lanes.few(rows.size):
+            plain = self.one.iterate(P, rows, force)  # the same bits (chain/one_problem.py)
             if plain is not None:
                 return plain
         s = self.settings
@@ -405,8 +322,8 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
         return iterations, residual, stalled, binding_out, obstacle_out, pen
 
     def solve(self, start):
-        if self.boxes is None and self.B <= _FEW_CHAINS:
-            settled = self._solve_settled(start)  # no iteration needed: plain floats, the same bits
+        if self.boxes is None and lanes.few(self.B):
+            settled = self.one.settled(start)  # no iteration needed: plain floats, the same bits
             if settled is not None:
                 return settled
         B = self.B
@@ -472,25 +389,10 @@ class ChainModel(ObstacleResponse, TwoBoneFinish, SettledChains, PlainIterations
                 limit_binding[keep], obstacle_active[keep] = bind2[better], obst2[better]
 
         inside, crossing = self.penetration_counts(P)
-        status = np.empty(B, dtype=object)
-        reason = np.empty(B, dtype=object)
         # Plain Python values: indexing numpy arrays element by element costs more than the status logic.
-        per_problem = zip((residual <= tol).tolist(), reachable.tolist(), dist.tolist(), total.tolist(),
-                          inner.tolist(), stalled.tolist(), iterations.tolist(), obstacle_active.tolist(),
-                          limit_binding.tolist())
-        for j, args in enumerate(per_problem):
-            st, why = _final_status(*args)
-            if self.boxes is not None:
-                notes = []
-                if inside[j] or crossing[j]:
-                    notes.append(f"could not avoid obstacles: {inside[j]} joints inside, "
-                                 f"{crossing[j]} segments crossing")
-                if any_set(self.ignore_end[j]):
-                    notes.append("target inside obstacle")
-                if any_set(self.ignore_base[j]):
-                    notes.append("base inside obstacle")
-                if notes:
-                    st, why = "blocked", "; ".join(notes + [why])
-            status[j], reason[j] = st, why
-        return ChainBatchResult(P, iterations, residual, reachable, status.astype(str), reason.astype(str))
+        status, reason = statuses(zip((residual <= tol).tolist(), reachable.tolist(), dist.tolist(), total.tolist(),
+                                      inner.tolist(), stalled.tolist(), iterations.tolist(),
+                                      obstacle_active.tolist(), limit_binding.tolist()),
+                                  self.obstacles, inside, crossing)
+        return ChainBatchResult(P, iterations, residual, reachable, status, reason)
 

@@ -120,3 +120,24 @@ def _final_status(reached, reachable, dist, total, inner, stalled, iterations, o
         return "limited", f"joint limits kept the chain from the target ({how})"
     return "max_iterations", how
 
+
+
+def statuses(per_problem, obstacles, inside, crossing):
+    """(status, reason) arrays of str of a batch: _final_status of each problem's arguments (per_problem), with the
+    obstacles' notes (ObstacleResponse or None; inside, crossing: each problem's penetration counts)."""
+    status, reason = [], []
+    for j, args in enumerate(per_problem):
+        st, why = _final_status(*args)
+        if obstacles is not None:
+            notes = []
+            if inside[j] or crossing[j]:
+                notes.append(f"could not avoid obstacles: {inside[j]} joints inside, {crossing[j]} segments crossing")
+            if np.count_nonzero(obstacles.ignore_end[j]):
+                notes.append("target inside obstacle")
+            if np.count_nonzero(obstacles.ignore_base[j]):
+                notes.append("base inside obstacle")
+            if notes:
+                st, why = "blocked", "; ".join(notes + [why])
+        status.append(st)
+        reason.append(why)
+    return np.array(status, dtype=object).astype(str), np.array(reason, dtype=object).astype(str)

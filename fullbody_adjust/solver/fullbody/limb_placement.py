@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..maths import geometry_plain as gp
+from ..maths import vectors as gp
 from ..body.model import CHAIN, ROOT
 from ..chain.fabrik import solve_chain_batch
 from ..chain.settings import ChainBatchResult, _final_status
@@ -169,7 +169,7 @@ class LimbPlacement:
 
     def _propagate_one_frame(self, delta, trunk):
         """_propagate on one frame with its levels' per-bone steps in plain floats (the same operations:
-        geometry_plain's products add as einsum does); the limbs' solves, the leaves (fingers, face: many bones
+        vectors.apply_matrix adds as geometry.apply_matrix does); the limbs' solves, the leaves (fingers, face: many bones
         at once) and the tails in numpy as there."""
         model, H0, T0 = self.p.model, self.p.H0, self.p.T0
         J = len(model.names)

@@ -26,16 +26,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..maths import geometry_plain as gp
 from ..maths import lanes
 from ..maths import vectors as vec
 from ..errors import SolverInputError
-from ..maths.geometry import (all_set, any_perpendicular, any_set, apply_matrix, cross, dot, norm, normalize,
-    swing_rotation)
+from ..maths.geometry import all_set, any_set, cross, norm, normalize
 
 FREE, CONE, HINGE = 0, 1, 2
-# Up to this many hinge axes carry_axis turns in plain floats (a warm start, one frame's limbs).
-_FEW_CARRIED = 4
 
 # A direction whose in-plane part is shorter than this is treated as parallel to the hinge axis / antiparallel
 # to the parent: its bend angle is undefined, so the previous direction stands in.
@@ -184,52 +180,65 @@ def hinge_axis_from_bend(parent_dir, child_dir):
 
 
 def carry_axis(axis_at_start, start_parent_dir, parent_dir):
-    """The hinge axis moved with its parent segment: the minimal swing from the start parent direction to
-    the current one, applied to the start axis. A few rows (b,3) each are carried in plain floats
-    (geometry_plain: the same bits)."""
-    if axis_at_start.ndim == 2 and len(axis_at_start) <= _FEW_CARRIED \
-            and axis_at_start.shape == start_parent_dir.shape == parent_dir.shape:
-        try:
-            return np.array([carry_axis_plain(axis, ref, parent) for axis, ref, parent
-                             in zip(axis_at_start.tolist(), start_parent_dir.tolist(), parent_dir.tolist())],
-                            dtype=np.float64).reshape(axis_at_start.shape)
-        except ZeroDivisionError:
-            pass
-    return apply_matrix(swing_rotation(start_parent_dir, parent_dir), axis_at_start)
+    """The hinge axis moved with its parent segment: the minimal swing from the start parent direction to the
+    current one, applied to the start axis. Arrays (...,3) (carry on the arrays)."""
+    axis, ref, parent = (np.asarray(a, dtype=np.float64) for a in (axis_at_start, start_parent_dir, parent_dir))
+    return np.broadcast_to(carry(axis, ref, parent), np.broadcast_shapes(axis.shape, ref.shape, parent.shape))
 
 
-def carry_axis_plain(axis_at_start, start_parent_dir, parent_dir):
-    """carry_axis of one axis in plain floats (3-vectors as lists; geometry_plain: the same bits)."""
-    return gp.apply_matrix(gp.swing_rotation(start_parent_dir, parent_dir), axis_at_start)
-
-
-def _with_fallback(v, fallback, bad):
-    return np.where(bad[..., None], fallback, v)
+def carry(axis, ref, parent):
+    """carry_axis on components (maths/lanes.py): geometry.swing_rotation from ref to parent applied to the one
+    vector axis, without building the matrix: x + (cos t - 1)(e1 (e1.x) + e2 (e2.x)) + sin t (e2 (e1.x) - e1 (e2.x))
+    in the frame e1 = ref, e2 = the part of parent perpendicular to it (a half turn about any perpendicular where
+    parent is opposite to ref)."""
+    a, b = vec.divided(ref, vec.norm(ref)), vec.divided(parent, vec.norm(parent))
+    c = vec.dot(a, b)
+    w = vec.sub(b, vec.scaled(a, c))
+    s = vec.norm(w)
+    degenerate = lanes.not_(s > 1e-14)
+    if lanes.any_(degenerate):
+        w = lanes.pick(degenerate, vec.any_perpendicular(a), w)
+        s = lanes.where(degenerate, 0.0, s)
+    w = vec.sub(w, vec.scaled(a, vec.dot(w, a)))  # twice: w may be tiny, its first pass inexact
+    e = vec.divided(w, vec.norm(w))
+    t = lanes.arctan2(s, c)
+    cos_less_1, sin_t = lanes.cos(t) - 1.0, lanes.sin(t)
+    along_a, along_e = vec.dot(a, axis), vec.dot(e, axis)
+    turned = vec.add(vec.scaled(a, along_a), vec.scaled(e, along_e))
+    side = vec.sub(vec.scaled(e, along_a), vec.scaled(a, along_e))
+    return vec.add(vec.add(axis, vec.scaled(turned, cos_less_1)), vec.scaled(side, sin_t))
 
 
 def apply_cone(parent, v, angle, fallback):
-    """Clamp unit directions v (...,3) into the cone of half-angle `angle` (...) about unit `parent`: a direction
-    outside is rotated toward the parent in their common plane to exactly the cone angle. `fallback` (the
-    previous direction) gives the rotation plane when v is antiparallel to the parent.
-    Returns (limited directions, binding mask)."""
-    c = dot(parent, v)
-    w = v - c[..., None] * parent
-    wn = norm(w)
+    """Clamp unit directions v (...,3) into the cone of half-angle `angle` about unit `parent` (cone on the
+    arrays). Returns (limited directions, binding mask)."""
+    parent, v, fallback = (np.asarray(a, dtype=np.float64) for a in (parent, v, fallback))
+    shape = np.broadcast_shapes(parent.shape, v.shape, fallback.shape)
+    u, over = cone(parent, v, np.asarray(angle, dtype=np.float64), fallback)
+    return np.broadcast_to(u, shape), np.broadcast_to(over, shape[:-1])
+
+
+def cone(parent, v, angle, fallback):
+    """Unit direction v clamped into the cone of half-angle `angle` about the unit `parent`, on components: a
+    direction outside is rotated toward the parent in their common plane to exactly the cone angle; `fallback`
+    (the previous direction) gives the plane where v is antiparallel to the parent. (direction, binding)."""
+    c = vec.dot(parent, v)
+    w = vec.sub(v, vec.scaled(parent, c))
+    wn = vec.norm(w)
     # atan2 of the perpendicular and parallel parts resolves small angles; cos alone only to ~1e-8 rad.
-    over = np.arctan2(wn, c) > angle
-    if not any_set(over) and v.shape == over.shape + (3,):
+    over = lanes.arctan2(wn, c) > angle
+    if not lanes.any_(over):
         return v, over  # nothing to clamp (the common case inside FABRIK's iterations)
-    bad = ~(wn > _DEGENERATE)
-    if any_set(bad):
-        fb = fallback - dot(fallback, parent)[..., None] * parent
-        w = _with_fallback(w, fb, bad)
-        bad = ~(norm(w) > _DEGENERATE)
-        w = _with_fallback(w, np.broadcast_to(any_perpendicular(parent), w.shape), bad)
-    w = w - dot(w, parent)[..., None] * parent  # twice: w may be tiny, its first pass inexact
-    e = w / norm(w)[..., None]
-    angle = np.asarray(angle, dtype=np.float64)[..., None]
-    limited = np.cos(angle) * parent + np.sin(angle) * e
-    return np.where(over[..., None], limited, v), over
+    bad = lanes.not_(wn > _DEGENERATE)
+    if lanes.any_(bad):
+        w = lanes.pick(bad, vec.sub(fallback, vec.scaled(parent, vec.dot(fallback, parent))), w)
+        bad = lanes.not_(vec.norm(w) > _DEGENERATE)
+        if lanes.any_(bad):
+            w = lanes.pick(bad, vec.any_perpendicular(parent), w)
+    w = vec.sub(w, vec.scaled(parent, vec.dot(w, parent)))  # twice: w may be tiny, its first pass inexact
+    e = vec.divided(w, vec.norm(w))
+    limited = vec.add(vec.scaled(parent, lanes.cos(angle)), vec.scaled(e, lanes.sin(angle)))
+    return lanes.pick(over, limited, v), over
 
 
 def _clamp_angle(theta, lo, hi):
@@ -237,83 +246,83 @@ def _clamp_angle(theta, lo, hi):
     circle (a bend wanted at -2.9 rad is 0.68 rad from a 2.7 rad bound, 2.9 from a 0 bound), so the result is
     the nearest direction of the arc, not merely the nearer bound on the line."""
     inside = (theta >= lo) & (theta <= hi)
-    to_lo = np.abs(np.remainder(theta - lo + math.pi, 2 * math.pi) - math.pi)
-    to_hi = np.abs(np.remainder(theta - hi + math.pi, 2 * math.pi) - math.pi)
-    return np.where(inside, theta, np.where(to_lo <= to_hi, lo, hi))
-
-
-def _hinge_frame(parent, axis):
-    """Unit hinge axis made perpendicular to the unit `parent` (any perpendicular if it lies along the parent)
-    and the side of positive bend, axis x parent: hinge_frame on arrays (...,3). Kept on whole vectors (a third
-    of the numpy calls of the components): FABRIK's limit steps on many chains call it every pass (through
-    hinge_frame on components, a batch of obstructed limbs took 10-25% longer); test_limits_plain.py checks the
-    two give the same bits."""
-    a = axis - dot(axis, parent)[..., None] * parent
-    a_bad = ~(norm(a) > _DEGENERATE)
-    if any_set(a_bad):
-        a = _with_fallback(a, np.broadcast_to(any_perpendicular(parent), a.shape), a_bad)
-    a = a - dot(a, parent)[..., None] * parent  # twice: a may be tiny, its first pass inexact
-    a = a / norm(a)[..., None]
-    return a, cross(a, parent)
+    if lanes.all_(inside):
+        return theta
+    to_lo = abs(lanes.remainder(theta - lo + math.pi, 2 * math.pi) - math.pi)
+    to_hi = abs(lanes.remainder(theta - hi + math.pi, 2 * math.pi) - math.pi)
+    return lanes.where(inside, theta, lanes.where(to_lo <= to_hi, lo, hi))
 
 
 def apply_hinge(parent, v, axis, lo, hi, fallback, twist=None):
-    """Put unit directions v (...,3) on the hinge: in the plane perpendicular to `axis` (made perpendicular to
-    the unit `parent` first), signed bend angle about the axis clamped to [lo, hi] (_clamp_angle). A v
+    """Put unit directions v (...,3) on the hinge (hinge on the arrays). Returns (limited directions, binding
+    mask: the direction had to change)."""
+    parent, v, axis, fallback = (np.asarray(a, dtype=np.float64) for a in (parent, v, axis, fallback))
+    shape = np.broadcast_shapes(parent.shape, v.shape, axis.shape, fallback.shape)
+    u, binding = hinge(parent, v, axis, lo, hi, fallback, twist)
+    return np.broadcast_to(u, shape), np.broadcast_to(binding, shape[:-1])
+
+
+def hinge(parent, v, axis, lo, hi, fallback, twist=None):
+    """Unit direction v put on the hinge, on components: in the plane perpendicular to `axis` (made perpendicular
+    to the unit `parent` first), signed bend angle about the axis clamped to [lo, hi] (_clamp_angle). A v
     (nearly) parallel to the axis has no bend angle: the previous direction `fallback` stands in, and if that
-    is degenerate too the clamped zero bend. With `twist` (radians, scalar or (...)) the plane may turn about
-    the parent by up to +-twist: the nearest direction of the two wedges the module docstring describes.
-    Returns (limited directions, binding mask: the direction had to change)."""
-    a, side = _hinge_frame(parent, axis)
-    if twist is not None and any_set(np.asarray(twist) > 0.0):
-        return _apply_twisted_hinge(parent, v, a, side, lo, hi, fallback, np.asarray(twist, dtype=np.float64))
-    x = dot(v, parent)
-    y = dot(v, side)
-    bad = ~(np.hypot(x, y) > _DEGENERATE)
-    if any_set(bad):
-        x = np.where(bad, dot(fallback, parent), x)
-        y = np.where(bad, dot(fallback, side), y)
-        bad = ~(np.hypot(x, y) > _DEGENERATE)
-        x = np.where(bad, 1.0, x)
-        y = np.where(bad, 0.0, y)
-    theta = _clamp_angle(np.arctan2(y, x), lo, hi)[..., None]
-    limited = np.cos(theta) * parent + np.sin(theta) * side
-    binding = norm(limited - v) > 1e-12
-    return limited, binding
+    is degenerate too the clamped zero bend. With `twist` (radians, a number) the plane may turn about the
+    parent by up to +-twist: the nearest direction of the two wedges the module docstring describes.
+    Returns (limited direction, binding: the direction had to change)."""
+    a, side = hinge_frame(parent, axis)
+    if twist is not None and twist > 0.0:
+        return _twisted_hinge(parent, v, a, side, lo, hi, fallback, twist)
+    x, y = vec.dot(v, parent), vec.dot(v, side)
+    bad = lanes.not_(lanes.hypot(x, y) > _DEGENERATE)
+    if lanes.any_(bad):
+        x, y = lanes.where(bad, vec.dot(fallback, parent), x), lanes.where(bad, vec.dot(fallback, side), y)
+        bad = lanes.not_(lanes.hypot(x, y) > _DEGENERATE)
+        x, y = lanes.where(bad, 1.0, x), lanes.where(bad, 0.0, y)
+    theta = _clamp_angle(lanes.arctan2(y, x), lo, hi)
+    limited = vec.add(vec.scaled(parent, lanes.cos(theta)), vec.scaled(side, lanes.sin(theta)))
+    return limited, vec.norm(vec.sub(limited, v)) > 1e-12
 
 
-def _apply_twisted_hinge(parent, v, a, side, lo, hi, fallback, twist):
-    """apply_hinge with a twist range. In the frame (parent, side, a), v has azimuth phi about the parent
-    (from the side toward the axis) and polar angle from the parent. The bend plane turned by tau has the side
+def _twisted_hinge(parent, v, a, side, lo, hi, fallback, twist):
+    """hinge with a twist range. In the frame (parent, side, a), v has azimuth phi about the parent (from the side
+    toward the axis) and polar angle from the parent. The bend plane turned by tau has the side
     cos(tau) side + sin(tau) a. Candidates: the plane nearest v's azimuth with v on its positive side
     (tau = clip(phi)) and with v on its negative side (tau = clip(phi -+ pi)); in each, v's projection with
     its bend clamped to [lo, hi] (the nearest point of that arc). The nearer candidate wins."""
-    x, y, z = dot(v, parent), dot(v, side), dot(v, a)
-    r = np.hypot(y, z)
-    phi = np.arctan2(z, y)
-    # v along the axis with no twist to turn to it (twist 0 on that row): the previous direction stands in.
-    bad = ~(np.hypot(x, r * np.cos(phi - np.clip(phi, -twist, twist))) > _DEGENERATE)
-    if any_set(bad):
-        x = np.where(bad, dot(fallback, parent), x)
-        y2, z2 = dot(fallback, side), dot(fallback, a)
-        r = np.where(bad, np.hypot(y2, z2), r)
-        phi = np.where(bad, np.arctan2(z2, y2), phi)
-        bad = ~(np.hypot(x, r * np.cos(phi - np.clip(phi, -twist, twist))) > _DEGENERATE)
-        x, r, phi = np.where(bad, 1.0, x), np.where(bad, 0.0, r), np.where(bad, 0.0, phi)
-    best, best_dot = None, None
-    for wanted in (phi, np.where(phi > 0.0, phi - math.pi, phi + math.pi)):
-        tau = np.clip(wanted, -twist, twist)
-        theta = _clamp_angle(np.arctan2(r * np.cos(phi - tau), x), lo, hi)
-        sin_t = np.sin(theta)[..., None]
-        cand = np.cos(theta)[..., None] * parent + sin_t * (np.cos(tau)[..., None] * side
-                                                            + np.sin(tau)[..., None] * a)
-        c = dot(cand, v)
+    x, y, z = vec.dot(v, parent), vec.dot(v, side), vec.dot(v, a)
+    r, phi = lanes.hypot(y, z), lanes.arctan2(z, y)
+    # v along the axis with no twist to turn to it: the previous direction stands in.
+    bad = lanes.not_(lanes.hypot(x, r * lanes.cos(phi - lanes.clip(phi, -twist, twist))) > _DEGENERATE)
+    if lanes.any_(bad):
+        x = lanes.where(bad, vec.dot(fallback, parent), x)
+        y2, z2 = vec.dot(fallback, side), vec.dot(fallback, a)
+        r, phi = lanes.where(bad, lanes.hypot(y2, z2), r), lanes.where(bad, lanes.arctan2(z2, y2), phi)
+        bad = lanes.not_(lanes.hypot(x, r * lanes.cos(phi - lanes.clip(phi, -twist, twist))) > _DEGENERATE)
+        x, r, phi = lanes.where(bad, 1.0, x), lanes.where(bad, 0.0, r), lanes.where(bad, 0.0, phi)
+    best = best_dot = None
+    for wanted in (phi, lanes.where(phi > 0.0, phi - math.pi, phi + math.pi)):
+        tau = lanes.clip(wanted, -twist, twist)
+        theta = _clamp_angle(lanes.arctan2(r * lanes.cos(phi - tau), x), lo, hi)
+        plane = vec.add(vec.scaled(side, lanes.cos(tau)), vec.scaled(a, lanes.sin(tau)))
+        cand = vec.add(vec.scaled(parent, lanes.cos(theta)), vec.scaled(plane, lanes.sin(theta)))
+        c = vec.dot(cand, v)
         if best is None:
             best, best_dot = cand, c
         else:
-            nearer = c > best_dot
-            best = np.where(nearer[..., None], cand, best)
-    return best, norm(best - v) > 1e-12
+            best = lanes.pick(c > best_dot, cand, best)
+    return best, vec.norm(vec.sub(best, v)) > 1e-12
+
+
+def limit(limits, i, parent, v, fallback, axis, reverse=False):
+    """Joint i's limit (JointLimits `limits`) on the unit direction v of its segment, on components (reverse: the
+    forward pass's counterpart, `parent` then the child's direction and the hinge range mirrored); `axis` the
+    hinge axis carried to where it applies. Returns (direction, binding)."""
+    if limits.kind[i] == CONE:
+        return cone(parent, v, float(limits.cone_angle[i]), fallback)
+    lo, hi = float(limits.hinge_min[i]), float(limits.hinge_max[i])
+    if reverse:
+        lo, hi = -hi, -lo
+    return hinge(parent, v, axis, lo, hi, fallback, float(limits.hinge_twist[i]))
 
 
 def hinge_twist_angle(parent, child, axis):
@@ -334,8 +343,8 @@ def hinge_twist(parent, child, axis):
 
 
 def hinge_frame(parent, axis):
-    """_hinge_frame on components (maths/lanes.py): (unit axis perpendicular to the parent, the side of positive
-    bend)."""
+    """The unit hinge axis made perpendicular to the unit `parent` (any perpendicular if it lies along the parent)
+    and the side of positive bend, axis x parent, on components (maths/lanes.py)."""
     a = vec.sub(axis, vec.scaled(parent, vec.dot(axis, parent)))
     a_bad = lanes.not_(vec.norm(a) > _DEGENERATE)
     if lanes.any_(a_bad):

@@ -147,8 +147,9 @@ def rotate_about_axis(v, axis, angle):
 
 
 def apply_matrix(m, v):
-    """Row-wise matrix @ vector: (...,3,3) @ (...,3) -> (...,3)."""
-    return np.einsum("...ij,...j->...i", m, v)
+    """Row-wise matrix @ vector: (...,3,3) @ (...,3) -> (...,3), each entry summed in order as dot sums (so one
+    frame's vectors.apply_matrix on Python floats rounds the same)."""
+    return dot(m, np.asarray(v)[..., None, :])
 
 
 def outward_angles(samples):

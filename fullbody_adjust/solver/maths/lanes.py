@@ -19,6 +19,11 @@ FEW = 4
 _ARRAY = np.ndarray
 
 
+def few(frames):
+    """Whether `frames` problems are solved one at a time on Python floats (else together on arrays)."""
+    return frames <= FEW
+
+
 def many(x):
     """True when x holds a lane per frame (an array), False for one frame's float or bool."""
     return isinstance(x, _ARRAY)
@@ -32,8 +37,10 @@ def where(cond, a, b):
 
 
 def pick(cond, u, v):
-    """The vector u where cond, else v (per lane)."""
+    """The vector u where cond, else v (per lane; vectors as components, or whole arrays (...,3))."""
     if isinstance(cond, _ARRAY):
+        if u.__class__ is _ARRAY or v.__class__ is _ARRAY:
+            return np.where(cond[..., None], u, v)
         return (np.where(cond, u[0], v[0]), np.where(cond, u[1], v[1]), np.where(cond, u[2], v[2]))
     return u if cond else v
 

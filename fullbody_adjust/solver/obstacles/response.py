@@ -4,7 +4,8 @@ segment crosses one, is moved to the nearest clear point (ObstacleResponse._avoi
 import numpy as np
 
 from ..maths.geometry import all_set, any_set, cross, dot, norm, outward_angles, unit_or_perpendicular
-from .boxes import penetrates_few, points_inside, segments_cross
+from ..errors import SolverInputError
+from .boxes import count_penetrations_few, penetrates_few, points_inside, segments_cross
 
 # Obstacle response candidates (see _avoid for which one is taken).
 # The paper's circle (sphere(anchor, D) ∩ sphere(pos_i, dis)): every point is at distance dis from pos_i, so
@@ -31,10 +32,23 @@ _ORDER = np.arange(_CANDIDATES) / _CANDIDATES
 
 
 class ObstacleResponse:
-    """ChainModel's obstacle methods; they use the model's boxes, corners, ignore_end/ignore_base, n and
-    settings.margin."""
+    """The obstacles of a chain batch during one solve (owned by chain.model.ChainModel): the boxes (Boxes, some),
+    their corners, and the boxes each problem ignores (those containing its target for the end joint and last
+    segment, those containing its base for segment 0: unavoidable, reported in the reason), of B chains of n joints
+    toward `targets` (B,3) from `base` (B,3); `margin` the clearance of the paper's circle."""
 
-    def _boxes_one(self, r):
+    def __init__(self, boxes, targets, base, n, margin):
+        B = targets.shape[0]
+        if boxes.batched and boxes.mins.shape[0] != B:
+            raise SolverInputError(f"per-problem boxes have batch size {boxes.mins.shape[0]}, expected {B}")
+        self.boxes = boxes
+        self.n = n
+        self.margin = margin
+        self.ignore_end = points_inside(targets, boxes)  # (B,K)
+        self.ignore_base = points_inside(base, boxes)
+        self.corners = boxes.corners()
+
+    def boxes_of(self, r):
         """Problem r's boxes as plain lists, for the plain-float paths: (mins, maxs, the boxes its last joint and
         segment ignore, the boxes its first segment ignores). Axis-aligned boxes only."""
         mins, maxs = self.boxes.mins, self.boxes.maxs
@@ -42,8 +56,8 @@ class ObstacleResponse:
             mins, maxs = mins[r], maxs[r]
         return mins.tolist(), maxs.tolist(), self.ignore_end[r].tolist(), self.ignore_base[r].tolist()
 
-    def _ignored_one(self, boxes, joint, segment):
-        """_ignored of one problem from its _boxes_one lists: (the boxes ignored for ``joint``, for ``segment``),
+    def ignored_of(self, boxes, joint, segment):
+        """ignored of one problem from its boxes_of lists: (the boxes ignored for ``joint``, for ``segment``),
         each a list of K bools or None (nothing ignored)."""
         _lo, _hi, skip_end, skip_base = boxes
         last = self.n - 1
@@ -52,7 +66,7 @@ class ObstacleResponse:
             skip_segment = skip_base if skip_segment is None else [a or b for a, b in zip(skip_segment, skip_base)]
         return (skip_end if joint == last else None), skip_segment
 
-    def _ignored(self, rows, joint, segment):
+    def ignored(self, rows, joint, segment):
         """(b,K) boxes ignored for `joint` and (b,K) for `segment` (None: nothing ignored)."""
         last = self.n - 1
         ign_joint = self.ignore_end[rows] if joint == last else None
@@ -63,7 +77,7 @@ class ObstacleResponse:
             ign_seg = self.ignore_base[rows] if ign_seg is None else (ign_seg | self.ignore_base[rows])
         return ign_joint, ign_seg
 
-    def _violations(self, boxes, anchor, points, ign_joint, ign_seg):
+    def violations(self, boxes, anchor, points, ign_joint, ign_seg):
         inside = points_inside(points, boxes)
         crossing = segments_cross(anchor, points, boxes)
         if ign_joint is not None:
@@ -72,16 +86,16 @@ class ObstacleResponse:
             crossing &= ~ign_seg
         return inside, crossing
 
-    def _avoid(self, rows, anchor, cand, lengths, ref, joint, segment, limit_fn):
+    def avoid(self, rows, anchor, cand, lengths, ref, joint, segment, limit_fn):
         """Paper §4.1.2 collision response for joints placed at `cand` (b,3) from `anchor` (b,3) at distance
         `lengths` (b,): if a joint is inside a box or its segment crosses one, move it as described at
         _CIRCLE_ANGLES / _SPHERE_POLAR. Returns (positions, responded (b,), failed (b,))."""
         boxes = self.boxes.select(rows)
-        ign_joint, ign_seg = self._ignored(rows, joint, segment)
+        ign_joint, ign_seg = self.ignored(rows, joint, segment)
         b = cand.shape[0]
         if penetrates_few(anchor, cand, boxes, ign_joint, ign_seg) is False:  # the common case, without arrays
             return cand, np.zeros(b, dtype=bool), np.zeros(b, dtype=bool)
-        inside, crossing = self._violations(boxes, anchor, cand, ign_joint, ign_seg)
+        inside, crossing = self.violations(boxes, anchor, cand, ign_joint, ign_seg)
         hit = inside.any(axis=1) | crossing.any(axis=1)
         if not any_set(hit):
             return cand, hit, np.zeros(b, dtype=bool)
@@ -90,7 +104,7 @@ class ObstacleResponse:
         # The colliding box: one containing the joint, else the first one the segment crosses.
         k = np.where(inside[h].any(axis=1), np.argmax(inside[h], axis=1), np.argmax(crossing[h], axis=1))
         corners = self.corners[rows[h], k] if self.boxes.batched else self.corners[k]  # (h,8,3)
-        dis = norm(corners - p[:, None, :]).max(axis=1) + self.settings.margin
+        dis = norm(corners - p[:, None, :]).max(axis=1) + self.margin
         # Circle of sphere(a, L) ∩ sphere(p, dis); |p - a| = L up to rounding.
         axis_vec = p - a
         dd = norm(axis_vec)
@@ -154,7 +168,19 @@ class ObstacleResponse:
         if limit_fn is not None:
             dirs = limit_fn(h, dirs)
         pts = anchors[:, None, :] + lengths[:, None, None] * dirs
-        c_in, c_cross = self._violations(boxes, anchors[:, None, :], pts, ign_joint, ign_seg)
+        c_in, c_cross = self.violations(boxes, anchors[:, None, :], pts, ign_joint, ign_seg)
         return pts, c_in.sum(axis=-1) + c_cross.sum(axis=-1)
 
-    # -- passes ------------------------------------------------------------------------------------------------
+    def penetration_counts(self, P, rows):
+        """(joints inside, segments crossing) per problem (b,) of P (b,n,3) = problems `rows`, ignoring what each
+        problem must ignore."""
+        boxes = self.boxes.select(rows)
+        few = count_penetrations_few(P, boxes, self.ignore_end[rows], self.ignore_base[rows])
+        if few is not None:
+            return np.array(few[0], dtype=np.int64), np.array(few[1], dtype=np.int64)
+        inside = points_inside(P[:, 1:], boxes)  # (b,n-1,K): joint 0 is fixed, reported separately
+        inside[:, -1] &= ~self.ignore_end[rows]
+        crossing = segments_cross(P[:, :-1], P[:, 1:], boxes)  # (b,n-1,K)
+        crossing[:, -1] &= ~self.ignore_end[rows]
+        crossing[:, 0] &= ~self.ignore_base[rows]
+        return inside.any(axis=-1).sum(axis=-1), crossing.any(axis=-1).sum(axis=-1)
