@@ -2,7 +2,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from fullbody_adjust.solver import SolverInputError
@@ -121,6 +121,9 @@ def _hinge_direction(parent, axis, bend, tau):
 @settings(deadline=None, max_examples=150)
 @given(unit_vectors(), unit_vectors(), unit_vectors(), st.floats(-math.pi, math.pi), st.floats(-math.pi, math.pi),
        st.floats(0.0, 1.5))
+@example(parent=np.array([9.42809042e-10, 1.0, 1.0]) / np.linalg.norm([9.42809042e-10, 1.0, 1.0]),
+         v=np.array([-1.0, 0.0, 0.0]), axis=np.array([1.0, 0.0, 0.0]), a=0.0, b=3.0,
+         twist=0.0)  # v along the axis: every bend is as near (Hypothesis found a 1.3e-9 miss near this)
 def test_twisted_hinge_gives_the_nearest_allowed_direction(parent, v, axis, a, b, twist):
     """The result is in the allowed set (bend in [lo, hi] in a plane turned by at most `twist` about the parent)
     and no direction of that set, sampled densely, is nearer to v."""
@@ -143,7 +146,8 @@ def test_twisted_hinge_gives_the_nearest_allowed_direction(parent, v, axis, a, b
     grid = np.array([_hinge_direction(parent, axis, t, u) for t in bends for u in taus])
     nearest = np.min(np.linalg.norm(grid - v, axis=1))
     step = max(hi - lo, 2 * twist) / 60  # grid spacing (radians): the grid point is at most ~step from the best
-    assert np.linalg.norm(out - v) <= nearest + 1e-9
+    # (1e-8: where v lies along the axis every bend is as near, to the rounding of a plane tilted by ~1e-9.)
+    assert np.linalg.norm(out - v) <= nearest + 1e-8
     assert nearest <= np.linalg.norm(out - v) + step + 1e-9
     assert binding == (np.linalg.norm(out - v) > 1e-12)
 
