@@ -16,7 +16,7 @@ from tests.helpers import rig_measures
 from tests.helpers.blender_data import bone_map
 
 from .test_keyframes import fcurves_of
-from .test_retarget import add_metarig, import_clip
+from .test_retarget import FRAMES, add_metarig, import_clip
 
 FIRST, LAST = 2, 61
 GROUPS = ("arm.L", "leg.R")
@@ -92,7 +92,9 @@ def test_only_the_groups_asked_for_are_carried_and_every_other_curve_is_the_targ
     bpy.ops.wm.open_mainfile(filepath=str(full), load_ui=False)  # the next run opens the scene afresh
     code, _, err = run(cli, capsys, *common, "--groups", ",".join(GROUPS), "--new-action", "Partial",
                        "--output", partial)
-    assert code in (0, 1), err
+    # The feet on the target's own trunk cannot hold the clip's plants, and the run says so (measured on what it
+    # wrote, not on the full solve).
+    assert code == 1 and "does not hold its contact" in err, err
 
     bpy.ops.wm.open_mainfile(filepath=str(full), load_ui=False)
     frames = range(FIRST, LAST + 1, 7)
@@ -147,3 +149,32 @@ def test_groups_are_read_in_any_case_and_order(cli):
     args = cli.build_parser().parse_args(["retarget", "F", "--source", "S", "--target", "T", "--groups",
                                           "LEG.r, trunk,arm.l"])
     assert args.groups == ("trunk", "arm.L", "leg.R")
+
+
+def test_trunk_and_legs_carried_hold_the_clips_plants_while_the_arms_keep_their_own_keys(capsys):
+    """--groups trunk,leg.L,leg.R (through the bridge): where the clip's foot is planted (rig_measures.plants on the
+    source) the target's same foot slides less than 1 mm, the report holds every contact, and the arms' F-Curves
+    are the target's own."""
+    from fullbody_adjust.bridge.retarget import run as retarget
+
+    source = import_clip()
+    target = add_metarig(1.2)
+    own = own_action(target)
+    before = fcurves_of(target, own)
+    outcome = retarget.retarget(bpy.context, source, target, *FRAMES, groups=("trunk", "leg.L", "leg.R"))
+    assert outcome.contacts_not_held() == 0
+    after = fcurves_of(target, outcome.action)
+    arms = carried_bones(target, ("arm.L",)) | {b.replace(".L", ".R") for b in carried_bones(target, ("arm.L",))}
+    for key in before:
+        if key[0].split('"')[1] in arms:
+            assert all(after[key][f].tobytes() == before[key][f].tobytes() for f in ("co", "left", "right"))
+    frames = np.arange(FRAMES[0], FRAMES[1] + 1)
+    fps = bpy.context.scene.render.fps / bpy.context.scene.render.fps_base
+    for side, suffix in (("Left", "L"), ("Right", "R")):
+        tracks = rig_measures.sample(frames, [(source, [f"{side}Foot", f"{side}ToeBase"]),
+                                              (target, [f"foot.{suffix}", f"toe.{suffix}"])])[0]
+        planted, which = rig_measures.plants(tracks[0][:, 0], tracks[0][:, 1], fps, 1.0)
+        assert planted.sum() > 0.2 * len(frames)
+        slid = rig_measures.slides(planted, which, {"ankle": tracks[1][:, 0], "ball": tracks[1][:, 1]})
+        print(f"partial trunk+legs: {side} plants {planted.sum()} frames, slide max {slid.max() * 1e3:.4f} mm")
+        assert slid.max() < 1e-3, (side, slid.max())

@@ -165,7 +165,10 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
     name = new_action or f"{_action_name(source_obj)}_{target_obj.name}"
     posed = posed_of(result)
     only = None if groups is None else partial_groups.bones_in_groups(target, groups, range(len(target.names)))
+    own = None if only is None else read_motion(target_obj, target, prepared.frames)[0]  # before it is replaced
     action, keyed = write_pose(context, target_obj, target, posed, prepared.frames, name, plan.carried, only)
+    if only is not None:  # contacts measured on the motion written: the groups carried on the target's own
+        posed = partial_groups.combined_pose(target, posed, own, only)
     progress("done", 1.0)
 
     wrists = np.stack([model.limbs[LIMB_OF_EFFECTOR[e]].end_point(result.heads, result.tails) for e in rt.EFFECTORS],

@@ -8,6 +8,7 @@ toe, a twist bone) goes with its nearest mapped ancestor."""
 import numpy as np
 
 from ..vocabulary import CHAIN_GROUPS
+from .rig import basis_from_pose, forward_kinematics
 
 BODY_GROUPS = tuple(g for g in CHAIN_GROUPS if g != "head")
 _PART_OF = {"root": "trunk", "trunk": "trunk", "head": "trunk", "arm.L": "arm.L", "hand.L": "arm.L",
@@ -42,3 +43,13 @@ def bones_in_groups(rig, groups, bones):
     """The bones among ``bones`` (indices) that belong to ``groups``, in the order given."""
     part = body_group_of_bones(rig)
     return [int(b) for b in bones if part[int(b)] in set(groups)]
+
+
+def combined_pose(rig, carried_pose, own_pose, bones):
+    """Armature-space pose matrices (F,J,4,4) of a partial retarget as written: ``bones`` take their local
+    transform from ``carried_pose`` (the retarget's), every other bone from ``own_pose`` (the target's own
+    motion), each under its parent as combined."""
+    every = np.arange(len(rig.names))
+    basis = np.array(basis_from_pose(rig, np.asarray(own_pose, dtype=np.float64), every))
+    basis[:, list(bones)] = basis_from_pose(rig, np.asarray(carried_pose, dtype=np.float64), list(bones))
+    return forward_kinematics(rig, basis)
