@@ -208,3 +208,93 @@ def reflection_of_bvh_rig(obj):
     s[:3, :3] -= 2.0 * np.outer(normal, normal)
     s[:3, 3] = 2.0 * (0.5 * (left + right)[:3] @ normal) * normal
     return s
+
+
+@pytest.mark.parametrize("name", ["kenney", "metarig_fbx", "metarig_fbx_auto_orient"])
+def test_mirror_pose_on_imported_rigs_whose_rolls_are_the_importers(name):
+    """Characters as Blender's FBX importer leaves them (rolls along whatever axis it chose, centimetres under an
+    object scale): posed at random, mirrored once, each joint the test knows as the character's own left (its file's
+    names, tests/helpers/real_rigs.py) is where its right partner was, reflected, and the other way round, within
+    1e-5 leg lengths; mirrored twice, every bone's armature-space matrix is back within 1e-6 (positions in leg
+    lengths)."""
+    from tests.helpers import real_rigs
+
+    rig = real_rigs.load(name)
+    obj = rig.armature
+    world = np.array(obj.matrix_world)
+    heads = dict(zip((b.name for b in obj.pose.bones), rig_measures.world_heads(obj)))
+    hip_left, hip_right = heads[rig.bone("hip.L")], heads[rig.bone("hip.R")]
+    legs = float(np.linalg.norm(hip_left - heads[rig.bone("ankle.L")]))
+    normal = hip_left - hip_right
+    normal[2] = 0.0
+    normal /= np.linalg.norm(normal)
+    s = np.eye(4)
+    s[:3, :3] -= 2.0 * np.outer(normal, normal)
+    s[:3, 3] = 2.0 * (0.5 * (hip_left + hip_right) @ normal) * normal
+
+    rng = np.random.default_rng(11)
+    for pb in obj.pose.bones:
+        pb.rotation_mode = 'QUATERNION'
+        q = np.array([1.0, 0.0, 0.0, 0.0]) + rng.normal(0.0, 0.2, 4)
+        pb.rotation_quaternion = q / np.linalg.norm(q)
+    bpy.context.view_layer.update()
+    before_heads = dict(zip((b.name for b in obj.pose.bones), rig_measures.world_heads(obj)))
+    before = rig_measures.pose_matrices(obj)
+
+    bpy.context.view_layer.objects.active = obj
+    assert bpy.ops.fullbody_adjust.mirror_pose() == {'FINISHED'}
+    after_heads = dict(zip((b.name for b in obj.pose.bones), rig_measures.world_heads(obj)))
+    worst = 0.0
+    for role in real_rigs.ROLES:
+        left, right = rig.bone(f"{role}.L"), rig.bone(f"{role}.R")
+        if left is None:
+            continue
+        for a, b in ((left, right), (right, left)):
+            worst = max(worst, np.linalg.norm(after_heads[a] - (s @ np.append(before_heads[b], 1.0))[:3]) / legs)
+    print(f"{name}: mirrored joints off the reflected partner's by {worst:.2e} leg lengths")
+    assert worst < 1e-5
+
+    assert bpy.ops.fullbody_adjust.mirror_pose() == {'FINISHED'}
+    twice = rig_measures.pose_matrices(obj)
+    size = legs / float(np.linalg.norm(world[:3, 0]))  # the legs' length in armature units
+    error = max(max(np.abs(twice[b][:3, :3] - before[b][:3, :3]).max(),
+                    np.abs(twice[b][:3, 3] - before[b][:3, 3]).max() / size) for b in before)
+    print(f"{name}: mirrored twice, off the original by {error:.2e}")
+    assert error < 1e-6
+
+
+def test_clip_batches_hand_mirror_and_groups_to_their_workers(extension_module_name, tmp_path, capsys, rig):
+    """`retarget --source-file CLIP --mirror --groups leg.L,trunk` in a worker process writes the keys the bridge
+    writes in this process with the same options (and not those it writes without them)."""
+    from tests.helpers.bvh import MOCAP_DIR, cut_bvh
+    from .test_cli import keyed_values
+
+    cli = importlib.import_module(f"{extension_module_name}.cli")
+    clip_import = importlib.import_module(f"{extension_module_name}.bridge.retarget.clip_import")
+    run = importlib.import_module(f"{extension_module_name}.bridge.retarget.run")
+    files = importlib.import_module(f"{extension_module_name}.bridge.files")
+    clip = tmp_path / "walk.bvh"
+    cut_bvh(MOCAP_DIR / "cmu_07_01_walk.bvh", clip, 1, 100)
+    rig.name = "Hero"
+    character = tmp_path / "hero.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(character))
+
+    out = tmp_path / "out"
+    code = cli.main(["retarget", str(character), "--target", "Hero", "--source-file", str(clip), "--jobs", "1",
+                     "--mirror", "--groups", "leg.L,trunk", "--output-dir", str(out), "--quiet"])
+    assert code in (0, 1), capsys.readouterr().err
+    bpy.ops.wm.open_mainfile(filepath=str(out / "walk.blend"), load_ui=False)
+    batch = keyed_values(bpy.data.objects["Hero"].animation_data.action)
+
+    here = {}
+    for options in ({"mirror": True, "groups": ("trunk", "leg.L")}, {}):
+        bpy.ops.wm.open_mainfile(filepath=str(character), load_ui=False)
+        source, _ = clip_import.import_clip(bpy.context, str(clip), clip_import.ImportOptions())
+        start, end = files.frame_range(source, bpy.context.scene)
+        outcome = run.retarget(bpy.context, source, bpy.data.objects["Hero"], start, end, floor=0.0,
+                               contacts=[["ground", None]], new_action="walk", **options)
+        here[bool(options)] = keyed_values(outcome.action)
+    assert batch.keys() == here[True].keys() and batch.keys() != here[False].keys()
+    for key, (frames, values) in batch.items():
+        np.testing.assert_array_equal(frames, here[True][key][0])
+        np.testing.assert_allclose(values, here[True][key][1], atol=1e-6)
