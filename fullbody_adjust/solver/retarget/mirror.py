@@ -23,6 +23,7 @@ import numpy as np
 from ..errors import SolverInputError
 from ..body.facing import UP, across
 from ..body.joint_ends import end_points
+from .rig import leg_length
 
 _SIDES = (("arm.L", "arm.R"), ("hand.L", "hand.R"), ("leg.L", "leg.R"), ("foot.L", "foot.R"))
 _MATCH = 0.05  # an unmapped bone's partner: reflected head and joint end within this fraction of the legs' length
@@ -32,7 +33,7 @@ def reflection(rig):
     """(4,4) armature-space matrix of the reflection across the rig's sagittal plane at rest (module
     docstring). SolverInputError when the mapped left and right joints do not lie apart."""
     world = rig.matrix_world
-    heads = rest_world_heads(rig)
+    heads = rig.to_world(rig.rest[:, :3, 3])
     left, right = _mapped_pairs(rig)
     lateral = across(UP, heads[left] - heads[right]).sum(axis=0)
     size = float(np.linalg.norm(lateral))
@@ -44,10 +45,6 @@ def reflection(rig):
     plane[:3, :3] -= 2.0 * np.outer(normal, normal)
     plane[:3, 3] = 2.0 * float(point @ normal) * normal
     return np.linalg.inv(world) @ plane @ world
-
-
-def rest_world_heads(rig):
-    return rig.rest[:, :3, 3] @ rig.matrix_world[:3, :3].T + rig.matrix_world[:3, 3]
 
 
 def partners(rig, s=None):
@@ -69,9 +66,9 @@ def partners(rig, s=None):
         cost = (np.linalg.norm(ref_heads[:, None] - heads[free][None], axis=-1)
                 + np.linalg.norm(ref_ends[:, None] - ends[free][None], axis=-1))
         nearest = np.argmin(cost, axis=1)
-        legs = float(np.linalg.norm(heads[rig.groups["leg.L"][0]] - heads[rig.groups["foot.L"][0]]))
+        legs = leg_length(rig) / rig.scale  # in armature units, as the rest
         for k, j in enumerate(nearest):
-            if nearest[j] == k and cost[k, j] <= _MATCH * max(legs, 1e-300):
+            if nearest[j] == k and cost[k, j] <= _MATCH * legs:
                 out[free[k]] = free[j]
     return out
 
@@ -92,7 +89,7 @@ def conjugators(rig):
     """(J,4,4) K_j = rest_j^-1 S rest_p (p = partner of j): the reflection seen from the partner's rest frame in
     this bone's. Its 3x3 part is made exactly orthogonal (Blender's float32 rests are orthonormal only to about
     1e-5, and a basis with skew cannot be stored as channels) and, pair by pair, K_p = K_j^-1 exactly, so that
-    mirroring twice gives back what was mirrored."""
+    mirroring twice gives back what was mirrored. Returns (K, partners, S)."""
     s = reflection(rig)
     partner = partners(rig, s)
     k = np.linalg.inv(rig.rest) @ s @ rig.rest[partner]
@@ -106,20 +103,20 @@ def conjugators(rig):
             q[:] = 0.5 * (q + q.T)
             normal = np.linalg.eigh(q)[1][:, 0]  # the eigenvector of eigenvalue -1
             k[j, :3, 3] = normal * float(normal @ k[j, :3, 3])
-    return k, partner
+    return k, partner, s
 
 
 def mirror_pose(rig, pose):
     """Armature-space pose matrices (F,J,4,4) mirrored (module docstring): M'_j = S M_p rest_p^-1 S rest_j
     = S M_p K_j^-1, every bone taking its partner's reflected motion on its own rest."""
     pose = np.asarray(pose, dtype=np.float64)
-    k, partner = conjugators(rig)
-    return reflection(rig) @ pose[:, partner] @ np.linalg.inv(k)
+    k, partner, s = conjugators(rig)
+    return s @ pose[:, partner] @ np.linalg.inv(k)
 
 
 def mirror_basis(rig, basis):
     """Pose bones' matrix_basis (F,J,4,4) mirrored: B'_j = K_j B_p K_j^-1, the local form of mirror_pose where a
     bone's parent's partner is its partner's parent (as left and right limbs hang from the trunk)."""
     basis = np.asarray(basis, dtype=np.float64)
-    k, partner = conjugators(rig)
+    k, partner, _s = conjugators(rig)
     return k @ basis[:, partner] @ np.linalg.inv(k)
