@@ -10,6 +10,7 @@ from .bridge import adjustment, live
 from .bridge import files as batch
 from .bridge.rig import mapping
 from .bridge.retarget import run as retarget
+from .bridge.retarget.mirror import mirror_armature_pose
 from .bridge.errors import AdjustError
 from .properties import FULLBODY_ADJUST_PG_settings
 
@@ -294,6 +295,21 @@ to the source's trajectories and contacts)"""
             row.enabled = name != "contact_object" or 'OBJECT' in self.contacts
 
 
+class FULLBODY_ADJUST_OT_mirror_pose(ArmatureOperator, bpy.types.Operator):
+    """Mirror the armature's pose across the character's own sagittal plane, left and right swapped through its \
+bone map"""
+    bl_idname = "fullbody_adjust.mirror_pose"
+    bl_label = "Mirror Pose"
+    bl_options = {'REGISTER', 'UNDO'}
+
+    def execute(self, context):
+        count = self.run(context, lambda: mirror_armature_pose(context.active_object))
+        if count is None:
+            return {'CANCELLED'}
+        self.report({'INFO'}, f"Mirrored the pose of {count} bones")
+        return {'FINISHED'}
+
+
 classes = (
     FULLBODY_ADJUST_OT_map_bones,
     FULLBODY_ADJUST_OT_create_targets,
@@ -301,6 +317,7 @@ classes = (
     FULLBODY_ADJUST_OT_adjust_frames,
     FULLBODY_ADJUST_OT_key_pose,
     FULLBODY_ADJUST_OT_retarget,
+    FULLBODY_ADJUST_OT_mirror_pose,
 )
 
 register, unregister = bpy.utils.register_classes_factory(classes)

@@ -89,6 +89,7 @@ class FULLBODY_ADJUST_PT_main(bpy.types.Panel):
             if problem:
                 layout.label(text=problem, icon='ERROR')
         layout.operator("fullbody_adjust.retarget", text="Retarget from Selected", icon='ARMATURE_DATA')
+        layout.operator("fullbody_adjust.mirror_pose", icon='MOD_MIRROR')
 
 
 class _SubPanel:

@@ -8,6 +8,7 @@ import sys
 
 import numpy as np
 
+from ..solver.retarget.partial import BODY_GROUPS, parse_groups
 from ..solver.vocabulary import VARIANTS
 
 COMMAND = "fullbody_adjust"
@@ -165,8 +166,29 @@ def build_parser(prog=f"blender -b FILE.blend -c {COMMAND}"):
                                "at the source's own world positions")
     _add_output_arguments(retarget, "name of the new action the target's motion is written into (default: "
                                     "'<source action>_<target>'); the target's previous action is kept")
+    _add_mirror_arguments(retarget)
     retarget.set_defaults(work="retarget")
     return parser
+
+
+def _add_mirror_arguments(retarget):
+    """--mirror and --groups: the source's motion mirrored, only some body groups carried."""
+    group = retarget.add_argument_group("mirrored and partial retargets")
+    group.add_argument("--mirror", action="store_true",
+                       help="carry the source's motion mirrored: left and right swapped through the bone map and "
+                            "reflected across the character's own sagittal plane (its left-foot plants become "
+                            "right-foot plants)")
+    group.add_argument("--groups", type=_body_groups, metavar="GROUP,...",
+                       help=f"carry only these body groups, comma separated, of {', '.join(BODY_GROUPS)} (the trunk "
+                            f"with the pelvis and head, each arm with its hand and fingers, each leg with its "
+                            f"foot); every other bone keeps the target's own F-Curves, key for key")
+
+
+def _body_groups(text):
+    try:
+        return parse_groups(text)
+    except ValueError as ex:
+        raise argparse.ArgumentTypeError(str(ex)) from None
 
 
 def _add_subcommand(subparsers, name, summary, description):

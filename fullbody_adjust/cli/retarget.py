@@ -38,7 +38,7 @@ def retarget(args, context):
     progress = progress_line(args, len(frames), f"retarget '{source.name}' -> '{target.name}'")
     started = time.perf_counter()
     outcome = retarget_motion(context, source, target, start, end, contacts=contacts, new_action=args.new_action,
-                              floor=args.floor, progress=progress)
+                              floor=args.floor, progress=progress, mirror=args.mirror, groups=args.groups)
     seconds = time.perf_counter() - started
     progress.finish()
 

@@ -73,7 +73,7 @@ def _retarget_clip(context, job, task, progress):
     solve_started = time.perf_counter()
     outcome = retarget(context, source, target, start, end, contacts=job.get("contacts", [["ground", None]]),
                        floor=job.get("floor"),
-                       new_action=task["name"],
+                       new_action=task["name"], mirror=job.get("mirror", False), groups=job.get("groups"),
                        progress=lambda stage, fraction: progress(0.3 + 0.6 * fraction))
     solve_seconds = time.perf_counter() - solve_started
     if not job.get("keep_sources"):

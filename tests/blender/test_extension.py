@@ -320,7 +320,7 @@ def test_panel_draws_the_armatures_targets_obstacles_and_variant():
     # Every button runs a registered operator of ours.
     assert set(layout.all_operators()) == {"fullbody_adjust.map_bones", "fullbody_adjust.create_targets",
                                            "fullbody_adjust.adjust_pose", "fullbody_adjust.adjust_frames",
-                                           "fullbody_adjust.retarget"}
+                                           "fullbody_adjust.retarget", "fullbody_adjust.mirror_pose"}
     for idname in layout.all_operators():
         module, name = idname.split(".")
         assert getattr(getattr(bpy.ops, module), name).get_rna_type() is not None

@@ -37,6 +37,8 @@ from ..rig import mapping, targets
 from ..errors import AdjustError
 from .read import check_source, contact_boxes, frame_range, pose_property, read_motion, rig_of, source_map, with_world
 from .write import write_pose
+from . import partial
+from ...solver.retarget import mirror as mirroring, partial as partial_groups
 
 _REFITS = 2  # solves after the first, at most, with the feet held as the solve shaped them
 
@@ -99,7 +101,7 @@ class RetargetOutcome:
 
 
 def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, *, contacts=("ground",),
-             exact=True, new_action=None, floor=None, progress=None):
+             exact=True, new_action=None, floor=None, progress=None, mirror=False, groups=None):
     """Retarget ``source_obj``'s motion over [frame_start, frame_end] (default: its action's frame range)
     onto ``target_obj``, into a new action named ``new_action`` (default '<source action>_<target>').
 
@@ -107,13 +109,17 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
     the floor, still) and any number of ('object', Object or name) (hands and feet touching the object's box
     are held on it; feet still off the floor stand on something raised). exact: hands on objects at the
     source's own world positions (else scaled like the motion). ``floor``: world height the source's ground is
-    moved to (None: where it is). Returns a RetargetOutcome; AdjustError (one
+    moved to (None: where it is). ``mirror``: the source's motion mirrored first (solver/retarget/mirror.py).
+    ``groups``: only these body groups carried (solver/retarget/partial.py), every other bone keeping the
+    target's own F-Curves (bridge/retarget/partial.py). Returns a RetargetOutcome; AdjustError (one
     line) on bad input, before anything changes (but the bone map stored on the target, see
     mapping.ensure_map)."""
     progress = progress or (lambda stage, fraction: None)
     progress("reading", 0.0)
+    if groups is not None:
+        partial.check_partial(target_obj)
     prepared = prepare(context, source_obj, target_obj, frame_start, frame_end, contacts=contacts, exact=exact,
-                       floor=floor)
+                       floor=floor, mirror=mirror)
     target, plan = prepared.target, prepared.plan
 
     progress("solving", 0.2)
@@ -158,7 +164,11 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
     progress("writing", 0.8)
     name = new_action or f"{_action_name(source_obj)}_{target_obj.name}"
     posed = posed_of(result)
-    action, keyed = write_pose(context, target_obj, target, posed, prepared.frames, name, plan.carried)
+    only = None if groups is None else partial_groups.bones_in_groups(target, groups, range(len(target.names)))
+    own = None if only is None else read_motion(target_obj, target, prepared.frames)[0]  # before it is replaced
+    action, keyed = write_pose(context, target_obj, target, posed, prepared.frames, name, plan.carried, only)
+    if only is not None:  # contacts measured on the motion written: the groups carried on the target's own
+        posed = partial_groups.combined_pose(target, posed, own, only)
     progress("done", 1.0)
 
     wrists = np.stack([model.limbs[LIMB_OF_EFFECTOR[e]].end_point(result.heads, result.tails) for e in rt.EFFECTORS],
@@ -251,7 +261,7 @@ def contact_specs(context, contacts):
 
 
 def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *, contacts=("ground",),
-            exact=True, floor=None):
+            exact=True, floor=None, mirror=False):
     """Check the input, read the source's motion and plan the retarget (see ``retarget``); changes nothing
     but the target's stored bone map."""
     check_source(source_obj)
@@ -275,6 +285,8 @@ def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *
         target = rig_of(target_obj, target_bones)
         source_pose, source_world, read_from = read_motion(source_obj, source, frames)
         source = with_world(source, source_world)
+        if mirror:
+            source_pose = mirroring.mirror_pose(source, source_pose)
         settings = rt.RetargetSettings(fps=scene.render.fps / scene.render.fps_base, exact=bool(exact))
         target_basis = pose_property(target_obj.pose.bones, "matrix_basis", (4, 4)).transpose(0, 2, 1)
         if len(target.names) != len(target_basis):  # a control rig's skeleton: its bones' own bases

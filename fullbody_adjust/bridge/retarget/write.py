@@ -11,15 +11,18 @@ from ..writing import keyframes
 from ..reading import pose
 from ..rig.control_match import control_channels
 from .read import pose_property
+from .partial import action_without
 
 
-def write_pose(context, target_obj, target, pose_matrices, frames, action_name, carried=()):
+def write_pose(context, target_obj, target, pose_matrices, frames, action_name, carried=(), only=None):
     """Key every mapped bone of ``target_obj`` (``target`` its Rig) at ``pose_matrices`` (F,J,4,4, armature
     space) over ``frames`` into a new action named ``action_name``, assigned to it: each bone's rotation in
     its rotation mode, and the root's location; on a control rig, the controls that pose the mapped bones.
     ``carried``: bones outside the map keyed as well (fingers carried over). Returns (action, keyed bone
-    names)."""
+    names). ``only``: just these bones written, into a copy of the target's action (partial.action_without)."""
     written = sorted({b for bones in target.groups.values() for b in bones} | {int(b) for b in carried})
+    if only is not None:
+        written = [b for b in written if b in set(only)]
     if control_rig.is_generated_rigify(target_obj):
         action = _new_action(target_obj, action_name)  # before posing: the old action no longer drives the controls
         bone_map = mapping.BoneMap({g: [target.names[b] for b in bones] for g, bones in target.groups.items()})
@@ -37,7 +40,8 @@ def write_pose(context, target_obj, target, pose_matrices, frames, action_name, 
     basis = rt.basis_from_pose(target, pose_matrices, written)
     modes = pose.rotation_modes(target_obj)
     channels = _channels(target_obj, target, basis, written, modes)
-    action = _new_action(target_obj, action_name)
+    action = _new_action(target_obj, action_name) if only is None else \
+        action_without(target_obj, action_name, [target.names[b] for b in written])
     keyframes.key_bones_frames(target_obj, None, frames, channels)
     context.scene.frame_set(context.scene.frame_current)  # show the new action's pose
     return action, tuple(channels)
@@ -56,7 +60,8 @@ def _channels(obj, rig, basis, written, modes):
         for c, k in enumerate(columns):
             out[rig.names[written[k]]][prop] = values[:, c]
     root = rig.groups["root"][0]
-    out[rig.names[root]]["location"] = basis[:, written.index(root), :3, 3]
+    if root in written:
+        out[rig.names[root]]["location"] = basis[:, written.index(root), :3, 3]
     return out
 
 
