@@ -60,6 +60,12 @@ _STALLED = 0.7
 _SLOPE_STEP = 1e-5
 _SLOPE_MIN = 0.2
 
+# After a sweep's closing evaluation, an IK chain's end control moved by at most this fraction of its bone's
+# length only corrects the chain's own miss (Blender's IK stops short of its target by up to ~1e-4 of the
+# chain, its stretch shifts the end): the chain's bend and scale are stepped from that evaluation without
+# evaluating the rig again for the move.
+_CORRECTION = 1e-3
+
 # The group of the trunk's pairs that carry the whole body: a move of one carries every limb.
 TRUNK_GROUP = "trunk"
 
@@ -170,13 +176,16 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
     error = best_error = np.inf
     best = None
     scaled = {}  # scale pairs: (control's Y scale, chain length) at their last step (None: left as they are)
-    for _sweep in range(max_sweeps):
+    for sweep in range(max_sweeps):
         pending = []  # (pair, armature-space step) of the controls moved since the last evaluation
+        corrections = set()  # pairs of ``pending`` that only corrected a chain's end (_carried_or_apart)
         for level_pairs in by_level:
-            carries = [_carried_or_apart(pair, pending, above) if pending else None for pair in level_pairs]
+            carries = [_carried_or_apart(pair, pending, above, corrections) if pending else None
+                       for pair in level_pairs]
             if pending and any(carry is None for carry in carries):
                 view_layer.update()
                 pending = []
+                corrections.clear()
                 carries = [None] * len(level_pairs)
             moves, scales = [], []
             for pair, carry in zip(level_pairs, carries):
@@ -214,11 +223,15 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
                 if kept is not None:
                     control.scale = kept
                 pending.append((pair, step))
+                if sweep and pair.follows_control and \
+                        _moved_by(step, pose_bones[pair.bone]) <= _CORRECTION * lengths[pair.bone]:
+                    corrections.add(pair)
             for control, scale in scales:
                 control.scale = scale.tolist()
             if scales:
                 view_layer.update()
                 pending = []
+                corrections.clear()
         if pending:
             view_layer.update()
         previous, error = error, max(_pair_error(pose_bones, p, desired, lengths) for p in pairs)
@@ -281,18 +294,23 @@ def _set_channels(obj, channels):
             setattr(pose_bone, prop, value.tolist())
 
 
-def _carried_or_apart(pair, pending, above):
+def _carried_or_apart(pair, pending, above, corrections=()):
     """How the moves ``pending`` (pair, step) since the last evaluation move ``pair``'s control and bone: the
     armature-space motion of the nearest moved control above it (the last one: levels are placed parents
     first, and a recorded step is the control's whole motion since the evaluation), the identity when only
     other limbs (or parts of the trunk that do not carry its group) moved, or None when a move may move it in a
     way not known without evaluating the rig (a move of its own limb, or of what carries it, by a control it
-    does not hang below)."""
+    does not hang below). ``corrections``: moves of ``pending`` that only corrected where an IK chain's end
+    control lies by what the last evaluation showed of the chain's own miss (_CORRECTION): a bend or scale pair
+    of that chain is stepped from that evaluation (the identity) instead of evaluating the rig once more for a
+    move far under the step's own error; the sweep's closing evaluation measures the result."""
     carry = np.eye(4)
     for moved, step in pending:
         groups = (moved.group, pair.group)
         if None not in groups and moved.group not in (pair.group, TRUNK_GROUP) and pair.group not in moved.carries:
             continue  # another limb, or a part of the trunk that does not carry this one
+        if pair.kind != "rigid" and moved in corrections and moved.group == pair.group:
+            continue
         if None in groups or pair.kind != "rigid":
             return None
         if not {moved.control, moved.bone} & above[pair.control]:
@@ -301,6 +319,12 @@ def _carried_or_apart(pair, pending, above):
             return None
         carry = step
     return carry
+
+
+def _moved_by(step, pose_bone):
+    """How far the armature-space motion ``step`` (4x4) moves ``pose_bone``'s evaluated head."""
+    head = _matrix(pose_bone)[:3, 3]
+    return float(np.linalg.norm(step[:3, :3] @ head + step[:3, 3] - head))
 
 
 def _error(bone, pair, pose_bones, desired, lengths):
