@@ -66,6 +66,12 @@ _SLOPE_MIN = 0.2
 # evaluating the rig again for the move.
 _CORRECTION = 1e-3
 
+# A bend or scale pair (an IK chain's middle joint: an elbow, a knee, never a target) is met within this many
+# times the solve's tolerance: 0.1 mm at the default 1e-5 m, what the deform bones are held to. Rigify's stretchy
+# IK answers a base's scaling by a share that changes with every step (its slope measured from 0.02 to 1.8 on a
+# drag), so the last tenth of that tolerance cost a sweep, an evaluation of the rig, on about every update.
+_MIDDLE_JOINT = 10.0
+
 # The group of the trunk's pairs that carry the whole body: a move of one carries every limb.
 TRUNK_GROUP = "trunk"
 
@@ -192,7 +198,7 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
                 bone = _matrix(pose_bones[pair.bone])
                 if carry is not None:
                     bone = carry @ bone
-                if _error(bone, pair, pose_bones, desired, lengths) <= tolerance:
+                if _error(bone, pair, pose_bones, desired, lengths) <= _tolerance(pair, tolerance):
                     continue
                 control = pose_bones[pair.control]
                 if pair.kind == "scale":
@@ -234,10 +240,12 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
                 corrections.clear()
         if pending:
             view_layer.update()
-        previous, error = error, max(_pair_error(pose_bones, p, desired, lengths) for p in pairs)
+        errors = [_pair_error(pose_bones, p, desired, lengths) for p in pairs]
+        previous, error = error, max(errors)
         if error < best_error:
             best_error, best = error, read_channels(obj, controls)
-        if error <= tolerance or error > _STALLED * previous:
+        met = all(e <= _tolerance(p, tolerance) for p, e in zip(pairs, errors))
+        if met or error > _STALLED * previous:
             break  # met, or a sweep no longer helps (an IK chain's own solver tolerance, a stretchy chain)
     if error > best_error:
         # A sweep can still land farther off than one before it (a stretchy chain near its IK's precision):
@@ -292,6 +300,12 @@ def _set_channels(obj, channels):
         pose_bone = obj.pose.bones[name]
         for prop, value in props.items():
             setattr(pose_bone, prop, value.tolist())
+
+
+def _tolerance(pair, tolerance):
+    """The error ``pair`` is placed to: ``tolerance`` (the solve's: a hand or a foot is a target) but for a bend or
+    scale pair, which sets where an IK chain's middle joint lies and no target, _MIDDLE_JOINT times it."""
+    return tolerance if pair.kind == "rigid" else _MIDDLE_JOINT * tolerance
 
 
 def _carried_or_apart(pair, pending, above, corrections=()):
