@@ -33,6 +33,17 @@ one through a constraint, as a Rigify IK parent switch makes it, the sweep's clo
 next sweep corrects it); anything else (a bend or scale pair after a move of its limb, a control not below what moved, a
 limb between IK and FK) is evaluated first. Nothing here knows a rig's names: the rig module (``control_rig``) says
 which control drives which bone.
+
+Where a prediction is wrong, and so where the rig is evaluated more than once: an IK chain whose end or base moved.
+Blender's IK is iterative and path dependent: with Rigify's stretch (ik_stretch 0.1 on both bones) it shares a
+stretch between the bones that changes with the target's distance and the base's scale (the slope of the chain's
+length against its base's scale measured from 0.02 to 1.8 over one drag), and it leaves the chain's end off its
+target (0.1 mm after a 3 cm move of the basic rig's hand). So a chain's bend and scale are stepped from an evaluation that shows the chain with its end where
+it goes (the one before its level on the first sweep), and each further sweep, one evaluation each, steps its scale
+again and corrects its end control by the chain's miss. A generated rig in FK, and the trunk, the clavicles and the IK
+end controls of any rig, are placed from the rest relations and the carried matrices in one go: one evaluation (the
+sweep's closing one) shows them. The evaluation at the start finds nothing to evaluate when the caller has just read
+the pose (a click, a Live update) and evaluates a rig whose action the caller just changed (a retarget).
 """
 
 import math
@@ -60,10 +71,8 @@ _STALLED = 0.7
 _SLOPE_STEP = 1e-5
 _SLOPE_MIN = 0.2
 
-# After a sweep's closing evaluation, an IK chain's end control moved by at most this fraction of its bone's
-# length only corrects the chain's own miss (Blender's IK stops short of its target by up to ~1e-4 of the
-# chain, its stretch shifts the end): the chain's bend and scale are stepped from that evaluation without
-# evaluating the rig again for the move.
+# After a sweep's closing evaluation, an IK chain's end control moved by at most this fraction of its bone's length
+# only corrects the chain's miss: its bend and scale are stepped from that evaluation, not from one more.
 _CORRECTION = 1e-3
 
 # A bend or scale pair (an IK chain's middle joint: an elbow, a knee, never a target) is met within this many
@@ -314,10 +323,8 @@ def _carried_or_apart(pair, pending, above, corrections=()):
     first, and a recorded step is the control's whole motion since the evaluation), the identity when only
     other limbs (or parts of the trunk that do not carry its group) moved, or None when a move may move it in a
     way not known without evaluating the rig (a move of its own limb, or of what carries it, by a control it
-    does not hang below). ``corrections``: moves of ``pending`` that only corrected where an IK chain's end
-    control lies by what the last evaluation showed of the chain's own miss (_CORRECTION): a bend or scale pair
-    of that chain is stepped from that evaluation (the identity) instead of evaluating the rig once more for a
-    move far under the step's own error; the sweep's closing evaluation measures the result."""
+    does not hang below). ``corrections``: moves of ``pending`` that only corrected an IK chain's end control by
+    the chain's miss (_CORRECTION): that chain's bend and scale pairs are stepped from the last evaluation."""
     carry = np.eye(4)
     for moved, step in pending:
         groups = (moved.group, pair.group)
