@@ -34,16 +34,15 @@ next sweep corrects it); anything else (a bend or scale pair after a move of its
 limb between IK and FK) is evaluated first. Nothing here knows a rig's names: the rig module (``control_rig``) says
 which control drives which bone.
 
-Where a prediction is wrong, and so where the rig is evaluated more than once: an IK chain whose end or base moved.
-Blender's IK is iterative and path dependent: with Rigify's stretch (ik_stretch 0.1 on both bones) it shares a
-stretch between the bones that changes with the target's distance and the base's scale (the slope of the chain's
-length against its base's scale measured from 0.02 to 1.8 over one drag), and it leaves the chain's end off its
-target (0.1 mm after a 3 cm move of the basic rig's hand). So a chain's bend and scale are stepped from an evaluation that shows the chain with its end where
-it goes (the one before its level on the first sweep), and each further sweep, one evaluation each, steps its scale
-again and corrects its end control by the chain's miss. A generated rig in FK, and the trunk, the clavicles and the IK
-end controls of any rig, are placed from the rest relations and the carried matrices in one go: one evaluation (the
-sweep's closing one) shows them. The evaluation at the start finds nothing to evaluate when the caller has just read
-the pose (a click, a Live update) and evaluates a rig whose action the caller just changed (a retarget).
+Where a prediction is wrong, so that the rig is evaluated more than once: an IK chain whose end or base moved.
+Blender's IK is iterative and path dependent: Rigify's stretch (ik_stretch 0.1 on both bones) shares a stretch
+between the bones that changes with the target's distance and the base's scale (the chain length's slope against
+that scale measured from 0.02 to 1.8 over one drag), and the chain's end stops off its target (0.1 mm after a 3 cm
+move of the basic rig's hand). A chain's bend and scale are stepped from an evaluation that shows its end where it
+goes, and each further sweep (one evaluation) steps its scale again and corrects its end control by the chain's miss.
+An FK rig, and the trunk, clavicles and IK end controls of any rig, are placed from the rest relations and carried
+matrices in one go, shown by the sweep's closing evaluation. A caller that has just had the rig evaluated (a click, a
+Live update) says so, and the matching does not evaluate it first.
 """
 
 import math
@@ -75,10 +74,9 @@ _SLOPE_MIN = 0.2
 # only corrects the chain's miss: its bend and scale are stepped from that evaluation, not from one more.
 _CORRECTION = 1e-3
 
-# A bend or scale pair (an IK chain's middle joint: an elbow, a knee, never a target) is met within this many
-# times the solve's tolerance: 0.1 mm at the default 1e-5 m, what the deform bones are held to. Rigify's stretchy
-# IK answers a base's scaling by a share that changes with every step (its slope measured from 0.02 to 1.8 on a
-# drag), so the last tenth of that tolerance cost a sweep, an evaluation of the rig, on about every update.
+# A bend or scale pair (an IK chain's middle joint: an elbow, a knee, never a target) is met within this many times the
+# solve's tolerance: 0.1 mm at the default 1e-5 m, what the deform bones are held to. Its last tenth cost a sweep (an
+# evaluation of the rig) on about every update: Rigify's stretchy IK answers a scaling by a share that keeps changing.
 _MIDDLE_JOINT = 10.0
 
 # The group of the trunk's pairs that carry the whole body: a move of one carries every limb.
@@ -176,18 +174,20 @@ def _bend_step(pose_bones, pair, desired, lengths):
     return np.array([[*turn[0], shift[0]], [*turn[1], shift[1]], [*turn[2], shift[2]], [0.0, 0.0, 0.0, 1.0]])
 
 
-def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
+def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, evaluated=False):
     """Place the controls of ``pairs`` so each pair's bone reaches ``desired[bone]`` (4x4 armature-space
-    matrices). Evaluates the rig (``view_layer.update()``) where the moves since the last evaluation leave a
-    level's matrices unknown (module notes), and after each sweep. Returns the largest remaining bone error
-    (armature units) of the best sweep, whose channels the controls are left holding."""
+    matrices). Evaluates the rig (``view_layer.update()``) first unless ``evaluated`` (the caller has just had it
+    evaluated and changed nothing since), where the moves since the last evaluation leave a level's matrices
+    unknown (module notes), and after each sweep. Returns the largest remaining bone error (armature units) of the
+    best sweep, whose channels the controls are left holding."""
     pose_bones = obj.pose.bones
     levels = sorted({p.level for p in pairs})
     by_level = [[p for p in pairs if p.level == level] for level in levels]
     lengths = {p.bone: pose_bones[p.bone].bone.length for p in pairs}
     controls = list(dict.fromkeys(p.control for p in pairs))
     above = {c: {b.name for b in pose_bones[c].parent_recursive} for c in controls}
-    view_layer.update()
+    if not evaluated:
+        view_layer.update()
     error = best_error = np.inf
     best = None
     scaled = {}  # scale pairs: (control's Y scale, chain length) at their last step (None: left as they are)
@@ -361,20 +361,22 @@ def _error(bone, pair, pose_bones, desired, lengths):
     return max(math.dist(_head(b), _head(d)), math.dist(_tail(b, length), _tail(d, length)))
 
 
-def control_channels(obj, view_layer, pairs, bones, desired, tolerance, rows, start=None):
+def control_channels(obj, view_layer, pairs, bones, desired, tolerance, rows, start=None, evaluated=False):
     """The controls' channels that pose ``bones`` at ``desired`` (F,k,4,4 armature space) on each frame:
     {control: {property: (F,n)}} for the controls that moved on some frame, rotations continuous over frames.
     ``rows`` yields the frame rows in order (the caller may step the scene to each frame as it yields); the
     controls are left as placed for the last row. A control counts as moved when it ends a frame away from where
     it was before that frame's matching or, given ``start`` (the PoseSnapshot the solve started from), from where
     it was in that pose: Live matches from the controls it placed on the update before, and one that needs no
-    further move is still part of the pose it shows."""
+    further move is still part of the pose it shows. ``evaluated``: the rig is evaluated as it stands for the first
+    row (match_controls)."""
     controls = list(dict.fromkeys(pair.control for pair in pairs))
     out, moved = [], np.zeros(len(controls), dtype=bool)
     start_bases = None if start is None else start.channels["matrix_basis"][:, start.indices(controls)]
     for row in rows:
         before = _bases(obj, controls) if start_bases is None else start_bases[row]
-        match_controls(obj, view_layer, pairs, dict(zip(bones, desired[row])), tolerance)
+        match_controls(obj, view_layer, pairs, dict(zip(bones, desired[row])), tolerance,
+                       evaluated=evaluated and not out)
         moved |= np.abs(_bases(obj, controls) - before).max(axis=(1, 2)) > _CONTROL_MOVED
         out.append(read_channels(obj, controls, previous=out[-1] if out else None))
     return {c: {prop: np.stack([row[c][prop] for row in out]) for prop in out[0][c]}
