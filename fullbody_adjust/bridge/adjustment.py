@@ -235,7 +235,8 @@ def _control_channels(context, obj, frames, snapshot, result, unit, bone_map, ke
             desired[:, k] = desired[:, p] @ affine_inverse(old[:, p]) @ old[:, k]
     pairs = control_rig.control_pairs(obj, bone_map)
     if apply_pose:
-        return control_channels(obj, context.view_layer, pairs, names, desired, tolerance, [0], start=snapshot)
+        return control_channels(obj, context.view_layer, pairs, names, desired, tolerance, [0], start=snapshot,
+                                evaluated=True)  # _current_targets had the scene evaluated; nothing changed since
     with _pose_kept(obj):
         rows = (row for row, _frame in frames_module.step_frames(context.scene, frames))
         return control_channels(obj, context.view_layer, pairs, names, desired, tolerance, rows, start=snapshot)

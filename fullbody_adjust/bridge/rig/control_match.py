@@ -33,6 +33,16 @@ one through a constraint, as a Rigify IK parent switch makes it, the sweep's clo
 next sweep corrects it); anything else (a bend or scale pair after a move of its limb, a control not below what moved, a
 limb between IK and FK) is evaluated first. Nothing here knows a rig's names: the rig module (``control_rig``) says
 which control drives which bone.
+
+Where a prediction is wrong, so that the rig is evaluated more than once: an IK chain whose end or base moved.
+Blender's IK is iterative and path dependent: Rigify's stretch (ik_stretch 0.1 on both bones) shares a stretch
+between the bones that changes with the target's distance and the base's scale (the chain length's slope against
+that scale measured from 0.02 to 1.8 over one drag), and the chain's end stops off its target (0.1 mm after a 3 cm
+move of the basic rig's hand). A chain's bend and scale are stepped from an evaluation that shows its end where it
+goes, and each further sweep (one evaluation) steps its scale again and corrects its end control by the chain's miss.
+An FK rig, and the trunk, clavicles and IK end controls of any rig, are placed from the rest relations and carried
+matrices in one go, shown by the sweep's closing evaluation. A caller that has just had the rig evaluated (a click, a
+Live update) says so, and the matching does not evaluate it first.
 """
 
 import math
@@ -59,6 +69,15 @@ _STALLED = 0.7
 # more than this (in logs; float32 channels); under _SLOPE_MIN the control no longer sets the chain's length.
 _SLOPE_STEP = 1e-5
 _SLOPE_MIN = 0.2
+
+# After a sweep's closing evaluation, an IK chain's end control moved by at most this fraction of its bone's length
+# only corrects the chain's miss: its bend and scale are stepped from that evaluation, not from one more.
+_CORRECTION = 1e-3
+
+# A bend or scale pair (an IK chain's middle joint: an elbow, a knee, never a target) is met within this many times the
+# solve's tolerance: 0.1 mm at the default 1e-5 m, what the deform bones are held to. Its last tenth cost a sweep (an
+# evaluation of the rig) on about every update: Rigify's stretchy IK answers a scaling by a share that keeps changing.
+_MIDDLE_JOINT = 10.0
 
 # The group of the trunk's pairs that carry the whole body: a move of one carries every limb.
 TRUNK_GROUP = "trunk"
@@ -155,35 +174,40 @@ def _bend_step(pose_bones, pair, desired, lengths):
     return np.array([[*turn[0], shift[0]], [*turn[1], shift[1]], [*turn[2], shift[2]], [0.0, 0.0, 0.0, 1.0]])
 
 
-def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
+def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, evaluated=False):
     """Place the controls of ``pairs`` so each pair's bone reaches ``desired[bone]`` (4x4 armature-space
-    matrices). Evaluates the rig (``view_layer.update()``) where the moves since the last evaluation leave a
-    level's matrices unknown (module notes), and after each sweep. Returns the largest remaining bone error
-    (armature units) of the best sweep, whose channels the controls are left holding."""
+    matrices). Evaluates the rig (``view_layer.update()``) first unless ``evaluated`` (the caller has just had it
+    evaluated and changed nothing since), where the moves since the last evaluation leave a level's matrices
+    unknown (module notes), and after each sweep. Returns the largest remaining bone error (armature units) of the
+    best sweep, whose channels the controls are left holding."""
     pose_bones = obj.pose.bones
     levels = sorted({p.level for p in pairs})
     by_level = [[p for p in pairs if p.level == level] for level in levels]
     lengths = {p.bone: pose_bones[p.bone].bone.length for p in pairs}
     controls = list(dict.fromkeys(p.control for p in pairs))
     above = {c: {b.name for b in pose_bones[c].parent_recursive} for c in controls}
-    view_layer.update()
+    if not evaluated:
+        view_layer.update()
     error = best_error = np.inf
     best = None
     scaled = {}  # scale pairs: (control's Y scale, chain length) at their last step (None: left as they are)
-    for _sweep in range(max_sweeps):
+    for sweep in range(max_sweeps):
         pending = []  # (pair, armature-space step) of the controls moved since the last evaluation
+        corrections = set()  # pairs of ``pending`` that only corrected a chain's end (_carried_or_apart)
         for level_pairs in by_level:
-            carries = [_carried_or_apart(pair, pending, above) if pending else None for pair in level_pairs]
+            carries = [_carried_or_apart(pair, pending, above, corrections) if pending else None
+                       for pair in level_pairs]
             if pending and any(carry is None for carry in carries):
                 view_layer.update()
                 pending = []
+                corrections.clear()
                 carries = [None] * len(level_pairs)
             moves, scales = [], []
             for pair, carry in zip(level_pairs, carries):
                 bone = _matrix(pose_bones[pair.bone])
                 if carry is not None:
                     bone = carry @ bone
-                if _error(bone, pair, pose_bones, desired, lengths) <= tolerance:
+                if _error(bone, pair, pose_bones, desired, lengths) <= _tolerance(pair, tolerance):
                     continue
                 control = pose_bones[pair.control]
                 if pair.kind == "scale":
@@ -214,17 +238,23 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8):
                 if kept is not None:
                     control.scale = kept
                 pending.append((pair, step))
+                if sweep and pair.follows_control and \
+                        _moved_by(step, pose_bones[pair.bone]) <= _CORRECTION * lengths[pair.bone]:
+                    corrections.add(pair)
             for control, scale in scales:
                 control.scale = scale.tolist()
             if scales:
                 view_layer.update()
                 pending = []
+                corrections.clear()
         if pending:
             view_layer.update()
-        previous, error = error, max(_pair_error(pose_bones, p, desired, lengths) for p in pairs)
+        errors = [_pair_error(pose_bones, p, desired, lengths) for p in pairs]
+        previous, error = error, max(errors)
         if error < best_error:
             best_error, best = error, read_channels(obj, controls)
-        if error <= tolerance or error > _STALLED * previous:
+        met = all(e <= _tolerance(p, tolerance) for p, e in zip(pairs, errors))
+        if met or error > _STALLED * previous:
             break  # met, or a sweep no longer helps (an IK chain's own solver tolerance, a stretchy chain)
     if error > best_error:
         # A sweep can still land farther off than one before it (a stretchy chain near its IK's precision):
@@ -281,18 +311,27 @@ def _set_channels(obj, channels):
             setattr(pose_bone, prop, value.tolist())
 
 
-def _carried_or_apart(pair, pending, above):
+def _tolerance(pair, tolerance):
+    """The error ``pair`` is placed to: ``tolerance`` (the solve's: a hand or a foot is a target) but for a bend or
+    scale pair, which sets where an IK chain's middle joint lies and no target, _MIDDLE_JOINT times it."""
+    return tolerance if pair.kind == "rigid" else _MIDDLE_JOINT * tolerance
+
+
+def _carried_or_apart(pair, pending, above, corrections=()):
     """How the moves ``pending`` (pair, step) since the last evaluation move ``pair``'s control and bone: the
     armature-space motion of the nearest moved control above it (the last one: levels are placed parents
     first, and a recorded step is the control's whole motion since the evaluation), the identity when only
     other limbs (or parts of the trunk that do not carry its group) moved, or None when a move may move it in a
     way not known without evaluating the rig (a move of its own limb, or of what carries it, by a control it
-    does not hang below)."""
+    does not hang below). ``corrections``: moves of ``pending`` that only corrected an IK chain's end control by
+    the chain's miss (_CORRECTION): that chain's bend and scale pairs are stepped from the last evaluation."""
     carry = np.eye(4)
     for moved, step in pending:
         groups = (moved.group, pair.group)
         if None not in groups and moved.group not in (pair.group, TRUNK_GROUP) and pair.group not in moved.carries:
             continue  # another limb, or a part of the trunk that does not carry this one
+        if pair.kind != "rigid" and moved in corrections and moved.group == pair.group:
+            continue
         if None in groups or pair.kind != "rigid":
             return None
         if not {moved.control, moved.bone} & above[pair.control]:
@@ -301,6 +340,12 @@ def _carried_or_apart(pair, pending, above):
             return None
         carry = step
     return carry
+
+
+def _moved_by(step, pose_bone):
+    """How far the armature-space motion ``step`` (4x4) moves ``pose_bone``'s evaluated head."""
+    head = _matrix(pose_bone)[:3, 3]
+    return float(np.linalg.norm(step[:3, :3] @ head + step[:3, 3] - head))
 
 
 def _error(bone, pair, pose_bones, desired, lengths):
@@ -316,20 +361,22 @@ def _error(bone, pair, pose_bones, desired, lengths):
     return max(math.dist(_head(b), _head(d)), math.dist(_tail(b, length), _tail(d, length)))
 
 
-def control_channels(obj, view_layer, pairs, bones, desired, tolerance, rows, start=None):
+def control_channels(obj, view_layer, pairs, bones, desired, tolerance, rows, start=None, evaluated=False):
     """The controls' channels that pose ``bones`` at ``desired`` (F,k,4,4 armature space) on each frame:
     {control: {property: (F,n)}} for the controls that moved on some frame, rotations continuous over frames.
     ``rows`` yields the frame rows in order (the caller may step the scene to each frame as it yields); the
     controls are left as placed for the last row. A control counts as moved when it ends a frame away from where
     it was before that frame's matching or, given ``start`` (the PoseSnapshot the solve started from), from where
     it was in that pose: Live matches from the controls it placed on the update before, and one that needs no
-    further move is still part of the pose it shows."""
+    further move is still part of the pose it shows. ``evaluated``: the rig is evaluated as it stands for the first
+    row (match_controls)."""
     controls = list(dict.fromkeys(pair.control for pair in pairs))
     out, moved = [], np.zeros(len(controls), dtype=bool)
     start_bases = None if start is None else start.channels["matrix_basis"][:, start.indices(controls)]
     for row in rows:
         before = _bases(obj, controls) if start_bases is None else start_bases[row]
-        match_controls(obj, view_layer, pairs, dict(zip(bones, desired[row])), tolerance)
+        match_controls(obj, view_layer, pairs, dict(zip(bones, desired[row])), tolerance,
+                       evaluated=evaluated and not out)
         moved |= np.abs(_bases(obj, controls) - before).max(axis=(1, 2)) > _CONTROL_MOVED
         out.append(read_channels(obj, controls, previous=out[-1] if out else None))
     return {c: {prop: np.stack([row[c][prop] for row in out]) for prop in out[0][c]}
