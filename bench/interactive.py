@@ -27,8 +27,8 @@ Each measure of a case starts from the rest pose without keys (clicks then go on
                   live_floor_over_ik is the least live_update_over_ik could be;
   rig_evaluations_per_update  (the generated rig) how often placing its controls evaluated the rig, on average
                   per click or Live update: each evaluation costs about what Blender's IK update of that rig does
-                  (counted are the view_layer.update() calls; the first of a Live update's finds nothing to
-                  evaluate, 0.04 ms in the drag);
+                  (counted are the view_layer.update() calls placing the controls makes; a click or Live
+                  update that has just evaluated the scene tells it so, and it skips its first);
   hand_residual   after the last repetition, the largest wrist-to-goal distance in arm lengths (so the
                   reference is seen to act: ~0 in the near case for both).
 Times are the median (and the best) of --repeat repetitions. A row that fails records its error and the
