@@ -207,7 +207,8 @@ def _job(args, input_path, target):
                        "fps": args.clip_fps, "start_frame": args.clip_start_frame, "take": args.take},
             "contacts": contacts,
             "floor": _floor(args.floor, contacts), "frame_start": args.frame_start,
-            "frame_end": args.frame_end, "keep_sources": args.keep_sources}
+            "frame_end": args.frame_end, "keep_sources": args.keep_sources,
+            "root_motion": args.root_motion, "root_bone": args.root_bone}
 
 
 def _floor(floor, contacts):

@@ -36,7 +36,7 @@ from ..reading import ik_limits, start_checks
 from ..rig import mapping, targets
 from ..errors import AdjustError
 from .read import check_source, contact_boxes, frame_range, pose_property, read_motion, rig_of, source_map, with_world
-from .write import write_pose
+from . import root_motion as root_travel
 
 _REFITS = 2  # solves after the first, at most, with the feet held as the solve shaped them
 
@@ -99,7 +99,7 @@ class RetargetOutcome:
 
 
 def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, *, contacts=("ground",),
-             exact=True, new_action=None, floor=None, progress=None):
+             exact=True, new_action=None, floor=None, progress=None, root_motion=None, root_bone=None):
     """Retarget ``source_obj``'s motion over [frame_start, frame_end] (default: its action's frame range)
     onto ``target_obj``, into a new action named ``new_action`` (default '<source action>_<target>').
 
@@ -107,7 +107,9 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
     the floor, still) and any number of ('object', Object or name) (hands and feet touching the object's box
     are held on it; feet still off the floor stand on something raised). exact: hands on objects at the
     source's own world positions (else scaled like the motion). ``floor``: world height the source's ground is
-    moved to (None: where it is). Returns a RetargetOutcome; AdjustError (one
+    moved to (None: where it is). ``root_motion``: where the travel is written, 'hips' (None, the default),
+    'bone' (onto ``root_bone``, created when missing), 'object' or 'in-place' (bridge/retarget/root_motion.py);
+    the contact figures are those of the world motion the root and pose build. Returns a RetargetOutcome; AdjustError (one
     line) on bad input, before anything changes (but the bone map stored on the target, see
     mapping.ensure_map)."""
     progress = progress or (lambda stage, fraction: None)
@@ -115,6 +117,7 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
     prepared = prepare(context, source_obj, target_obj, frame_start, frame_end, contacts=contacts, exact=exact,
                        floor=floor)
     target, plan = prepared.target, prepared.plan
+    root_request = root_travel.check(target_obj, root_motion, root_bone, target.names[target.groups["root"][0]])
 
     progress("solving", 0.2)
     try:
@@ -158,7 +161,8 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
     progress("writing", 0.8)
     name = new_action or f"{_action_name(source_obj)}_{target_obj.name}"
     posed = posed_of(result)
-    action, keyed = write_pose(context, target_obj, target, posed, prepared.frames, name, plan.carried)
+    action, keyed = root_travel.write(context, root_request, target_obj, target, posed, prepared.frames, name,
+                                      plan.carried, plan.ground)
     progress("done", 1.0)
 
     wrists = np.stack([model.limbs[LIMB_OF_EFFECTOR[e]].end_point(result.heads, result.tails) for e in rt.EFFECTORS],
