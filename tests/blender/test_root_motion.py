@@ -55,8 +55,14 @@ def measure(path, target, hips):
     """The target's evaluated world matrices over its action's frames in the file at ``path``."""
     bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
     obj = bpy.data.objects[target]
-    first, last = (int(round(f)) for f in obj.animation_data.action.frame_range)
     sources = [o for o in bpy.data.objects if o.type == 'ARMATURE' and o != obj]  # kept: the default's run
+    return sample_armature(obj, hips, sources[0] if sources else None)
+
+
+def sample_armature(obj, hips, source=None):
+    """measure's figures of the armature ``obj`` (and the ``source`` armature's bones) in the open file."""
+    first, last = (int(round(f)) for f in obj.animation_data.action.frame_range)
+    sources = [source] if source is not None else []
     bones, objects, source = {}, [], {}
     for frame in range(first, last + 1):
         bpy.context.scene.frame_set(frame)
@@ -288,3 +294,25 @@ def test_bad_root_motion_exits_2_with_one_line(cli, capsys, tmp_path, extra, wor
     _, err = capsys.readouterr()
     assert code == 2 and len(err.strip().splitlines()) == 1 and words in err, err
     assert path.read_bytes() == data and not (tmp_path / "out.blend").exists()
+
+
+def test_the_retarget_operator_offers_root_motion(extension_module_name):
+    """Retarget Motion with Root Motion 'Root Bone' (a root bone created) and 'Object', against its default."""
+    bpy.ops.wm.open_mainfile(filepath=str(SAMPLE), load_ui=False)
+    source, target = bpy.data.objects["Source"], bpy.data.objects["Large"]
+    bpy.context.view_layer.objects.active = target
+    source.select_set(True)
+    target.select_set(True)
+    results = {}
+    for mode, extra in (("HIPS", {}), ("BONE", {"root_bone": "root"}), ("OBJECT", {})):
+        assert bpy.ops.fullbody_adjust.retarget(frame_start=1, frame_end=30, root_motion=mode, **extra) == {'FINISHED'}
+        results[mode] = sample_armature(target, "Hips")
+        if mode == "OBJECT":  # its keys in the action, on the object's own channels
+            assert {"location", "rotation_euler"} <= {fc.data_path for fc in rm.animating_fcurves(target)}
+    names = results["HIPS"]["body"]
+    for mode in ("BONE", "OBJECT"):
+        assert np.abs(heads(results[mode], names) - heads(results["HIPS"], names)).max() < 0.1 * MM
+    root = results["BONE"]["bones"]["root"]
+    assert np.ptp(root[:, 0, 3]) + np.ptp(root[:, 1, 3]) > 0.05  # the root bone carries the travel
+    with pytest.raises(RuntimeError, match="is for root motion 'bone'"):
+        bpy.ops.fullbody_adjust.retarget(frame_start=1, frame_end=30, root_motion='OBJECT', root_bone="root")
