@@ -316,3 +316,37 @@ def test_the_retarget_operator_offers_root_motion(extension_module_name):
     assert np.ptp(root[:, 0, 3]) + np.ptp(root[:, 1, 3]) > 0.05  # the root bone carries the travel
     with pytest.raises(RuntimeError, match="is for root motion 'bone'"):
         bpy.ops.fullbody_adjust.retarget(frame_start=1, frame_end=30, root_motion='OBJECT', root_bone="root")
+
+
+def test_a_generated_rigify_rig_takes_object_and_in_place(extension_module_name):
+    """On a generated control rig the keys go on its controls: 'object' leaves the hands and feet where the default
+    puts them (0.1 mm; the other deform bones within the 1 mm the controls are matched to), 'in-place' keeps its
+    hips over one place; 'bone' is refused in one line (its root control is not
+    keyed by a retarget yet)."""
+    from .test_retarget import enable_addon, import_clip
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+    source = import_clip()
+    enable_addon("rigify")
+    bpy.ops.object.armature_basic_human_metarig_add()
+    bpy.ops.pose.rigify_generate()
+    rig = bpy.context.active_object
+    run = importlib.import_module(f"{extension_module_name}.bridge.retarget.run")
+    errors = importlib.import_module(f"{extension_module_name}.bridge.errors")
+    results = {}
+    for mode in ("hips", "object", "in-place"):
+        run.retarget(bpy.context, source, rig, 2, 41, root_motion=mode)
+        results[mode] = sample_armature(rig, "DEF-spine")
+    deform = [n for n in results["hips"]["bones"] if n.startswith("DEF-")]
+    off = np.linalg.norm(heads(results["object"], deform) - heads(results["hips"], deform), axis=-1)
+    hips = results["in-place"]["bones"]["DEF-spine"][:, :2, 3]
+    travel = np.ptp(results["hips"]["bones"]["DEF-spine"][:, :2, 3], axis=0).max()
+    print(f"rigify: object: {len(deform)} deform bones off the default by max {off.max() / MM:.5f} mm; in place: "
+          f"hips drift {np.ptp(hips, axis=0).max() / MM:.5f} mm (the default travels {travel:.3f} m)")
+    ends = [k for k, n in enumerate(deform) if n.split(".")[0] in ("DEF-hand", "DEF-foot", "DEF-toe")]
+    print(f"rigify: object: hands and feet off the default by max {off[:, ends].max() / MM:.5f} mm")
+    # The controls are matched to the pose within the solver's tolerance (1 mm): a knee may differ by that much.
+    assert off[:, ends].max() < 0.1 * MM and off.max() < 2.0 * MM
+    assert np.ptp(hips, axis=0).max() < 0.1 * MM and travel > 0.1
+    with pytest.raises(errors.AdjustError, match="generated control rig"):
+        run.retarget(bpy.context, source, rig, 2, 41, root_motion="bone", root_bone="root")
