@@ -4,7 +4,8 @@
     hips      (the default) the travel stays on the hips, as the solve left it;
     bone      the hips' horizontal travel and turn about the vertical go onto the root bone above them (an
               existing ancestor of the hips, or --root-bone NAME, created at the floor under the hips when the
-              rig has no such bone); the hips keep their height and tilt relative to it;
+              rig has no such bone; on a generated Rigify rig its 'root' control, the controls posed in place
+              under it); the hips keep their height and tilt relative to it;
     object    the same travel and turn on the armature object's location and rotation keys (in the same action);
     in-place  the travel and turn removed: the body stays over its rest place, facing its rest heading.
 
@@ -21,24 +22,25 @@ import numpy as np
 from ...solver.retarget import motion as rt
 from ...solver.retarget import root_motion as split
 from ..errors import AdjustError
-from ..reading import pose
 from ..rig import control_rig, mapping
 from ..writing import keyframes
 from .read import rig_of
 from .write import write_pose
 
 MODES = ("hips", "bone", "object", "in-place")
+_CONTROL_ROOT = "root"  # the bone every control of a generated Rigify rig hangs from
 _ROOT_LENGTH = 0.25  # a created root bone's length, in hips heights above the floor
 
 
 @dataclass(frozen=True)
 class Request:
-    """How the travel is written: ``mode`` (MODES), and for 'bone' the root bone's name and whether it is to be
-    created."""
+    """How the travel is written: ``mode`` (MODES), and for 'bone' the root bone's name, whether it is to be
+    created, and whether it is a generated control rig's root control."""
 
     mode: str = "hips"
     bone: str = None
     create: bool = False
+    control: bool = False  # the root control of a generated control rig
 
 
 def check(target_obj, mode=None, root_bone=None, hips=None):
@@ -52,8 +54,12 @@ def check(target_obj, mode=None, root_bone=None, hips=None):
     if mode != "bone":
         return Request(mode)
     if control_rig.is_generated_rigify(target_obj):
-        raise AdjustError(f"'{target_obj.name}' is a generated control rig: its root control is not keyed by a "
-                          f"retarget yet; use root motion 'object' or 'in-place'")
+        root = target_obj.pose.bones.get(_CONTROL_ROOT)
+        if root is None or root.parent is not None or (root_bone or _CONTROL_ROOT) != _CONTROL_ROOT:
+            raise AdjustError(f"On the generated control rig '{target_obj.name}' the travel goes on its "
+                              f"'{_CONTROL_ROOT}' control" + ("" if root is not None and root.parent is None else
+                                                              ", which it lacks (as a top bone)"))
+        return Request("bone", _CONTROL_ROOT, control=True)
     hips = target_obj.data.bones[hips or mapping.read_map(target_obj).groups["root"][0]]
     above = hips.parent_recursive
     if root_bone is None:
@@ -85,7 +91,7 @@ def write(context, request, target_obj, target, posed, frames, name, carried=(),
     world = target.matrix_world
     travel = split.split_travel(world @ posed[:, hips], world @ target.rest[hips])
     motion = split.in_armature_space(travel.matrices, world)  # (F,4,4), a left factor of armature-space poses
-    if request.mode in ("object", "in-place"):
+    if request.mode in ("object", "in-place") or request.control:
         body = target.descendants(hips)
         moved = posed.copy()
         moved[:, body] = split.residual(motion, posed[:, body])
@@ -93,6 +99,9 @@ def write(context, request, target_obj, target, posed, frames, name, carried=(),
         if request.mode == "object":
             _key_object(context, target_obj, action, frames, travel.matrices)
             keyed = keyed + ("<object>",)
+        elif request.control:  # the controls posed in place under the root control, which takes the travel
+            _key_control_root(context, target_obj, request.bone, motion, frames)
+            keyed = keyed + (request.bone,)
         return action, keyed
 
     if request.create:
@@ -153,11 +162,23 @@ def _add_root_bone(context, target_obj, target, name, floor):
 def _key_root_bone(context, target_obj, target, moved, root, frames):
     """Key the root bone's location and rotation (in its rotation mode) at its pose in ``moved``."""
     basis = rt.basis_from_pose(target, moved, [root])[:, 0]
-    mode = pose.rotation_modes(target_obj)[target_obj.pose.bones.find(target.names[root])]
-    prop = rt.ROTATION_PROPERTY[mode]
-    bone = target_obj.pose.bones[target.names[root]]
+    _key_bone_basis(context, target_obj, target_obj.pose.bones[target.names[root]], basis, frames)
+
+
+def _key_control_root(context, target_obj, name, motion, frames):
+    """Key a top bone's location and rotation so its pose is ``motion`` (F,4,4, armature space) @ its current
+    one."""
+    bone = target_obj.pose.bones[name]
+    rest = np.array(bone.bone.matrix_local, dtype=np.float64)
+    basis = np.linalg.inv(rest) @ motion @ rest @ np.array(bone.matrix_basis, dtype=np.float64)
+    _key_bone_basis(context, target_obj, bone, basis, frames)
+
+
+def _key_bone_basis(context, target_obj, bone, basis, frames):
+    """Key a pose bone's location and rotation (in its rotation mode) at ``basis`` (F,4,4)."""
+    prop = rt.ROTATION_PROPERTY[bone.rotation_mode]
     current = np.array(getattr(bone, prop), dtype=np.float64)[None]
-    rotation = rt.rotation_channel(mode, rt.unit_columns(basis[:, None, :3, :3]), current)[:, 0]
+    rotation = rt.rotation_channel(bone.rotation_mode, rt.unit_columns(basis[:, None, :3, :3]), current)[:, 0]
     keyframes.key_bones_frames(target_obj, None, frames, {bone.name: {"location": basis[:, :3, 3], prop: rotation}})
     context.scene.frame_set(context.scene.frame_current)
 
