@@ -51,10 +51,13 @@ def cli(extension_module_name):
     return importlib.import_module(f"{extension_module_name}.cli")
 
 
-def measure(path, target, hips):
-    """The target's evaluated world matrices over its action's frames in the file at ``path``."""
+def measure(path, target, hips, action=None):
+    """The target's evaluated world matrices over its action's frames (``action``, assigned to it, if given) in
+    the file at ``path``."""
     bpy.ops.wm.open_mainfile(filepath=str(path), load_ui=False)
     obj = bpy.data.objects[target]
+    if action is not None:
+        rm.assign_action(obj, bpy.data.actions[action])
     sources = [o for o in bpy.data.objects if o.type == 'ARMATURE' and o != obj]  # kept: the default's run
     return sample_armature(obj, hips, sources[0] if sources else None)
 
@@ -355,3 +358,22 @@ def test_a_generated_rigify_rig_takes_every_mode(extension_module_name):
     assert np.ptp(hips, axis=0).max() < 0.1 * MM
     with pytest.raises(errors.AdjustError, match="the travel goes on its 'root' control"):
         run.retarget(bpy.context, source, rig, 2, 41, root_motion="bone", root_bone="torso")
+
+
+def test_a_batch_merged_into_one_file_has_the_root_bone_its_clips_key(cli, tmp_path):
+    """--root-bone created by the workers of a batch merging its actions into --output: the merged file has the
+    same bone (its rest to 1e-6), and the clip's action on it moves every bone as the clip's own file does."""
+    path = tmp_path / "in.blend"
+    shutil.copyfile(SAMPLE, path)
+    cut_bvh(MOCAP_DIR / "cmu_07_01_walk.bvh", tmp_path / "walk.bvh", 1, 121)
+    common = ["retarget", path, "--target", "Large", "--source-file", tmp_path / "walk.bvh", "--jobs", 1,
+              "--root-motion", "bone", "--root-bone", "root", "--quiet"]
+    for extra in (["--output", tmp_path / "merged.blend"], ["--output-dir", tmp_path / "one"]):
+        assert cli.main([str(a) for a in common + extra]) in (0, 1)
+    merged = measure(tmp_path / "merged.blend", "Large", "Hips", action="walk")
+    alone = measure(tmp_path / "one" / "walk.blend", "Large", "Hips")
+    assert np.abs(merged["rest"]["root"] - alone["rest"]["root"]).max() < 1e-6
+    off = np.linalg.norm(heads(merged, list(alone["bones"])) - heads(alone, list(alone["bones"])), axis=-1)
+    travel = np.ptp(merged["bones"]["root"][:, :2, 3], axis=0).max()
+    print(f"merged batch: the root travels {travel:.3f} m; bones off the clip's own file by max {off.max() / MM:.5f} mm")
+    assert travel > 0.1 and off.max() < 0.1 * MM

@@ -81,6 +81,15 @@ def check(target_obj, mode=None, root_bone=None, hips=None):
     return Request("bone", root_bone)
 
 
+def add_requested_bone(context, target_obj, mode=None, root_bone=None, floor=None):
+    """Create the root bone ``check`` asks to create, at ``floor`` (world height; None: the rig's lowest rest
+    joint) as ``write`` does: a batch merging its clips' actions into one file needs it there (its workers create
+    the same bone in their copies)."""
+    request = check(target_obj, mode, root_bone)
+    if request.create:
+        _add_root_bone(context, target_obj, rig_of(target_obj, mapping.ensure_map(target_obj)), request.bone, floor)
+
+
 def write(context, request, target_obj, target, posed, frames, name, carried=(), floor=None):
     """write.write_pose of the retarget's pose ``posed`` (F,J,4,4, armature space of ``target``) as ``request``
     asks; ``floor``: the world height a created root bone stands at (None: the rig's lowest rest joint).
