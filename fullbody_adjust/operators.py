@@ -294,8 +294,8 @@ to the source's trajectories and contacts)"""
             self.frame_start if props.is_property_set("frame_start") else None,
             self.frame_end if props.is_property_set("frame_end") else None,
             contacts=contact_list(self.contacts, self.contact_object), exact=self.exact,
-            new_action=self.new_action or None, progress=progress, root_motion=self.root_motion.lower().replace("_", "-"),
-            root_bone=self.root_bone or None))
+            new_action=self.new_action or None, progress=progress,
+            root_motion=self.root_motion.lower().replace("_", "-"), root_bone=self.root_bone or None))
 
     def draw(self, context):
         layout = self.layout

@@ -181,9 +181,9 @@ def test_default_result_travels_and_turns(case):
 @pytest.mark.parametrize("mode", ["bone", "object"])
 def test_every_bone_where_the_default_puts_it(case, mode):
     names = case.results["hips"]["body"]  # the bones above the hips and beside them (IK bones) follow the root
+    result, default = case.results[mode]["bones"], case.results["hips"]["bones"]
     off = np.linalg.norm(heads(case.results[mode], names) - heads(case.results["hips"], names), axis=-1)
-    tails = np.linalg.norm(np.stack([case.results[mode]["bones"][n][:, :3, 1] - case.results["hips"]["bones"][n][:, :3, 1]
-                                     for n in names], axis=1), axis=-1)
+    tails = np.linalg.norm(np.stack([result[n][:, :3, 1] - default[n][:, :3, 1] for n in names], axis=1), axis=-1)
     print(f"{mode}: {len(names)} bones x {off.shape[0]} frames, head off max {off.max() / MM:.5f} mm, "
           f"Y axis off max {tails.max():.2e}")
     assert off.max() < 0.1 * MM and tails.max() < 1e-4
@@ -375,5 +375,6 @@ def test_a_batch_merged_into_one_file_has_the_root_bone_its_clips_key(cli, tmp_p
     assert np.abs(merged["rest"]["root"] - alone["rest"]["root"]).max() < 1e-6
     off = np.linalg.norm(heads(merged, list(alone["bones"])) - heads(alone, list(alone["bones"])), axis=-1)
     travel = np.ptp(merged["bones"]["root"][:, :2, 3], axis=0).max()
-    print(f"merged batch: the root travels {travel:.3f} m; bones off the clip's own file by max {off.max() / MM:.5f} mm")
+    print(f"merged batch: the root travels {travel:.3f} m; bones off the clip's own file by max "
+          f"{off.max() / MM:.5f} mm")
     assert travel > 0.1 and off.max() < 0.1 * MM

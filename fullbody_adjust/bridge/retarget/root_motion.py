@@ -93,7 +93,7 @@ def add_requested_bone(context, target_obj, mode=None, root_bone=None, floor=Non
 def write(context, request, target_obj, target, posed, frames, name, carried=(), floor=None):
     """write.write_pose of the retarget's pose ``posed`` (F,J,4,4, armature space of ``target``) as ``request``
     asks; ``floor``: the world height a created root bone stands at (None: the rig's lowest rest joint).
-    Returns (action, keyed bones and channels)."""
+    Returns (action, keyed bones; the object's own keys in 'object' are not among them)."""
     if request is None or request.mode == "hips":
         return write_pose(context, target_obj, target, posed, frames, name, carried)
     hips = target.groups["root"][0]
@@ -106,8 +106,7 @@ def write(context, request, target_obj, target, posed, frames, name, carried=(),
         moved[:, body] = split.residual(motion, posed[:, body])
         action, keyed = write_pose(context, target_obj, target, moved, frames, name, carried)
         if request.mode == "object":
-            _key_object(context, target_obj, action, frames, travel.matrices)
-            keyed = keyed + ("<object>",)
+            _key_object(context, target_obj, action, frames, travel.matrices)  # not a bone: not in ``keyed``
         elif request.control:  # the controls posed in place under the root control, which takes the travel
             _key_control_root(context, target_obj, request.bone, motion, frames)
             keyed = keyed + (request.bone,)
