@@ -276,6 +276,17 @@ to the source's trajectories and contacts)"""
                                     "the source's scaled by the legs' ratio (soles always rest on the floor)")
     new_action: StringProperty(name="New Action", options={'SKIP_SAVE'},
                                description="Name of the new action (default: <source action>_<target>)")
+    root_motion: EnumProperty(
+        name="Root Motion",
+        items=(('HIPS', "Hips", "The travel stays on the hips, as captured"),
+               ('BONE', "Root Bone", "The horizontal travel and turn go onto the root bone above the hips"),
+               ('OBJECT', "Object", "The horizontal travel and turn go onto the armature object's keys"),
+               ('IN_PLACE', "In Place", "The horizontal travel and turn are removed")),
+        default='HIPS', options={'SKIP_SAVE'},
+        description="Where the body's travel goes (planted feet hold in the world the root and the pose build)")
+    root_bone: StringProperty(name="Root Bone", options={'SKIP_SAVE'},
+                              description="With Root Bone: the bone above the hips, created at the floor when the "
+                                          "armature has none of this name (default: the topmost bone above them)")
 
     def execute(self, context):
         props = self.properties
@@ -284,15 +295,18 @@ to the source's trajectories and contacts)"""
             self.frame_start if props.is_property_set("frame_start") else None,
             self.frame_end if props.is_property_set("frame_end") else None,
             contacts=contact_list(self.contacts, self.contact_object), exact=self.exact,
-            new_action=self.new_action or None, progress=progress))
+            new_action=self.new_action or None, progress=progress,
+            root_motion=self.root_motion.lower().replace("_", "-"), root_bone=self.root_bone or None))
 
     def draw(self, context):
         layout = self.layout
         layout.use_property_split = True
-        for name in ("source", "frame_start", "frame_end", "contacts", "contact_object", "exact", "new_action"):
+        for name in ("source", "frame_start", "frame_end", "contacts", "contact_object", "exact", "new_action",
+                     "root_motion", "root_bone"):
             row = layout.row()
             row.prop(self, name)
-            row.enabled = name != "contact_object" or 'OBJECT' in self.contacts
+            row.enabled = ((name != "contact_object" or 'OBJECT' in self.contacts)
+                           and (name != "root_bone" or self.root_motion == 'BONE'))
 
 
 class FULLBODY_ADJUST_OT_mirror_pose(ArmatureOperator, bpy.types.Operator):

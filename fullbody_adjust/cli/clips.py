@@ -19,7 +19,7 @@ import time
 import bpy
 
 from ..bridge import files as batch
-from ..bridge.retarget import clip_import
+from ..bridge.retarget import clip_import, root_motion
 from ..reporting import batch_report
 from ..reporting.progress import ConsoleProgress, NoProgress
 from .files import CommandError, check_writable, checked_outputs, input_path, same_file, write_text
@@ -38,6 +38,10 @@ def run(args):
     if not same_file(blend_in, batch.current_file()):
         batch.open_blend(blend_in)
     target, _contacts = retarget_target(args, bpy.context)
+    if not args.output_dir:  # the clips' actions key a root bone the workers create: the merged file needs it too
+        contacts = _job(args, blend_in, target.name)["contacts"]  # where the workers put it: their floor
+        root_motion.add_requested_bone(bpy.context, target, args.root_motion, args.root_bone,
+                                       _floor(args.floor, contacts) if ["ground", None] in contacts else None)
     rows, tasks = _tasks(args, clips)
     if args.output_dir:
         os.makedirs(args.output_dir, exist_ok=True)
@@ -208,7 +212,8 @@ def _job(args, input_path, target):
             "contacts": contacts,
             "floor": _floor(args.floor, contacts), "frame_start": args.frame_start,
             "frame_end": args.frame_end, "keep_sources": args.keep_sources,
-            "mirror": args.mirror, "groups": args.groups}
+            "mirror": args.mirror, "groups": args.groups,
+            "root_motion": args.root_motion, "root_bone": args.root_bone}
 
 
 def _floor(floor, contacts):

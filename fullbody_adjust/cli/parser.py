@@ -167,6 +167,7 @@ def build_parser(prog=f"blender -b FILE.blend -c {COMMAND}"):
     _add_output_arguments(retarget, "name of the new action the target's motion is written into (default: "
                                     "'<source action>_<target>'); the target's previous action is kept")
     _add_mirror_arguments(retarget)
+    _add_root_motion_arguments(retarget)
     retarget.set_defaults(work="retarget")
     return parser
 
@@ -189,6 +190,21 @@ def _body_groups(text):
         return parse_groups(text)
     except ValueError as ex:
         raise argparse.ArgumentTypeError(str(ex)) from None
+
+
+def _add_root_motion_arguments(retarget):
+    motion = retarget.add_argument_group("root motion (for game engines)")
+    motion.add_argument("--root-motion", choices=("hips", "bone", "object", "in-place"), default="hips",
+                        help="where the body's travel goes: 'hips' (default: on the hips, as captured); 'bone' (its "
+                             "horizontal travel and turn about the vertical on the root bone above the hips, the "
+                             "hips keeping their height and sway; see --root-bone); 'object' (on the armature "
+                             "object's location and rotation keys); 'in-place' (removed: the body stays over its "
+                             "rest place, facing its rest heading). Planted feet hold in the world the root and "
+                             "the pose build")
+    motion.add_argument("--root-bone", metavar="NAME",
+                        help="with --root-motion bone: the root bone, an existing bone above the hips, or a new one "
+                             "created at the floor under the hips as parent of the hips' hierarchy (default: the "
+                             "topmost bone above the hips; a rig with none needs this)")
 
 
 def _add_subcommand(subparsers, name, summary, description):

@@ -8,17 +8,20 @@ import numpy as np
 
 from ..bridge import files as batch
 from ..bridge.reading import start_checks
+from ..bridge.retarget import root_motion
 from ..bridge.retarget.run import retarget as retarget_motion
 from ..reporting import preview
 from .files import CommandError, WorkResult, progress_line
 
 
 def retarget_target(args, context):
-    """A retarget's --target armature, checked as retargeting onto it needs (one line otherwise), and its
+    """A retarget's --target armature, checked as retargeting onto it needs (one line otherwise; its
+    --root-motion and --root-bone too), and its
     --contacts as the bridge takes them ('ground', or ('object', Object))."""
     target = batch.armature_named(context, args.target, "--target")
     start_checks.check_armature(target)
     batch.check_mappable(target, "--target")
+    root_motion.check(target, args.root_motion, args.root_bone)  # a batch's too, before any clip starts
     contacts = [kind if name is None else (kind, batch.object_named(context, name, "--contacts object"))
                 for kind, name in args.contacts or [("ground", None)]]
     return target, contacts
@@ -38,7 +41,8 @@ def retarget(args, context):
     progress = progress_line(args, len(frames), f"retarget '{source.name}' -> '{target.name}'")
     started = time.perf_counter()
     outcome = retarget_motion(context, source, target, start, end, contacts=contacts, new_action=args.new_action,
-                              floor=args.floor, progress=progress, mirror=args.mirror, groups=args.groups)
+                              floor=args.floor, progress=progress, mirror=args.mirror, groups=args.groups,
+                              root_motion=args.root_motion, root_bone=args.root_bone)
     seconds = time.perf_counter() - started
     progress.finish()
 
@@ -54,6 +58,6 @@ def retarget(args, context):
             targets=None if planned is None else planned[np.searchsorted(outcome.frames, shown)])
     action = getattr(outcome, "action", None)
     details = {"source": source.name, "target": target.name, "armature": target.name,
-               "contacts": outcome.contact_report, "floor": args.floor,
+               "contacts": outcome.contact_report, "floor": args.floor, "root_motion": args.root_motion,
                "action": action.name if action is not None else batch.action_name(target)}
     return WorkResult(outcome=outcome, seconds=seconds, figure=figure, details=details)

@@ -72,7 +72,7 @@ def _retarget_clip(context, job, task, progress):
     batch.check_frame_budget(context, target, start, end)
     solve_started = time.perf_counter()
     outcome = retarget(context, source, target, start, end, contacts=job.get("contacts", [["ground", None]]),
-                       floor=job.get("floor"),
+                       floor=job.get("floor"), root_motion=job.get("root_motion"), root_bone=job.get("root_bone"),
                        new_action=task["name"], mirror=job.get("mirror", False), groups=job.get("groups"),
                        progress=lambda stage, fraction: progress(0.3 + 0.6 * fraction))
     solve_seconds = time.perf_counter() - solve_started

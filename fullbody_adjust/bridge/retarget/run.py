@@ -38,6 +38,7 @@ from ..errors import AdjustError
 from .read import check_source, contact_boxes, frame_range, pose_property, read_motion, rig_of, source_map, with_world
 from .write import write_pose
 from . import partial
+from . import root_motion as root_travel
 from ...solver.retarget import mirror as mirroring, partial as partial_groups
 
 _REFITS = 2  # solves after the first, at most, with the feet held as the solve shaped them
@@ -101,7 +102,8 @@ class RetargetOutcome:
 
 
 def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, *, contacts=("ground",),
-             exact=True, new_action=None, floor=None, progress=None, mirror=False, groups=None):
+             exact=True, new_action=None, floor=None, progress=None, mirror=False, groups=None, root_motion=None,
+             root_bone=None):
     """Retarget ``source_obj``'s motion over [frame_start, frame_end] (default: its action's frame range)
     onto ``target_obj``, into a new action named ``new_action`` (default '<source action>_<target>').
 
@@ -111,16 +113,23 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
     source's own world positions (else scaled like the motion). ``floor``: world height the source's ground is
     moved to (None: where it is). ``mirror``: the source's motion mirrored first (solver/retarget/mirror.py).
     ``groups``: only these body groups carried (solver/retarget/partial.py), every other bone keeping the
-    target's own F-Curves (bridge/retarget/partial.py). Returns a RetargetOutcome; AdjustError (one
+    target's own F-Curves (bridge/retarget/partial.py). ``root_motion``: where the travel is written, 'hips'
+    (None, the default), 'bone' (onto ``root_bone``, created when missing), 'object' or 'in-place'
+    (bridge/retarget/root_motion.py; not with ``groups``); the contact figures are those of the world motion the
+    root and pose build. Returns a RetargetOutcome; AdjustError (one
     line) on bad input, before anything changes (but the bone map stored on the target, see
     mapping.ensure_map)."""
     progress = progress or (lambda stage, fraction: None)
     progress("reading", 0.0)
     if groups is not None:
         partial.check_partial(target_obj)
+        if root_motion not in (None, "hips"):
+            raise AdjustError(f"Root motion '{root_motion}' moves every bone, so it cannot go with --groups "
+                              f"(a partial retarget keeps the target's own keys elsewhere)")
     prepared = prepare(context, source_obj, target_obj, frame_start, frame_end, contacts=contacts, exact=exact,
                        floor=floor, mirror=mirror)
     target, plan = prepared.target, prepared.plan
+    root_request = root_travel.check(target_obj, root_motion, root_bone, target.names[target.groups["root"][0]])
 
     progress("solving", 0.2)
     try:
@@ -166,8 +175,12 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
     posed = posed_of(result)
     only = None if groups is None else partial_groups.bones_in_groups(target, groups, range(len(target.names)))
     own = None if only is None else read_motion(target_obj, target, prepared.frames)[0]  # before it is replaced
-    action, keyed = write_pose(context, target_obj, target, posed, prepared.frames, name, plan.carried, only)
-    if only is not None:  # contacts measured on the motion written: the groups carried on the target's own
+    if only is None:
+        action, keyed = root_travel.write(context, root_request, target_obj, target, posed, prepared.frames, name,
+                                          plan.carried, plan.ground)
+    else:
+        action, keyed = write_pose(context, target_obj, target, posed, prepared.frames, name, plan.carried, only)
+        # contacts measured on the motion written: the groups carried on the target's own
         posed = partial_groups.combined_pose(target, posed, own, only)
     progress("done", 1.0)
 

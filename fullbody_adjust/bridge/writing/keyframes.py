@@ -79,6 +79,17 @@ def key_bones_frames(obj, bone_names, frames, values_by_channel, *, action_name=
     return action
 
 
+def key_object_frames(obj, action, frames, values_by_property):
+    """Key the object's own channels (``values_by_property``: {location / rotation_*: (F,n)}) at scene
+    ``frames`` (F,) into ``action`` (assigned to it), merged as key_bones_frames merges bone keys."""
+    action_frames = _action_time(obj.animation_data, np.asarray(frames, dtype=np.float64).reshape(-1))
+    curves = _FCurves(obj, action)
+    for prop, values in values_by_property.items():
+        values = np.asarray(values, dtype=np.float64)
+        for index in range(values.shape[1]):
+            merge_keys(curves.ensure(prop, index, group="Object Transforms"), action_frames, values[:, index])
+
+
 def ensure_action(obj, new_action_name=None):
     """The action keys go into, assigned to ``obj``: its current one, or a new one named
     '<object>Action' when it has none. With ``new_action_name``: a copy of the current action (or an
