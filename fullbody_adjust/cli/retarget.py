@@ -21,6 +21,9 @@ def retarget_target(args, context):
     target = batch.armature_named(context, args.target, "--target")
     start_checks.check_armature(target)
     batch.check_mappable(target, "--target")
+    if args.groups is not None and args.root_motion not in (None, "hips"):
+        raise CommandError(f"--root-motion {args.root_motion} moves every bone, so it cannot go with --groups (a "
+                           f"partial retarget keeps the target's own keys elsewhere)")
     root_motion.check(target, args.root_motion, args.root_bone)  # a batch's too, before any clip starts
     contacts = [kind if name is None else (kind, batch.object_named(context, name, "--contacts object"))
                 for kind, name in args.contacts or [("ground", None)]]

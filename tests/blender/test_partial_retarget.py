@@ -178,3 +178,13 @@ def test_trunk_and_legs_carried_hold_the_clips_plants_while_the_arms_keep_their_
         slid = rig_measures.slides(planted, which, {"ankle": tracks[1][:, 0], "ball": tracks[1][:, 1]})
         print(f"partial trunk+legs: {side} plants {planted.sum()} frames, slide max {slid.max() * 1e3:.4f} mm")
         assert slid.max() < 1e-3, (side, slid.max())
+
+
+@pytest.mark.parametrize("mode", ["object", "in-place"])
+def test_groups_with_root_motion_is_one_line_and_the_file_untouched(cli, capsys, scene, mode):
+    before = scene.read_bytes()
+    code, out, err = run(cli, capsys, "retarget", scene, "--source", "Walk", "--target", "Target",
+                         "--groups", "arm.L", "--root-motion", mode, "--overwrite")
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert f"--root-motion {mode}" in err and "--groups" in err, err
+    assert scene.read_bytes() == before
