@@ -201,20 +201,27 @@ class ChainModel:
         return binding, responded, failed
 
     def _avoid(self, rows, anchor, cand, L, ref, joint, segment, limit):
-        """The obstacle response (obstacles/response.py) for the joints at `cand`: one problem's in plain floats
-        where the paper's circle has a clear point (chain/one_problem.py), else on arrays; limit: the backward
-        pass's (joint, parent direction, fallback) or None. (positions, responded, failed)."""
-        if rows.__class__ is int:
-            point, moved = self.one.avoid(rows, anchor, cand, L, ref, joint, segment,
-                                           self.obstacles.boxes_of(rows), limit)
-            return point, moved, False
+        """The obstacle response (obstacles/response.py) for the joints at `cand`; limit: the backward pass's (joint,
+        parent direction, fallback) or None. (positions, responded, failed). One problem's joint (rows an int) is
+        tested on its floats, and where it penetrates a box, answered by the arrays' response as a batch of one (the
+        paper's circle and the sphere are many samples, tested at once)."""
+        one = rows.__class__ is int
+        if one:
+            if not self.obstacles.penetrates(rows, anchor, cand, joint, segment):
+                return cand, False, False
+            rows, anchor, cand, L, ref = (np.array([x]) for x in (rows, anchor, cand, L, ref))
+            if limit is not None:
+                limit = (limit[0], np.array([limit[1]]), np.array([limit[2]]))
         limit_fn = None
         if limit is not None:
             i, parent, fallback = limit
 
             def limit_fn(h, dirs):
                 return self.limiting.step(i, rows[h], parent[h], dirs, fallback[h])[0]
-        return self.obstacles.avoid(rows, anchor, cand, L, ref, joint, segment, limit_fn)
+        point, responded, failed = self.obstacles.avoid(rows, anchor, cand, L, ref, joint, segment, limit_fn)
+        if one:
+            return tuple(point[0].tolist()), bool(responded[0]), bool(failed[0])
+        return point, responded, failed
 
     # -- solve ------------------------------------------------------------------------------------------
 

@@ -9,17 +9,11 @@ at its target within its limits: returned untouched), and the paper's circle tri
 clear one (the arrays test all of it). A division by zero in the loop hands the call back to the arrays; oriented
 boxes are left to them."""
 
-import math
-
 import numpy as np
 
 from ..maths import vectors as g
-from ..obstacles.response import _CIRCLE_COS, _CIRCLE_SIN
 from .settings import _NUDGES, _PATIENCE, _STALL, ChainBatchResult, _final_status
 from ..limits.joint_limits import FREE
-from ..obstacles.boxes import count_penetrations_one, first_box_holding, penetrates_one
-
-_CIRCLE_COS_LIST, _CIRCLE_SIN_LIST = _CIRCLE_COS.tolist(), _CIRCLE_SIN.tolist()
 
 _NO_PENETRATION_YET = np.iinfo(np.int64).max  # _iterate's best penetration count before the first iterate
 
@@ -55,10 +49,9 @@ class OneProblem:
         tol = s.tolerance
         stall = tol * _STALL
         target = self.chain.targets[r].tolist()
-        boxes = None if self.chain.boxes is None else self.chain.obstacles.boxes_of(r)
         residual = g.norm(g.sub(chain[-1], target))
         if not (residual > tol or forced):
-            return chain, 0, residual, False, False, False, self._penetrations_one(chain, boxes)
+            return chain, 0, residual, False, False, False, self._penetrations_one(chain, r)
         iterations = nudges = best_iter = 0
         best, best_res, best_pen = chain, np.inf, _NO_PENETRATION_YET
         while True:
@@ -76,7 +69,7 @@ class OneProblem:
                 chain = self._nudged_one(r, placed, nudges)
                 nudges += 1
                 stalled = False
-            pen = self._penetrations_one(placed, boxes)  # of the iterate, not of the nudged pose
+            pen = self._penetrations_one(placed, r)  # of the iterate, not of the nudged pose
             if pen < best_pen or res < best_res - stall:  # (against the best before this iterate)
                 best_iter = iterations
             if pen < best_pen or (pen == best_pen and res < best_res):
@@ -85,68 +78,12 @@ class OneProblem:
             if res <= tol or stalled or iterations >= s.max_iterations:
                 return best, iterations, best_res, stalled, binding, responded, best_pen
 
-    def _penetrations_one(self, chain, boxes):
+    def _penetrations_one(self, chain, r):
         """penetration_counts of one chain, joints and segments added (0 without boxes)."""
-        if boxes is None:
+        if self.chain.boxes is None:
             return 0
-        inside, crossing = count_penetrations_one(chain, *boxes)
+        inside, crossing = self.chain.obstacles.penetration_counts(chain, r)
         return inside + crossing
-
-    def avoid(self, r, anchor, cand, L, ref, joint, segment, boxes, limit):
-        """_avoid for problem r's one joint: (position, responded). The plain test first (the joint and its
-        segment clear of every box it does not ignore: the position as it is), then the paper's circle in plain
-        floats (_circle_point_one); numpy's whole response where that finds no clear point. ``limit``: (joint,
-        parent direction, fallback) of the backward pass's limit on the joint's direction, or None."""
-        lo, hi = boxes[0], boxes[1]
-        skip_point, skip_segment = self.chain.obstacles.ignored_of(boxes, joint, segment)
-        if not penetrates_one(lo, hi, anchor, cand, skip_point, skip_segment):
-            return cand, False
-        point = self._circle_point_one(r, anchor, cand, L, ref, lo, hi, skip_point, skip_segment, limit)
-        if point is not None:
-            return point, True
-        limit_fn = None
-        if limit is not None:
-            i, parent, fallback = limit
-
-            def limit_fn(h, dirs):  # backward()'s, on this one row
-                return self.chain.limiting.step(i, np.array([r])[h], np.array([parent])[h], dirs, np.array([fallback])[h])[0]
-        out, responded, _ = self.chain.obstacles.avoid(np.array([r]), np.array([anchor]), np.array([cand]), np.array([L]),
-                                        np.array([ref]), joint, segment, limit_fn)
-        return tuple(out[0].tolist()), bool(responded[0])
-
-    def _circle_point_one(self, r, a, p, L, ref, lo, hi, skip_point, skip_segment, limit):
-        """_avoid's answer for a joint at p inside a box when the paper's circle has a point clear of every box (the
-        first, in _CIRCLE_ANGLES' order), in plain floats; None otherwise (numpy's whole response decides)."""
-        k = first_box_holding(lo, hi, p, skip_point)
-        if k < 0:
-            return None  # only the segment crosses a box: every candidate is weighed (numpy)
-        corners = (self.chain.obstacles.corners[r, k] if self.chain.boxes.batched else self.chain.obstacles.corners[k]).tolist()
-        dis = max(g.norm(g.sub(corner, p)) for corner in corners) + self.chain.settings.margin
-        axis = g.sub(p, a)
-        dd = g.norm(axis)
-        nvec = g.divided(axis, dd)
-        along = (dd * dd + L * L - dis * dis) / (2.0 * dd)
-        rho2 = L * L - along * along
-        if not rho2 > 0.0:
-            return None  # no circle
-        rho = math.sqrt(rho2)
-        center = g.add(a, g.scaled(nvec, along))
-        w = g.sub(ref, center)
-        w = g.sub(w, g.scaled(nvec, g.dot(w, nvec)))
-        wn = g.norm(w)
-        e1 = g.divided(w, wn) if wn > 1e-12 * L else g.any_perpendicular(nvec)
-        e2 = g.cross(nvec, e1)
-        for cos_k, sin_k in zip(_CIRCLE_COS_LIST, _CIRCLE_SIN_LIST):
-            ring = (cos_k * e1[0] + sin_k * e2[0], cos_k * e1[1] + sin_k * e2[1], cos_k * e1[2] + sin_k * e2[2])
-            point = (center[0] + rho * ring[0], center[1] + rho * ring[1], center[2] + rho * ring[2])
-            d = ((point[0] - a[0]) / L, (point[1] - a[1]) / L, (point[2] - a[2]) / L)
-            d = g.divided(d, g.norm(d))
-            if limit is not None:
-                d = self.chain.limiting.step(limit[0], r, limit[1], d, limit[2])[0]
-            q = (a[0] + L * d[0], a[1] + L * d[1], a[2] + L * d[2])
-            if not penetrates_one(lo, hi, a, q, skip_point, skip_segment):
-                return q
-        return None
 
     def _nudged_one(self, r, P, nudges):
         """Problem r's pose P after its nudges-th nudge: ChainModel._nudge itself, on problem r's row of a batch."""

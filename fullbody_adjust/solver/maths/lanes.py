@@ -86,7 +86,17 @@ def divide(a, b):
 
 
 def maximum(x, c):
-    return np.maximum(x, c) if many(x) or many(c) else max(x, c)
+    """The larger of x and c per lane, NaN where either is NaN (as numpy's)."""
+    if isinstance(x, _ARRAY) or isinstance(c, _ARRAY):
+        return np.maximum(x, c)
+    return x if x >= c or x != x else c
+
+
+def minimum(x, c):
+    """The smaller of x and c per lane, NaN where either is NaN (as numpy's)."""
+    if isinstance(x, _ARRAY) or isinstance(c, _ARRAY):
+        return np.minimum(x, c)
+    return x if x <= c or x != x else c
 
 
 def clip(x, lo, hi):
