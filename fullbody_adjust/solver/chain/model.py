@@ -14,27 +14,19 @@ from .settings import (_COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL, ChainBat
 from ..errors import SolverInputError
 from ..maths import lanes
 from ..maths import vectors as vec
-from ..maths.geometry import all_set, any_perpendicular, any_set, cross, norm
+from ..maths.geometry import all_set, any_set, norm
 from ..limits.joint_limits import FREE, HINGE, JointLimits
 from .limited import ChainLimits
 from ..obstacles.boxes import as_boxes
 
-# Up to this many axis-aligned boxes, a few chains iterate in plain floats among them too (each joint is tested
-# against every box in plain floats: beyond a few, numpy's one test of all of them costs less).
-_FEW_BOXES = 16
+_NO_PENETRATION_YET = np.iinfo(np.int64).max  # the best penetration count before the first iterate
 
 
-def _nudge_directions(v, first, k):
-    """Directions for the nudge k (0 or 1) of rows v (b,3): perpendicular to v (to `first` where v is zero),
-    the second perpendicular to the first; a stalled chain aimed straight at its target is bent along them."""
-    zero = ~(norm(v) > 0.0)
-    v = np.where(zero[:, None], first, v)
-    v = v / norm(v)[:, None]
-    p = any_perpendicular(v)
-    if k == 0:
-        return p
-    q = cross(v, p)
-    return q / norm(q)[:, None]
+def _chosen(cond, a, b):
+    """Pose a where cond, else b: one problem's (lists of joints, cond a bool) or many's ((b,n,3), cond (b,))."""
+    if cond.__class__ is np.ndarray:
+        return np.where(cond[:, None, None], a, b)
+    return a if cond else b
 
 
 class ChainModel:
@@ -234,18 +226,23 @@ class ChainModel:
             return z, z.copy()
         return self.obstacles.penetration_counts(P, rows)
 
-    def _nudge(self, P, rows, nudges, slots):
-        """Push the interior joints of stalled problems `rows` sideways (see _NUDGES), in place; nudges[slots]
-        counts the nudges each has had."""
-        for k in range(_NUDGES):
-            pick = nudges[slots] == k
-            sel = rows[pick]
-            if sel.size == 0:
-                continue
-            u = _nudge_directions(self.targets[sel] - self.base[sel], P[sel, 1] - self.base[sel], k)
-            shift = self.lengths[sel, :-1] * _NUDGE  # joint i moves by _NUDGE of segment i-1
-            P[sel, 1:-1] = P[sel, 1:-1] + u[:, None, :] * shift[:, :, None]
-        nudges[slots] += 1
+    def _nudged(self, pose, rows, nudges):
+        """The pose (as the passes take it) with its interior joints pushed sideways (see _NUDGES), by each problem's
+        nudge `nudges` (0 or 1): perpendicular to its base -> target line (to its first segment where the target is
+        at the base), then perpendicular to both; joint i moves by _NUDGE of segment i-1."""
+        lengths, joints = self._columns(rows, pose)
+        one = joints is pose
+        base, target = self._problem(rows)[2:0:-1] if one else (self.base[rows], self.targets[rows])
+        v = vec.sub(target, base)
+        v = lanes.pick(lanes.not_(vec.norm(v) > 0.0), vec.sub(joints[1], base), v)
+        v = vec.divided(v, vec.norm(v))
+        u = vec.any_perpendicular(v)
+        if lanes.any_(nudges == 1):
+            q = vec.cross(v, u)
+            u = lanes.pick(nudges == 1, vec.divided(q, vec.norm(q)), u)
+        moved = [joints[0]] + [vec.add(joints[i], vec.scaled(u, lengths[i - 1] * _NUDGE))
+                               for i in range(1, self.n - 1)] + [joints[-1]]
+        return moved if one else np.stack(moved, axis=1)
 
     def violations(self, P, rows):
         """(b,) problems `rows` whose pose P (b,n,3) breaks a joint limit (beyond rounding) or penetrates a box
@@ -262,71 +259,101 @@ class ChainModel:
         """FABRIK iterations on problems `rows`, in place on P (B,n,3). Rows whose end is already within
         tolerance only iterate if `force` (bool or per row (b,)). Returns per-row (iterations, residual,
         stalled, limit binding, obstacle responses in the returned iterate, penetrations of the returned
-        iterate)."""
-        few_boxes = self.boxes is None or (self.boxes.axes is None and len(self.boxes) <= _FEW_BOXES)
-        if (self.limits is not None or self.boxes is not None) and few_boxes and lanes.few(rows.size):
-            plain = self.one.iterate(P, rows, force)  # the same bits (chain/one_problem.py)
-            if plain is not None:
-                return plain
+        iterate). A few limited or obstructed problems (boxes axis-aligned, a few) iterate one at a time on their
+        floats, many on arrays: the same loop (_iterations), the same bits."""
+        force = np.broadcast_to(np.asarray(force, dtype=bool), rows.shape)
+        floats = self.limits is not None if self.boxes is None else self.obstacles.floats
+        if floats and lanes.few(rows.size):
+            try:
+                solved = [self._iterations([tuple(p) for p in P[r].tolist()], r, f)
+                          for r, f in zip(rows.tolist(), force.tolist())]
+            except ZeroDivisionError:  # where numpy divides by zero (inf, NaN), the arrays take the problems
+                solved = None
+            if solved is not None:
+                P[rows] = [one[0] for one in solved]
+                return tuple(np.array([one[k] for one in solved], dtype=kind)
+                             for k, kind in enumerate((np.int64, np.float64, bool, bool, bool, np.int64), 1))
+        pose, *out = self._iterations(P[rows], rows, force)
+        P[rows] = pose
+        return tuple(out)
+
+    def _penetrations(self, pose, rows):
+        """Joints inside and segments crossing a box, added, of one problem's pose (an int) or many's ((b,))."""
+        if self.boxes is None:
+            return 0 if rows.__class__ is int else np.zeros(rows.size, dtype=np.int64)
+        inside, crossing = self.obstacles.penetration_counts(pose, rows)
+        return inside + crossing
+
+    def _iterations(self, pose, rows, force):
+        """The iteration loop of one problem (rows an int, pose its list of joints, force a bool) or many (rows an
+        index array, pose (b,n,3), force (b,)): each problem leaves it when it is within tolerance, stalls or reaches
+        the iteration cap; with limits or boxes it returns its best iterate (fewest penetrations, then the smallest
+        residual). (pose, iterations, residual, stalled, limit binding and obstacle responses of the last iterate,
+        penetrations of the returned one), per problem."""
         s = self.settings
-        tol = s.tolerance
-        stall = tol * _STALL
-        b = rows.size
+        tol, cap, stall = s.tolerance, s.max_iterations, s.tolerance * _STALL
+        one = rows.__class__ is int
         constrained = self.limits is not None or self.boxes is not None
-        iterations = np.zeros(b, dtype=np.int64)
-        stalled = np.zeros(b, dtype=bool)
-        binding_out = np.zeros(b, dtype=bool)
-        obstacle_out = np.zeros(b, dtype=bool)
-        nudges = np.zeros(b, dtype=np.int64)
-        residual = norm(P[rows, -1] - self.targets[rows])
-        if constrained:
-            best_P = P[rows].copy()
-            best_pen = np.full(b, np.iinfo(np.int64).max)
-            best_res = np.full(b, np.inf)
-            best_iter = np.zeros(b, dtype=np.int64)  # iteration of the last real improvement
-        act = np.nonzero((residual > tol) | force)[0]  # positions within `rows`
-        while act.size:
-            active = rows[act]
-            Pa = P[active]
-            prev = Pa.copy()
-            resp_f, _ = self.forward(Pa, active, prev, prev)
-            aims = Pa.copy()
-            binding, resp_b, _ = self.backward(Pa, active, aims, prev, prev)
-            responded = resp_f | resp_b
-            P[active] = Pa
-            iterations[act] += 1
-            res = norm(Pa[:, -1] - self.targets[active])
-            moved = norm(Pa[:, -1] - prev[:, -1])
-            residual[act] = res
-            binding_out[act] = binding
-            obstacle_out[act] = responded
-            now_stalled = (res > tol) & (moved < stall)
-            free = now_stalled & (nudges[act] < _NUDGES) & (iterations[act] < s.max_iterations) \
-                & ~binding & ~responded
-            if any_set(free):
-                self._nudge(P, active[free], nudges, act[free])
-                now_stalled &= ~free
-            if constrained:
-                pen = sum(self.penetration_counts(Pa, active))
-                better = (pen < best_pen[act]) | ((pen == best_pen[act]) & (res < best_res[act]))
-                improved = (pen < best_pen[act]) | (res < best_res[act] - stall)
-                up = act[better]
-                best_P[up], best_pen[up], best_res[up] = Pa[better], pen[better], res[better]
-                binding_out[act] = np.where(better, binding, binding_out[act])
-                obstacle_out[act] = np.where(better, responded, obstacle_out[act])
-                best_iter[act[improved]] = iterations[act[improved]]
-                now_stalled |= (res > tol) & (iterations[act] - best_iter[act] >= _PATIENCE)
-            stalled[act] = now_stalled
-            done = (res <= tol) | now_stalled | (iterations[act] >= s.max_iterations)
-            act = act[~done]
-        if constrained:
-            ran = iterations > 0
-            P[rows[ran]] = best_P[ran]
-            residual[ran] = best_res[ran]
-            pen = np.where(ran, best_pen, sum(self.penetration_counts(P[rows], rows)))
+        target = self._problem(rows)[1] if one else self.targets[rows]
+        residual = vec.norm(vec.sub(pose[-1] if one else pose[:, -1], target))
+        go = (residual > tol) | force
+        if one and not go:
+            return pose, 0, residual, False, False, False, self._penetrations(pose, rows)
+        if one:
+            lane = active = rows
+            zero = 0
         else:
-            pen = np.zeros(b, dtype=np.int64)
-        return iterations, residual, stalled, binding_out, obstacle_out, pen
+            no = np.zeros(rows.size, dtype=bool)
+            out = [pose, np.zeros(rows.size, dtype=np.int64), residual, no, no.copy(), no.copy(),
+                   self._penetrations(pose, rows) if constrained else np.zeros(rows.size, dtype=np.int64)]
+            lane = np.nonzero(go)[0]  # the problems still iterating, as positions in rows
+            if lane.size == 0:
+                return tuple(out)
+            active, pose, target = rows[lane], pose[lane], target[lane]
+            zero = np.zeros(lane.size, dtype=np.int64)
+        iterations = nudges = best_iter = zero
+        best, best_res, best_pen = pose, zero + np.inf, zero + (_NO_PENETRATION_YET if constrained else 0)
+        while True:
+            prev = pose
+            placed = list(prev) if one else prev.copy()
+            responded = self.forward(placed, active, prev, prev)[0]
+            binding, responded_back, _ = self.backward(placed, active, list(placed) if one else placed.copy(), prev,
+                                                       prev)
+            responded = responded | responded_back
+            iterations = iterations + 1
+            end, moved_from = (placed[-1], prev[-1]) if one else (placed[:, -1], prev[:, -1])
+            res = vec.norm(vec.sub(end, target))
+            stalled = (res > tol) & (vec.norm(vec.sub(end, moved_from)) < stall)
+            pose = placed
+            free = stalled & (nudges < _NUDGES) & (iterations < cap) & lanes.not_(binding | responded)
+            if lanes.any_(free):
+                pose = _chosen(free, self._nudged(placed, active, nudges), placed)
+                nudges = nudges + free
+                stalled = stalled & lanes.not_(free)
+            if constrained:
+                pen = self._penetrations(placed, active)  # of the iterate, not of the nudged pose
+                improved = (pen < best_pen) | (res < best_res - stall)  # against the best before this iterate
+                better = (pen < best_pen) | ((pen == best_pen) & (res < best_res))
+                best = _chosen(better, placed, best)
+                best_res, best_pen = lanes.where(better, res, best_res), lanes.where(better, pen, best_pen)
+                best_iter = lanes.where(improved, iterations, best_iter)
+                stalled = stalled | ((res > tol) & (iterations - best_iter >= _PATIENCE))
+            else:
+                best, best_res = placed, res
+            done = (res <= tol) | stalled | (iterations >= cap)
+            if one:
+                if done:
+                    return best, iterations, best_res, stalled, binding, responded, best_pen
+                continue
+            if not lanes.any_(done):
+                continue
+            for o, v in zip(out, (best, iterations, best_res, stalled, binding, responded, best_pen)):
+                o[lane[done]] = v[done]
+            keep = ~done
+            if not lanes.any_(keep):
+                return tuple(out)
+            lane, active, target, pose, iterations, nudges, best, best_res, best_pen, best_iter = (
+                x[keep] for x in (lane, active, target, pose, iterations, nudges, best, best_res, best_pen, best_iter))
 
     def solve(self, start):
         if self.boxes is None and lanes.few(self.B):

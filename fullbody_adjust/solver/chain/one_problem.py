@@ -1,21 +1,14 @@
-"""One problem's solve on Python floats (OneProblem, owned by chain.model.ChainModel): what ChainModel does on
-arrays for many problems, for a few of them one at a time, where numpy's per-call cost on 3-vectors was most of the
-work (a rig's own IK locks made one Adjust Pose run some 300 limited iterations; one frame's solve stretches a trunk
-or an arm toward a far target several times, or finds a warm start already placed). The calculations are not
-repeated here: FABRIK's passes (ChainModel.forward/backward), the limits (ChainLimits), the two-segment finish and
-the obstacle response are the ones the arrays take, called on the problem's floats. What is here is the per-problem
-bookkeeping of the iteration loop and of the settled shortcut (a target beyond reach: one stretched pass; a start
-at its target within its limits: returned untouched), and the paper's circle tried point by point up to the first
-clear one (the arrays test all of it). A division by zero in the loop hands the call back to the arrays; oriented
-boxes are left to them."""
+"""The settled shortcut of a few problems' solve on Python floats (OneProblem, owned by chain.model.ChainModel): where
+no problem needs FABRIK's iterations (a target beyond reach: one stretched pass; a start at its target within its
+limits: returned untouched), ChainModel.solve's answer without its arrays. The stretched pass and the limit check
+are the model's own (ChainModel.backward, ChainLimits.broken) on the problem's floats. A division by zero hands the
+call back to the arrays."""
 
 import numpy as np
 
 from ..maths import vectors as g
-from .settings import _NUDGES, _PATIENCE, _STALL, ChainBatchResult, _final_status
+from .settings import ChainBatchResult, _final_status
 from ..limits.joint_limits import FREE
-
-_NO_PENETRATION_YET = np.iinfo(np.int64).max  # _iterate's best penetration count before the first iterate
 
 
 class OneProblem:
@@ -23,74 +16,6 @@ class OneProblem:
 
     def __init__(self, chain):
         self.chain = chain
-
-    def iterate(self, P, rows, force):
-        """_iterate(P, rows, force) for limited or obstructed chains (boxes axis-aligned), or None (nothing written)
-        where plain floats cannot take a chain (numpy would divide by zero)."""
-        force = np.broadcast_to(np.asarray(force, dtype=bool), rows.shape).tolist()
-        solved = []
-        try:
-            for r, forced in zip(rows.tolist(), force):
-                solved.append(self._iterate_one(r, P[r].tolist(), forced))
-        except ZeroDivisionError:
-            return None
-        for r, one in zip(rows.tolist(), solved):
-            P[r] = one[0]
-        iterations, residual, stalled, binding, responded, pen = (np.array([one[k] for one in solved])
-                                                                  for k in range(1, 7))
-        return (iterations.astype(np.int64), residual.astype(np.float64), stalled.astype(bool),
-                binding.astype(bool), responded.astype(bool), pen.astype(np.int64))
-
-    def _iterate_one(self, r, chain, forced):
-        """(pose, iterations, residual, stalled, limit binding, obstacle responded, penetrations) of problem r from
-        its pose ``chain`` (lists): the best iterate, with the binding and response of the last one as _iterate
-        reports them."""
-        s = self.chain.settings
-        tol = s.tolerance
-        stall = tol * _STALL
-        target = self.chain.targets[r].tolist()
-        residual = g.norm(g.sub(chain[-1], target))
-        if not (residual > tol or forced):
-            return chain, 0, residual, False, False, False, self._penetrations_one(chain, r)
-        iterations = nudges = best_iter = 0
-        best, best_res, best_pen = chain, np.inf, _NO_PENETRATION_YET
-        while True:
-            prev = chain
-            placed = list(prev)
-            responded = self.chain.forward(placed, r, prev, prev)[0]
-            binding, responded_back, _ = self.chain.backward(placed, r, list(placed), prev, prev)
-            responded = responded or responded_back
-            iterations += 1
-            res = g.norm(g.sub(placed[-1], target))
-            moved = g.norm(g.sub(placed[-1], prev[-1]))
-            stalled = res > tol and moved < stall
-            chain = placed
-            if stalled and nudges < _NUDGES and iterations < s.max_iterations and not binding and not responded:
-                chain = self._nudged_one(r, placed, nudges)
-                nudges += 1
-                stalled = False
-            pen = self._penetrations_one(placed, r)  # of the iterate, not of the nudged pose
-            if pen < best_pen or res < best_res - stall:  # (against the best before this iterate)
-                best_iter = iterations
-            if pen < best_pen or (pen == best_pen and res < best_res):
-                best, best_res, best_pen = placed, res, pen
-            stalled = stalled or (res > tol and iterations - best_iter >= _PATIENCE)
-            if res <= tol or stalled or iterations >= s.max_iterations:
-                return best, iterations, best_res, stalled, binding, responded, best_pen
-
-    def _penetrations_one(self, chain, r):
-        """penetration_counts of one chain, joints and segments added (0 without boxes)."""
-        if self.chain.boxes is None:
-            return 0
-        inside, crossing = self.chain.obstacles.penetration_counts(chain, r)
-        return inside + crossing
-
-    def _nudged_one(self, r, P, nudges):
-        """Problem r's pose P after its nudges-th nudge: ChainModel._nudge itself, on problem r's row of a batch."""
-        batch = np.zeros((self.chain.B, self.chain.n, 3))
-        batch[r] = P
-        self.chain._nudge(batch, np.array([r]), np.array([nudges]), np.array([0]))
-        return [tuple(joint) for joint in batch[r].tolist()]
 
     def settled(self, start):
         """ChainModel.solve(start) in plain floats, or None when some problem needs FABRIK's iterations (a target

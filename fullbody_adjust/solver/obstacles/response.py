@@ -3,6 +3,7 @@ segment crosses one, is moved to the nearest clear point (ObstacleResponse._avoi
 
 import numpy as np
 
+from ..maths import lanes
 from ..maths.geometry import all_set, any_set, cross, dot, norm, outward_angles, unit_or_perpendicular
 from ..errors import SolverInputError
 from .boxes import hits, points_inside, segments_cross
@@ -29,6 +30,9 @@ _SPHERE_AXIS, _SPHERE_E1, _SPHERE_E2 = (
     np.cos(_POLAR), np.sin(_POLAR) * np.cos(_AZIMUTH), np.sin(_POLAR) * np.sin(_AZIMUTH))
 _CANDIDATES = _CIRCLE_SAMPLES * (1 + _SPHERE_POLAR.size)
 _ORDER = np.arange(_CANDIDATES) / _CANDIDATES
+# Up to this many axis-aligned boxes, a few problems' joints are tested on their floats, box by box (beyond a few,
+# numpy's one test of all of them costs less).
+_FEW_BOXES = 16
 
 
 class ObstacleResponse:
@@ -48,12 +52,15 @@ class ObstacleResponse:
         self.ignore_base = points_inside(base, boxes)
         self.corners = boxes.corners()
         self._floats = {}
+        # Whether a few problems' tests may run on their floats (maths/lanes.py decides how few).
+        self.floats = boxes.axes is None and len(boxes) <= _FEW_BOXES
 
     def _lists(self, r):
         """Problem r's box mins and maxs as lists of 3-lists (one problem's tests, on its floats)."""
         if r not in self._floats:
-            mins, maxs = (self.boxes.mins[r], self.boxes.maxs[r]) if self.boxes.batched else (self.boxes.mins, self.boxes.maxs)
-            self._floats[r] = mins.tolist(), maxs.tolist()
+            mins, maxs = self.boxes.mins, self.boxes.maxs
+            self._floats[r] = (mins[r], maxs[r]) if self.boxes.batched else (mins, maxs)
+            self._floats[r] = tuple(x.tolist() for x in self._floats[r])
         return self._floats[r]
 
     def ignored(self, rows, joint, segment):
@@ -81,9 +88,12 @@ class ObstacleResponse:
         """Paper §4.1.2 collision response for joints placed at `cand` (b,3) from `anchor` (b,3) at distance
         `lengths` (b,): if a joint is inside a box or its segment crosses one, move it as described at
         _CIRCLE_ANGLES / _SPHERE_POLAR. Returns (positions, responded (b,), failed (b,))."""
+        b = cand.shape[0]
+        if self.floats and lanes.few(b) and not any(self.penetrates(r, a, p, joint, segment) for r, a, p
+                                                    in zip(rows.tolist(), anchor.tolist(), cand.tolist())):
+            return cand, np.zeros(b, dtype=bool), np.zeros(b, dtype=bool)  # the common case: every joint clear
         boxes = self.boxes.select(rows)
         ign_joint, ign_seg = self.ignored(rows, joint, segment)
-        b = cand.shape[0]
         inside, crossing = self.violations(boxes, anchor, cand, ign_joint, ign_seg)
         hit = inside.any(axis=1) | crossing.any(axis=1)
         if not any_set(hit):
@@ -178,6 +188,9 @@ class ObstacleResponse:
         if rows.__class__ is int:
             counts = [self._hits(rows, P[i], P[i + 1], i + 1, i) for i in range(self.n - 1)]
             return sum(c[0] for c in counts), sum(c[1] for c in counts)
+        if self.floats and lanes.few(len(rows)):
+            counts = [self.penetration_counts(joints, r) for r, joints in zip(rows.tolist(), P.tolist())]
+            return np.array(counts, dtype=np.int64).reshape(-1, 2).T
         boxes = self.boxes.select(rows)
         inside = points_inside(P[:, 1:], boxes)  # (b,n-1,K): joint 0 is fixed, reported separately
         inside[:, -1] &= ~self.ignore_end[rows]
