@@ -395,9 +395,9 @@ def test_body_solves_with_a_rigs_locks_one_and_many():
 def test_straight_chains_nudged_off_their_line_one_and_many(monkeypatch):
     """Straight chains whose targets lie on their own line, short of the last two segments' range: FABRIK stalls
     there and pushes the joints sideways (the nudge); together and alone, the same bits."""
-    from fullbody_adjust.solver.chain.model import ChainModel
-    nudge, nudged = ChainModel._nudged, []
-    monkeypatch.setattr(ChainModel, "_nudged", lambda self, *args: nudged.append(1) or nudge(self, *args))
+    from fullbody_adjust.solver.chain.iteration import Iteration
+    nudge, nudged = Iteration.nudged, []
+    monkeypatch.setattr(Iteration, "nudged", lambda self, *args: nudged.append(1) or nudge(self, *args))
     rng = np.random.default_rng(7)
     d = rng.normal(size=(MANY, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)

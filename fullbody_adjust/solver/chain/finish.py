@@ -1,6 +1,7 @@
 """Two-segment finish of the batch chain solver's backward pass (beyond FABRIK; see chain/fabrik.py): the last two
 segments are placed analytically where a swivel position of the middle joint meets the target with every limit
-and obstacle satisfied (TwoBoneFinish._two_bone_finish, mixed into ChainModel)."""
+and obstacle satisfied (TwoBoneFinish, owned by ChainModel). Its candidates are many samples: one problem's too are
+made and tested on arrays, as a batch of one."""
 
 import math
 
@@ -10,7 +11,7 @@ from ..maths import lanes
 from ..maths import vectors as g
 from ..maths.geometry import any_set, cross, dot, norm, outward_angles, unit_or_perpendicular
 
-# Two-segment finish (ChainModel._two_bone_finish): swivel angles of the middle joint around the pivot ->
+# Two-segment finish (TwoBoneFinish._two_bone_finish): swivel angles of the middle joint around the pivot ->
 # target line, from FABRIK's proposal outward (0, +d, -d, +2d, ...), and the least hinge twist range that
 # leaves an interval of them to pick from (a twist-free hinge fits one swivel angle, never a sample).
 _SWIVEL_ANGLES = outward_angles(48)
@@ -131,5 +132,3 @@ class TwoBoneFinish:
         u = (E - S[:, None]) / a[:, None, None]
         u = u / norm(u)[..., None]
         return self.chain.limiting.finish_holds(rows, P, u, u[:, 0], v)
-
-    # -- solve -------------------------------------------------------------------------------------------------

@@ -1,16 +1,16 @@
 """The chain solver: B chains (B, n, 3) with joint limits and obstacles, each problem leaving the active set when it
 converges, so a problem's result does not depend on what else is in the batch. FABRIK's passes are written once, on
-one problem's floats or many problems' arrays; a few problems are solved one at a time on floats (OneProblem), with
-the same bits as among many. The model owns its limits (ChainLimits), obstacles (ObstacleResponse), two-segment
-finish (TwoBoneFinish) and one-problem driver (OneProblem)."""
+one problem's floats or many problems' arrays; a few problems are solved one at a time on floats (maths/lanes.py
+decides), with the same bits as among many. The model owns its limits (ChainLimits), obstacles (ObstacleResponse),
+two-segment finish (TwoBoneFinish) and the stages of a solve: the stretched pass, the start's check and the
+iteration loop (Iteration)."""
 
 import numpy as np
 
 from .finish import _MIN_FINISH_TWIST, TwoBoneFinish
-from .one_problem import OneProblem
+from .iteration import Iteration
 from ..obstacles.response import ObstacleResponse
-from .settings import (_COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL, ChainBatchResult, statuses,
-    _reach_bounds, _segment_lengths)
+from .settings import _COINCIDENT, ChainBatchResult, statuses, _reach_bounds, _segment_lengths
 from ..errors import SolverInputError
 from ..maths import lanes
 from ..maths import vectors as vec
@@ -18,15 +18,6 @@ from ..maths.geometry import all_set, any_set, norm
 from ..limits.joint_limits import FREE, HINGE, JointLimits
 from .limited import ChainLimits
 from ..obstacles.boxes import as_boxes
-
-_NO_PENETRATION_YET = np.iinfo(np.int64).max  # the best penetration count before the first iterate
-
-
-def _chosen(cond, a, b):
-    """Pose a where cond, else b: one problem's (lists of joints, cond a bool) or many's ((b,n,3), cond (b,))."""
-    if cond.__class__ is np.ndarray:
-        return np.where(cond[:, None, None], a, b)
-    return a if cond else b
 
 
 class ChainModel:
@@ -64,7 +55,6 @@ class ChainModel:
         if self.limits is not None and self.limits.kind[0] != FREE and self.parent_dirs is None:
             raise SolverInputError("joint 0 has a limit but no parent_direction was given")
         self._floats = {}
-        self.one = OneProblem(self)
         self.limiting = None if self.limits is None else ChainLimits(self.limits, self.start_dirs, self.parent_dirs)
         # The analytic two-segment finish needs a swivel range to pick from: not a hinge whose plane is fixed.
         self._finishes = self.limits is not None and self.n >= 3 and (
@@ -75,6 +65,7 @@ class ChainModel:
         self.boxes = obstacles if obstacles is not None and len(obstacles) > 0 else None
         self.obstacles = None if self.boxes is None else ObstacleResponse(self.boxes, targets, self.base, self.n,
                                                                           settings.margin)
+        self.iteration = Iteration(self)
 
     # -- passes -----------------------------------------------------------------------------------------
 
@@ -226,140 +217,7 @@ class ChainModel:
             return z, z.copy()
         return self.obstacles.penetration_counts(P, rows)
 
-    def _nudged(self, pose, rows, nudges):
-        """The pose (as the passes take it) with its interior joints pushed sideways (see _NUDGES), by each problem's
-        nudge `nudges` (0 or 1): perpendicular to its base -> target line (to its first segment where the target is
-        at the base), then perpendicular to both; joint i moves by _NUDGE of segment i-1."""
-        lengths, joints = self._columns(rows, pose)
-        one = joints is pose
-        base, target = self._problem(rows)[2:0:-1] if one else (self.base[rows], self.targets[rows])
-        v = vec.sub(target, base)
-        v = lanes.pick(lanes.not_(vec.norm(v) > 0.0), vec.sub(joints[1], base), v)
-        v = vec.divided(v, vec.norm(v))
-        u = vec.any_perpendicular(v)
-        if lanes.any_(nudges == 1):
-            q = vec.cross(v, u)
-            u = lanes.pick(nudges == 1, vec.divided(q, vec.norm(q)), u)
-        moved = [joints[0]] + [vec.add(joints[i], vec.scaled(u, lengths[i - 1] * _NUDGE))
-                               for i in range(1, self.n - 1)] + [joints[-1]]
-        return moved if one else np.stack(moved, axis=1)
-
-    def violations(self, P, rows):
-        """(b,) problems `rows` whose pose P (b,n,3) breaks a joint limit (beyond rounding) or penetrates a box
-        it does not ignore."""
-        bad = np.zeros(len(rows), dtype=bool)
-        if self.limits is not None:
-            bad |= self.limiting.broken(rows, P, self.lengths[rows])
-        if self.boxes is not None:
-            inside, crossing = self.penetration_counts(P, rows)
-            bad |= (inside + crossing) > 0
-        return bad
-
-    def _iterate(self, P, rows, force):
-        """FABRIK iterations on problems `rows`, in place on P (B,n,3). Rows whose end is already within
-        tolerance only iterate if `force` (bool or per row (b,)). Returns per-row (iterations, residual,
-        stalled, limit binding, obstacle responses in the returned iterate, penetrations of the returned
-        iterate). A few limited or obstructed problems (boxes axis-aligned, a few) iterate one at a time on their
-        floats, many on arrays: the same loop (_iterations), the same bits."""
-        force = np.broadcast_to(np.asarray(force, dtype=bool), rows.shape)
-        floats = self.limits is not None if self.boxes is None else self.obstacles.floats
-        if floats and lanes.few(rows.size):
-            try:
-                solved = [self._iterations([tuple(p) for p in P[r].tolist()], r, f)
-                          for r, f in zip(rows.tolist(), force.tolist())]
-            except ZeroDivisionError:  # where numpy divides by zero (inf, NaN), the arrays take the problems
-                solved = None
-            if solved is not None:
-                P[rows] = [one[0] for one in solved]
-                return tuple(np.array([one[k] for one in solved], dtype=kind)
-                             for k, kind in enumerate((np.int64, np.float64, bool, bool, bool, np.int64), 1))
-        pose, *out = self._iterations(P[rows], rows, force)
-        P[rows] = pose
-        return tuple(out)
-
-    def _penetrations(self, pose, rows):
-        """Joints inside and segments crossing a box, added, of one problem's pose (an int) or many's ((b,))."""
-        if self.boxes is None:
-            return 0 if rows.__class__ is int else np.zeros(rows.size, dtype=np.int64)
-        inside, crossing = self.obstacles.penetration_counts(pose, rows)
-        return inside + crossing
-
-    def _iterations(self, pose, rows, force):
-        """The iteration loop of one problem (rows an int, pose its list of joints, force a bool) or many (rows an
-        index array, pose (b,n,3), force (b,)): each problem leaves it when it is within tolerance, stalls or reaches
-        the iteration cap; with limits or boxes it returns its best iterate (fewest penetrations, then the smallest
-        residual). (pose, iterations, residual, stalled, limit binding and obstacle responses of the last iterate,
-        penetrations of the returned one), per problem."""
-        s = self.settings
-        tol, cap, stall = s.tolerance, s.max_iterations, s.tolerance * _STALL
-        one = rows.__class__ is int
-        constrained = self.limits is not None or self.boxes is not None
-        target = self._problem(rows)[1] if one else self.targets[rows]
-        residual = vec.norm(vec.sub(pose[-1] if one else pose[:, -1], target))
-        go = (residual > tol) | force
-        if one and not go:
-            return pose, 0, residual, False, False, False, self._penetrations(pose, rows)
-        if one:
-            lane = active = rows
-            zero = 0
-        else:
-            no = np.zeros(rows.size, dtype=bool)
-            out = [pose, np.zeros(rows.size, dtype=np.int64), residual, no, no.copy(), no.copy(),
-                   self._penetrations(pose, rows) if constrained else np.zeros(rows.size, dtype=np.int64)]
-            lane = np.nonzero(go)[0]  # the problems still iterating, as positions in rows
-            if lane.size == 0:
-                return tuple(out)
-            active, pose, target = rows[lane], pose[lane], target[lane]
-            zero = np.zeros(lane.size, dtype=np.int64)
-        iterations = nudges = best_iter = zero
-        best, best_res, best_pen = pose, zero + np.inf, zero + (_NO_PENETRATION_YET if constrained else 0)
-        while True:
-            prev = pose
-            placed = list(prev) if one else prev.copy()
-            responded = self.forward(placed, active, prev, prev)[0]
-            binding, responded_back, _ = self.backward(placed, active, list(placed) if one else placed.copy(), prev,
-                                                       prev)
-            responded = responded | responded_back
-            iterations = iterations + 1
-            end, moved_from = (placed[-1], prev[-1]) if one else (placed[:, -1], prev[:, -1])
-            res = vec.norm(vec.sub(end, target))
-            stalled = (res > tol) & (vec.norm(vec.sub(end, moved_from)) < stall)
-            pose = placed
-            free = stalled & (nudges < _NUDGES) & (iterations < cap) & lanes.not_(binding | responded)
-            if lanes.any_(free):
-                pose = _chosen(free, self._nudged(placed, active, nudges), placed)
-                nudges = nudges + free
-                stalled = stalled & lanes.not_(free)
-            if constrained:
-                pen = self._penetrations(placed, active)  # of the iterate, not of the nudged pose
-                improved = (pen < best_pen) | (res < best_res - stall)  # against the best before this iterate
-                better = (pen < best_pen) | ((pen == best_pen) & (res < best_res))
-                best = _chosen(better, placed, best)
-                best_res, best_pen = lanes.where(better, res, best_res), lanes.where(better, pen, best_pen)
-                best_iter = lanes.where(improved, iterations, best_iter)
-                stalled = stalled | ((res > tol) & (iterations - best_iter >= _PATIENCE))
-            else:
-                best, best_res = placed, res
-            done = (res <= tol) | stalled | (iterations >= cap)
-            if one:
-                if done:
-                    return best, iterations, best_res, stalled, binding, responded, best_pen
-                continue
-            if not lanes.any_(done):
-                continue
-            for o, v in zip(out, (best, iterations, best_res, stalled, binding, responded, best_pen)):
-                o[lane[done]] = v[done]
-            keep = ~done
-            if not lanes.any_(keep):
-                return tuple(out)
-            lane, active, target, pose, iterations, nudges, best, best_res, best_pen, best_iter = (
-                x[keep] for x in (lane, active, target, pose, iterations, nudges, best, best_res, best_pen, best_iter))
-
     def solve(self, start):
-        if self.boxes is None and lanes.few(self.B):
-            settled = self.one.settled(start)  # no iteration needed: plain floats, the same bits
-            if settled is not None:
-                return settled
         B = self.B
         tol = self.settings.tolerance
         P = start.copy()
@@ -375,15 +233,9 @@ class ChainModel:
 
         rows = np.nonzero(beyond)[0]
         if rows.size:
-            Pa = P[rows]
-            prev = Pa.copy()
-            aims = np.broadcast_to(self.targets[rows][:, None, :], Pa.shape)
-            binding, responded, _ = self.backward(Pa, rows, aims, prev, prev, stretch=True)
-            P[rows] = Pa
+            limit_binding[rows], obstacle_active[rows] = self.iteration.stretched(P, rows)
             iterations[rows] = 1
-            residual[rows] = norm(Pa[:, -1] - self.targets[rows])
-            limit_binding[rows] = binding
-            obstacle_active[rows] = responded
+            residual[rows] = norm(P[rows, -1] - self.targets[rows])
 
         # A start pose already at its target is returned untouched (bit-exact, 0 iterations) unless it breaks a
         # limit or penetrates a box: then at least one iteration runs, so it is never returned unchecked.
@@ -394,8 +246,8 @@ class ChainModel:
             if constrained:
                 force = np.zeros(rows.size, dtype=bool)
                 met = norm(P[rows, -1] - self.targets[rows]) <= tol
-                force[met] = self.violations(P[rows[met]], rows[met])
-            its, res, stl, bind, obst, pen = self._iterate(P, rows, force)
+                force[met] = self.iteration.violations(P, rows[met])
+            its, res, stl, bind, obst, pen = self.iteration.iterate(P, rows, force)
             iterations[rows], residual[rows], stalled[rows] = its, res, stl
             limit_binding[rows], obstacle_active[rows] = bind, obst
             # FABRIK's obstacle response is local: the chain can wrap around the wrong side of a box and stay
@@ -414,7 +266,7 @@ class ChainModel:
             if retry.size:
                 Q = P.copy()
                 Q[retry] = free_positions
-                its2, res2, stl2, bind2, obst2, pen2 = self._iterate(Q, retry, True)
+                its2, res2, stl2, bind2, obst2, pen2 = self.iteration.iterate(Q, retry, True)
                 old_pen = pen[np.searchsorted(rows, retry)]
                 better = (pen2 < old_pen) | ((pen2 == old_pen) & (res2 < residual[retry]))
                 iterations[retry] += free_iterations + its2

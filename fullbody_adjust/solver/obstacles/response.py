@@ -1,5 +1,7 @@
 """The paper's obstacle response (§4.1) for the batch chain solver: a joint that lands inside a box, or whose
-segment crosses one, is moved to the nearest clear point (ObstacleResponse._avoid, mixed into ChainModel)."""
+segment crosses one, is moved to the nearest clear point (ObstacleResponse.avoid, owned by ChainModel). A few
+problems' joints are first tested on their floats (boxes.hits); the response itself tests the paper's circle and the
+sphere's samples at once on arrays, for one problem as for many."""
 
 import numpy as np
 
