@@ -149,7 +149,10 @@ class Iteration:
         at the base), then perpendicular to both; joint i moves by _NUDGE of segment i-1."""
         lengths, joints = self.chain._columns(rows, pose)
         one = joints is pose
-        base, target = self.chain._problem(rows)[2:0:-1] if one else (self.chain.base[rows], self.chain.targets[rows])
+        if one:
+            _lengths, target, base, _parent = self.chain._problem(rows)
+        else:
+            target, base = self.chain.targets[rows], self.chain.base[rows]
         v = vec.sub(target, base)
         v = lanes.pick(lanes.not_(vec.norm(v) > 0.0), vec.sub(joints[1], base), v)
         v = vec.divided(v, vec.norm(v))
