@@ -30,7 +30,7 @@ def _frames(rig, targets, boxes, **kwargs):
 
 
 # Six frames: their stacked limbs (12 rows) are solved on arrays, one frame alone one problem at a time on floats
-# (chain/one_problem.py).
+# (maths/lanes.py by_rows, chain/iteration.py).
 offsets = arrays(np.float64, (6, 2, 3), elements=st.floats(-0.25, 0.25))
 
 

@@ -9,7 +9,6 @@ from fullbody_adjust.solver import Boxes
 from fullbody_adjust.solver.chain.fabrik import solve_chain_batch
 from fullbody_adjust.solver.limits.joint_limits import JointLimits
 from fullbody_adjust.solver.obstacles import response as chain_obstacles
-from fullbody_adjust.solver.chain.one_problem import OneProblem
 from fullbody_adjust.solver.maths.geometry import any_perpendicular
 
 
@@ -67,8 +66,6 @@ def test_the_circle_first_gives_what_testing_every_candidate_gives(seed, monkeyp
         pts, score = scored(self, h, anchors, lengths, dirs, *rest)
         return pts, score + (dirs.shape[1] == chain_obstacles._CIRCLE_SAMPLES)  # every candidate is tested
 
-    # The arrays' iterations throughout (a few chains iterate one at a time on floats, their circle point by point).
-    monkeypatch.setattr(OneProblem, "iterate", lambda self, *args: None)
     for problem in _problems(seed):
         monkeypatch.setattr(chain_obstacles.ObstacleResponse, "_scored", counted)
         fast = _solve(problem)

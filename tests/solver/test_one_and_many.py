@@ -395,9 +395,9 @@ def test_body_solves_with_a_rigs_locks_one_and_many():
 def test_straight_chains_nudged_off_their_line_one_and_many(monkeypatch):
     """Straight chains whose targets lie on their own line, short of the last two segments' range: FABRIK stalls
     there and pushes the joints sideways (the nudge); together and alone, the same bits."""
-    from fullbody_adjust.solver.chain.model import ChainModel
-    nudge, nudged = ChainModel._nudge, []
-    monkeypatch.setattr(ChainModel, "_nudge", lambda self, *args: nudged.append(1) or nudge(self, *args))
+    from fullbody_adjust.solver.chain.iteration import Iteration
+    nudge, nudged = Iteration.nudged, []
+    monkeypatch.setattr(Iteration, "nudged", lambda self, *args: nudged.append(1) or nudge(self, *args))
     rng = np.random.default_rng(7)
     d = rng.normal(size=(MANY, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
@@ -415,10 +415,10 @@ def test_straight_chains_nudged_off_their_line_one_and_many(monkeypatch):
 
 
 def test_two_segment_finish_one_and_many():
-    """The two-segment finish of one chain on floats (TwoBoneFinish._two_bone_finish_one) against the arrays' on the
-    same chain: random chains among boxes (some with a box around the base), forward-pass joints off the chain,
-    targets within the last two segments' range, just inside and just outside its ends (where the finish
-    declines), and a middle joint on the pivot-target line. Where it answers, the same joints, bit for bit."""
+    """The two-segment finish of each chain alone (TwoBoneFinish.place on one problem's floats) against the finish of
+    all the batch's chains at once: random chains among boxes (some with a box around the base), forward-pass joints
+    off the chain, targets within the last two segments' range, just inside and just outside its ends (where the
+    finish declines), and a middle joint on the pivot-target line. The same answers and joints, bit for bit."""
     from fullbody_adjust.solver.chain.model import ChainModel
     from fullbody_adjust.solver.chain.settings import ChainSettings
     from fullbody_adjust.solver.obstacles.boxes import Boxes
@@ -431,29 +431,90 @@ def test_two_segment_finish_one_and_many():
         model = ChainModel(starts, targets, ChainSettings(), limits, boxes, parents)
         if model.finish is None:
             continue
-        j = model.n - 3
-        for r in range(model.B):
-            a, c = model.lengths[r, j], model.lengths[r, j + 1]
-            pivot = starts[r, j]
-            for case in range(5):
-                P = starts[r] + rng.normal(scale=0.05, size=starts[r].shape)
-                aims = starts[r] + rng.normal(scale=0.2, size=starts[r].shape)
-                P[j] = pivot
-                direction = rng.normal(size=3)
-                direction /= np.linalg.norm(direction)
-                reach = [rng.uniform(abs(a - c), a + c), (a + c) * (1 - 5e-10), (a + c) * (1 - 2e-9),
-                         abs(a - c) * (1 + 5e-10), rng.uniform(abs(a - c), a + c)][case]
-                model.targets[r] = pivot + direction * reach
-                if case == 4:
-                    aims[j + 1] = pivot + direction * 0.3 * reach
-                one = model.finish._two_bone_finish_one(r, P.tolist(), aims.tolist())
-                done, middle, end = model.finish._two_bone_finish(P[None], np.array([r]), aims[None])
-                if one is None:
-                    answers.append("arrays")
-                    continue
-                assert one[0] == bool(done[0])
+        j, rows = model.n - 3, np.arange(model.B)
+        a, c = model.lengths[:, j], model.lengths[:, j + 1]
+        for case in range(5):
+            P = starts + rng.normal(scale=0.05, size=starts.shape)
+            aims = starts + rng.normal(scale=0.2, size=starts.shape)
+            P[:, j] = starts[:, j]
+            direction = rng.normal(size=(model.B, 3))
+            direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+            reach = [rng.uniform(abs(a - c), a + c), (a + c) * (1 - 5e-10), (a + c) * (1 - 2e-9),
+                     abs(a - c) * (1 + 5e-10), rng.uniform(abs(a - c), a + c)][case]
+            model.targets[:] = starts[:, j] + direction * reach[:, None]
+            if case == 4:
+                aims[:, j + 1] = starts[:, j] + direction * 0.3 * reach[:, None]
+            done, middle, end = model.finish.place(rows, P, aims)
+            for r in rows:
+                one = model.finish.place(int(r), [tuple(p) for p in P[r].tolist()], [tuple(p) for p in aims[r].tolist()])
+                assert one[0] == bool(done[r])
                 if one[0]:
-                    np.testing.assert_array_equal(_bits(np.array(one[1])), _bits(middle[0]))
-                    np.testing.assert_array_equal(_bits(np.array(one[2])), _bits(end[0]))
+                    np.testing.assert_array_equal(_bits(np.array(one[1])), _bits(middle[r]))
+                    np.testing.assert_array_equal(_bits(np.array(one[2])), _bits(end[r]))
                 answers.append(("declined", "finished")[one[0]])
     assert answers.count("finished") >= 20 and answers.count("declined") >= 20
+
+
+def _box_points(rng, n, mins, maxs):
+    """n points around the boxes, many of them on a face, an edge or a corner (coordinates copied from the box)."""
+    lo, hi = mins.reshape(-1, 3).min(axis=0), maxs.reshape(-1, 3).max(axis=0)
+    p = rng.uniform(lo - 0.5, hi + 0.5, (n, 3))
+    face = np.where(rng.random((n, 3)) < 0.5, mins.reshape(-1, 3)[0], maxs.reshape(-1, 3)[0])
+    return np.where(rng.random((n, 3)) < 0.3, face, p)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_box_tests_one_and_many(seed):
+    """The collision tests of one point and its segment on floats, box by box (boxes.hits), against points_inside and
+    segments_cross on every point and box at once: the same answers, with what each point ignores, on a box's faces,
+    for segments along a face or an axis, of no length, with per-problem boxes and with NaN coordinates."""
+    from fullbody_adjust.solver.obstacles.boxes import Boxes, hits, points_inside, segments_cross
+    rng = np.random.default_rng(20 + seed)
+    k, n = 1 + seed % 2, 800
+    mins = rng.uniform(-1.0, 0.0, (k, 3))
+    maxs = mins + rng.uniform(0.2, 1.0, (k, 3))
+    a, b = _box_points(rng, n, mins, maxs), _box_points(rng, n, mins, maxs)
+    b[::5, seed % 3] = a[::5, seed % 3]
+    b[::7] = a[::7]
+    a[3::50, 1] = np.nan
+    ign_point, ign_seg = rng.random((n, k)) < 0.4, rng.random((n, k)) < 0.4
+    if seed >= 2:  # each problem its own boxes, shifted
+        shift = rng.uniform(-0.3, 0.3, (n, 1, 3))
+        boxes = Boxes(mins[None] + shift, maxs[None] + shift)
+    else:
+        boxes = Boxes(mins, maxs)
+    inside, crossing = points_inside(b, boxes), segments_cross(a, b, boxes)
+    assert inside.any() and not inside.all() and (crossing & ~inside).any() and not crossing.all()
+    for r in range(n):
+        lo, hi = (boxes.mins[r], boxes.maxs[r]) if boxes.batched else (boxes.mins, boxes.maxs)
+        one = hits(lo.tolist(), hi.tolist(), tuple(a[r].tolist()), tuple(b[r].tolist()))
+        assert one == (bool(inside[r].any()), bool(crossing[r].any())), r
+        one = hits(lo.tolist(), hi.tolist(), tuple(a[r].tolist()), tuple(b[r].tolist()), ign_point[r].tolist(),
+                   ign_seg[r].tolist())
+        assert one == (bool((inside[r] & ~ign_point[r]).any()), bool((crossing[r] & ~ign_seg[r]).any())), r
+
+
+@pytest.mark.parametrize("batched", [False, True])
+def test_chain_penetration_counts_one_and_many(batched):
+    """ObstacleResponse.penetration_counts of each chain alone (on its floats) against all chains at once: the same
+    counts, with the boxes the end and the base ignore (a target or the base inside a box) left out, for 2- to 5-joint
+    chains around one or two boxes, shared or per problem, joints on a box's corner."""
+    from fullbody_adjust.solver.chain.model import ChainModel
+    from fullbody_adjust.solver.chain.settings import ChainSettings
+    from fullbody_adjust.solver.obstacles.boxes import Boxes
+    rng = np.random.default_rng(3 + batched)
+    counted = 0
+    for trial in range(60):
+        b, n, k = MANY, 2 + trial % 4, 1 + trial % 2
+        mins = rng.uniform(-0.6, 0.0, (b, k, 3) if batched else (k, 3))
+        boxes = Boxes(mins, mins + rng.uniform(0.2, 0.8, mins.shape))
+        start = np.cumsum(rng.normal(scale=0.4, size=(b, n, 3)), axis=1)
+        targets = start[:, -1] + rng.normal(scale=0.05, size=(b, 3))
+        model = ChainModel(start, targets, ChainSettings(), None, boxes, None)
+        pose = start + rng.normal(scale=0.2, size=start.shape)
+        pose[:, 1:][rng.random((b, n - 1)) < 0.2] = mins.reshape(-1, 3)[0]
+        inside, crossing = model.obstacles.penetration_counts(pose, np.arange(b))
+        for r in range(b):
+            assert model.obstacles.penetration_counts([tuple(p) for p in pose[r].tolist()], r) == (inside[r], crossing[r])
+        counted += int((inside + crossing > 0).sum())
+    assert 0 < counted < 60 * MANY  # penetrating poses and clear ones

@@ -1,6 +1,7 @@
 """Two-segment finish of the batch chain solver's backward pass (beyond FABRIK; see chain/fabrik.py): the last two
 segments are placed analytically where a swivel position of the middle joint meets the target with every limit
-and obstacle satisfied (TwoBoneFinish._two_bone_finish, mixed into ChainModel)."""
+and obstacle satisfied (TwoBoneFinish, owned by ChainModel). Its candidates are many samples: one problem's too are
+made and tested on arrays, as a batch of one."""
 
 import math
 
@@ -9,14 +10,12 @@ import numpy as np
 from ..maths import lanes
 from ..maths import vectors as g
 from ..maths.geometry import any_set, cross, dot, norm, outward_angles, unit_or_perpendicular
-from ..obstacles.boxes import penetrates_one
 
-# Two-segment finish (ChainModel._two_bone_finish): swivel angles of the middle joint around the pivot ->
+# Two-segment finish (TwoBoneFinish._two_bone_finish): swivel angles of the middle joint around the pivot ->
 # target line, from FABRIK's proposal outward (0, +d, -d, +2d, ...), and the least hinge twist range that
 # leaves an interval of them to pick from (a twist-free hinge fits one swivel angle, never a sample).
 _SWIVEL_ANGLES = outward_angles(48)
 _SWIVEL_COS, _SWIVEL_SIN = np.cos(_SWIVEL_ANGLES), np.sin(_SWIVEL_ANGLES)
-_SWIVEL_COS_LIST, _SWIVEL_SIN_LIST = _SWIVEL_COS.tolist(), _SWIVEL_SIN.tolist()
 _MIN_FINISH_TWIST = math.radians(5)
 
 
@@ -29,14 +28,11 @@ class TwoBoneFinish:
 
     def place(self, rows, P, aims):
         """The finish of one problem (rows an int; P, aims its lists of joints) or many (arrays): (finished, middle,
-        end)."""
+        end). Its candidates are many samples: one problem's are made and tested on arrays too, as a batch of one."""
         if rows.__class__ is not int:
             return self._two_bone_finish(P, rows, aims)
-        one = self._two_bone_finish_one(rows, P, aims)
-        if one is None:  # the finish on arrays, of the one chain
-            done, elbow, wrist = self._two_bone_finish(np.array([P]), np.array([rows]), np.array([aims]))
-            one = bool(done[0]), tuple(elbow[0].tolist()), tuple(wrist[0].tolist())
-        return one
+        done, middle, end = self._two_bone_finish(np.array([P]), np.array([rows]), np.array([aims]))
+        return bool(done[0]), tuple(middle[0].tolist()), tuple(end[0].tolist())
 
     def _two_bone_finish(self, P, rows, aims):
         """Analytic placement of the last two segments in the backward pass, once their pivot joint n-3 is
@@ -102,58 +98,6 @@ class TwoBoneFinish:
         end[h] = wrist[np.arange(h.size), pick]
         return finished, middle, end
 
-    def _two_bone_finish_one(self, r, P, aims):
-        """_two_bone_finish of problem r alone, in plain floats (P, aims: its joints as lists): (finished, middle,
-        end), or None where numpy decides (the first candidate clear of the boxes breaks a limit, or a division by
-        zero). The candidates are made and tested against the boxes in order, up to the first clear one: numpy
-        made and tested all 48 first, most of a finish's cost where the boxes leave an early one clear."""
-        if self.chain.boxes is not None and self.chain.boxes.axes is not None:
-            return None  # oriented boxes: numpy's tests
-        j = self.chain.n - 3
-        none = (0.0, 0.0, 0.0)
-        lengths = self.chain.lengths[r].tolist()
-        a, c = lengths[j], lengths[j + 1]
-        S = tuple(P[j])
-        T = self.chain.targets[r].tolist()
-        to_t = g.sub(T, S)
-        d = g.norm(to_t)
-        if not (d > abs(a - c) * (1.0 + 1e-9) and d < (a + c) * (1.0 - 1e-9)):
-            return False, none, none
-        try:
-            e = g.divided(to_t, d)
-            along = (a * a + d * d - c * c) / (2.0 * d)
-            rho = math.sqrt(max(a * a - along * along, 0.0))
-            centre = g.add(S, g.scaled(e, along))
-            w = g.sub(aims[j + 1], centre)
-            w = g.sub(w, g.scaled(e, g.dot(w, e)))
-            wn = g.norm(w)
-            e1 = g.divided(w, wn) if wn > 1e-12 * a else g.any_perpendicular(e)
-            e2 = g.cross(e, e1)
-            boxes = None if self.chain.boxes is None else self.chain.obstacles.boxes_of(r)
-            if boxes is not None:  # what the two segments (and the joints at their ends) ignore, as _ignored says
-                lo, hi = boxes[0], boxes[1]
-                skip_middle, skip_pivot_segment = self.chain.obstacles.ignored_of(boxes, j + 1, j)
-                skip_end, skip_end_segment = self.chain.obstacles.ignored_of(boxes, j + 2, j + 1)
-            first = None
-            for cos_k, sin_k in zip(_SWIVEL_COS_LIST, _SWIVEL_SIN_LIST):
-                ring = (cos_k * e1[0] + sin_k * e2[0], cos_k * e1[1] + sin_k * e2[1], cos_k * e1[2] + sin_k * e2[2])
-                middle = (centre[0] + rho * ring[0], centre[1] + rho * ring[1], centre[2] + rho * ring[2])
-                v = g.sub(T, middle)
-                v = g.divided(v, g.norm(v))
-                end = (middle[0] + c * v[0], middle[1] + c * v[1], middle[2] + c * v[2])
-                if first is None:
-                    first = g.divided(g.sub(middle, S), a)  # the pivot limit's fallback: the first candidate's
-                if boxes is not None and (penetrates_one(lo, hi, S, middle, skip_middle, skip_pivot_segment)
-                                          or penetrates_one(lo, hi, middle, end, skip_end, skip_end_segment)):
-                    continue
-                u = g.divided(g.sub(middle, S), a)
-                holds = self.chain.limiting.finish_holds(r, [list(joint) for joint in P], g.divided(u, g.norm(u)),
-                                                   g.divided(first, g.norm(first)), list(v))
-                return (True, middle, end) if holds else None
-        except ZeroDivisionError:
-            return None
-        return False, none, none  # no candidate clear of the boxes
-
     def _first_clear_holds(self, rows, P, E, S, a, v, clear):
         """clear & _limits_hold(...) (h,K), as far as the pick needs it: a few chains' first candidate clear of the
         boxes is checked in plain floats, and where it keeps the limits it is the only candidate left; the other
@@ -188,5 +132,3 @@ class TwoBoneFinish:
         u = (E - S[:, None]) / a[:, None, None]
         u = u / norm(u)[..., None]
         return self.chain.limiting.finish_holds(rows, P, u, u[:, 0], v)
-
-    # -- solve -------------------------------------------------------------------------------------------------

@@ -1,40 +1,23 @@
 """The chain solver: B chains (B, n, 3) with joint limits and obstacles, each problem leaving the active set when it
 converges, so a problem's result does not depend on what else is in the batch. FABRIK's passes are written once, on
-one problem's floats or many problems' arrays; a few problems are solved one at a time on floats (OneProblem), with
-the same bits as among many. The model owns its limits (ChainLimits), obstacles (ObstacleResponse), two-segment
-finish (TwoBoneFinish) and one-problem driver (OneProblem)."""
+one problem's floats or many problems' arrays; a few problems are solved one at a time on floats (maths/lanes.py
+decides), with the same bits as among many. The model owns its limits (ChainLimits), obstacles (ObstacleResponse),
+two-segment finish (TwoBoneFinish) and the stages of a solve: the stretched pass, the start's check and the
+iteration loop (Iteration)."""
 
 import numpy as np
 
 from .finish import _MIN_FINISH_TWIST, TwoBoneFinish
-from .one_problem import OneProblem
+from .iteration import Iteration
 from ..obstacles.response import ObstacleResponse
-from .settings import (_COINCIDENT, _NUDGE, _NUDGES, _PATIENCE, _STALL, ChainBatchResult, statuses,
-    _reach_bounds, _segment_lengths)
+from .settings import _COINCIDENT, ChainBatchResult, statuses, _reach_bounds, _segment_lengths
 from ..errors import SolverInputError
 from ..maths import lanes
 from ..maths import vectors as vec
-from ..maths.geometry import all_set, any_perpendicular, any_set, cross, norm
+from ..maths.geometry import all_set, any_set, norm
 from ..limits.joint_limits import FREE, HINGE, JointLimits
 from .limited import ChainLimits
 from ..obstacles.boxes import as_boxes
-
-# Up to this many axis-aligned boxes, a few chains iterate in plain floats among them too (each joint is tested
-# against every box in plain floats: beyond a few, numpy's one test of all of them costs less).
-_FEW_BOXES = 16
-
-
-def _nudge_directions(v, first, k):
-    """Directions for the nudge k (0 or 1) of rows v (b,3): perpendicular to v (to `first` where v is zero),
-    the second perpendicular to the first; a stalled chain aimed straight at its target is bent along them."""
-    zero = ~(norm(v) > 0.0)
-    v = np.where(zero[:, None], first, v)
-    v = v / norm(v)[:, None]
-    p = any_perpendicular(v)
-    if k == 0:
-        return p
-    q = cross(v, p)
-    return q / norm(q)[:, None]
 
 
 class ChainModel:
@@ -72,7 +55,6 @@ class ChainModel:
         if self.limits is not None and self.limits.kind[0] != FREE and self.parent_dirs is None:
             raise SolverInputError("joint 0 has a limit but no parent_direction was given")
         self._floats = {}
-        self.one = OneProblem(self)
         self.limiting = None if self.limits is None else ChainLimits(self.limits, self.start_dirs, self.parent_dirs)
         # The analytic two-segment finish needs a swivel range to pick from: not a hinge whose plane is fixed.
         self._finishes = self.limits is not None and self.n >= 3 and (
@@ -83,6 +65,7 @@ class ChainModel:
         self.boxes = obstacles if obstacles is not None and len(obstacles) > 0 else None
         self.obstacles = None if self.boxes is None else ObstacleResponse(self.boxes, targets, self.base, self.n,
                                                                           settings.margin)
+        self.iteration = Iteration(self)
 
     # -- passes -----------------------------------------------------------------------------------------
 
@@ -201,20 +184,27 @@ class ChainModel:
         return binding, responded, failed
 
     def _avoid(self, rows, anchor, cand, L, ref, joint, segment, limit):
-        """The obstacle response (obstacles/response.py) for the joints at `cand`: one problem's in plain floats
-        where the paper's circle has a clear point (chain/one_problem.py), else on arrays; limit: the backward
-        pass's (joint, parent direction, fallback) or None. (positions, responded, failed)."""
-        if rows.__class__ is int:
-            point, moved = self.one.avoid(rows, anchor, cand, L, ref, joint, segment,
-                                           self.obstacles.boxes_of(rows), limit)
-            return point, moved, False
+        """The obstacle response (obstacles/response.py) for the joints at `cand`; limit: the backward pass's (joint,
+        parent direction, fallback) or None. (positions, responded, failed). One problem's joint (rows an int) is
+        tested on its floats, and where it penetrates a box, answered by the arrays' response as a batch of one (the
+        paper's circle and the sphere are many samples, tested at once)."""
+        one = rows.__class__ is int
+        if one:
+            if not self.obstacles.penetrates(rows, anchor, cand, joint, segment):
+                return cand, False, False
+            rows, anchor, cand, L, ref = (np.array([x]) for x in (rows, anchor, cand, L, ref))
+            if limit is not None:
+                limit = (limit[0], np.array([limit[1]]), np.array([limit[2]]))
         limit_fn = None
         if limit is not None:
             i, parent, fallback = limit
 
             def limit_fn(h, dirs):
                 return self.limiting.step(i, rows[h], parent[h], dirs, fallback[h])[0]
-        return self.obstacles.avoid(rows, anchor, cand, L, ref, joint, segment, limit_fn)
+        point, responded, failed = self.obstacles.avoid(rows, anchor, cand, L, ref, joint, segment, limit_fn)
+        if one:
+            return tuple(point[0].tolist()), bool(responded[0]), bool(failed[0])
+        return point, responded, failed
 
     # -- solve ------------------------------------------------------------------------------------------
 
@@ -227,105 +217,7 @@ class ChainModel:
             return z, z.copy()
         return self.obstacles.penetration_counts(P, rows)
 
-    def _nudge(self, P, rows, nudges, slots):
-        """Push the interior joints of stalled problems `rows` sideways (see _NUDGES), in place; nudges[slots]
-        counts the nudges each has had."""
-        for k in range(_NUDGES):
-            pick = nudges[slots] == k
-            sel = rows[pick]
-            if sel.size == 0:
-                continue
-            u = _nudge_directions(self.targets[sel] - self.base[sel], P[sel, 1] - self.base[sel], k)
-            shift = self.lengths[sel, :-1] * _NUDGE  # joint i moves by _NUDGE of segment i-1
-            P[sel, 1:-1] = P[sel, 1:-1] + u[:, None, :] * shift[:, :, None]
-        nudges[slots] += 1
-
-    def violations(self, P, rows):
-        """(b,) problems `rows` whose pose P (b,n,3) breaks a joint limit (beyond rounding) or penetrates a box
-        it does not ignore."""
-        bad = np.zeros(len(rows), dtype=bool)
-        if self.limits is not None:
-            bad |= self.limiting.broken(rows, P, self.lengths[rows])
-        if self.boxes is not None:
-            inside, crossing = self.penetration_counts(P, rows)
-            bad |= (inside + crossing) > 0
-        return bad
-
-    def _iterate(self, P, rows, force):
-        """FABRIK iterations on problems `rows`, in place on P (B,n,3). Rows whose end is already within
-        tolerance only iterate if `force` (bool or per row (b,)). Returns per-row (iterations, residual,
-        stalled, limit binding, obstacle responses in the returned iterate, penetrations of the returned
-        iterate)."""
-        few_boxes = self.boxes is None or (self.boxes.axes is None and len(self.boxes) <= _FEW_BOXES)
-        if (self.limits is not None or self.boxes is not None) and few_boxes and lanes.few(rows.size):
-            plain = self.one.iterate(P, rows, force)  # the same bits (chain/one_problem.py)
-            if plain is not None:
-                return plain
-        s = self.settings
-        tol = s.tolerance
-        stall = tol * _STALL
-        b = rows.size
-        constrained = self.limits is not None or self.boxes is not None
-        iterations = np.zeros(b, dtype=np.int64)
-        stalled = np.zeros(b, dtype=bool)
-        binding_out = np.zeros(b, dtype=bool)
-        obstacle_out = np.zeros(b, dtype=bool)
-        nudges = np.zeros(b, dtype=np.int64)
-        residual = norm(P[rows, -1] - self.targets[rows])
-        if constrained:
-            best_P = P[rows].copy()
-            best_pen = np.full(b, np.iinfo(np.int64).max)
-            best_res = np.full(b, np.inf)
-            best_iter = np.zeros(b, dtype=np.int64)  # iteration of the last real improvement
-        act = np.nonzero((residual > tol) | force)[0]  # positions within `rows`
-        while act.size:
-            active = rows[act]
-            Pa = P[active]
-            prev = Pa.copy()
-            resp_f, _ = self.forward(Pa, active, prev, prev)
-            aims = Pa.copy()
-            binding, resp_b, _ = self.backward(Pa, active, aims, prev, prev)
-            responded = resp_f | resp_b
-            P[active] = Pa
-            iterations[act] += 1
-            res = norm(Pa[:, -1] - self.targets[active])
-            moved = norm(Pa[:, -1] - prev[:, -1])
-            residual[act] = res
-            binding_out[act] = binding
-            obstacle_out[act] = responded
-            now_stalled = (res > tol) & (moved < stall)
-            free = now_stalled & (nudges[act] < _NUDGES) & (iterations[act] < s.max_iterations) \
-                & ~binding & ~responded
-            if any_set(free):
-                self._nudge(P, active[free], nudges, act[free])
-                now_stalled &= ~free
-            if constrained:
-                pen = sum(self.penetration_counts(Pa, active))
-                better = (pen < best_pen[act]) | ((pen == best_pen[act]) & (res < best_res[act]))
-                improved = (pen < best_pen[act]) | (res < best_res[act] - stall)
-                up = act[better]
-                best_P[up], best_pen[up], best_res[up] = Pa[better], pen[better], res[better]
-                binding_out[act] = np.where(better, binding, binding_out[act])
-                obstacle_out[act] = np.where(better, responded, obstacle_out[act])
-                best_iter[act[improved]] = iterations[act[improved]]
-                now_stalled |= (res > tol) & (iterations[act] - best_iter[act] >= _PATIENCE)
-            stalled[act] = now_stalled
-            done = (res <= tol) | now_stalled | (iterations[act] >= s.max_iterations)
-            act = act[~done]
-        if constrained:
-            ran = iterations > 0
-            P[rows[ran]] = best_P[ran]
-            residual[ran] = best_res[ran]
-            pen = np.where(ran, best_pen, sum(self.penetration_counts(P[rows], rows)))
-        else:
-            pen = np.zeros(b, dtype=np.int64)
-        return iterations, residual, stalled, binding_out, obstacle_out, pen
-
     def solve(self, start):
-        if self.boxes is None and lanes.few(self.B):
-            settled = self.one.settled(start)  # no iteration needed: plain floats, the same bits
-            if settled is not None:
-                return settled
         B = self.B
         tol = self.settings.tolerance
         P = start.copy()
@@ -341,15 +233,9 @@ class ChainModel:
 
         rows = np.nonzero(beyond)[0]
         if rows.size:
-            Pa = P[rows]
-            prev = Pa.copy()
-            aims = np.broadcast_to(self.targets[rows][:, None, :], Pa.shape)
-            binding, responded, _ = self.backward(Pa, rows, aims, prev, prev, stretch=True)
-            P[rows] = Pa
+            limit_binding[rows], obstacle_active[rows] = self.iteration.stretched(P, rows)
             iterations[rows] = 1
-            residual[rows] = norm(Pa[:, -1] - self.targets[rows])
-            limit_binding[rows] = binding
-            obstacle_active[rows] = responded
+            residual[rows] = norm(P[rows, -1] - self.targets[rows])
 
         # A start pose already at its target is returned untouched (bit-exact, 0 iterations) unless it breaks a
         # limit or penetrates a box: then at least one iteration runs, so it is never returned unchecked.
@@ -360,8 +246,8 @@ class ChainModel:
             if constrained:
                 force = np.zeros(rows.size, dtype=bool)
                 met = norm(P[rows, -1] - self.targets[rows]) <= tol
-                force[met] = self.violations(P[rows[met]], rows[met])
-            its, res, stl, bind, obst, pen = self._iterate(P, rows, force)
+                force[met] = self.iteration.violations(P, rows[met])
+            its, res, stl, bind, obst, pen = self.iteration.iterate(P, rows, force)
             iterations[rows], residual[rows], stalled[rows] = its, res, stl
             limit_binding[rows], obstacle_active[rows] = bind, obst
             # FABRIK's obstacle response is local: the chain can wrap around the wrong side of a box and stay
@@ -380,7 +266,7 @@ class ChainModel:
             if retry.size:
                 Q = P.copy()
                 Q[retry] = free_positions
-                its2, res2, stl2, bind2, obst2, pen2 = self._iterate(Q, retry, True)
+                its2, res2, stl2, bind2, obst2, pen2 = self.iteration.iterate(Q, retry, True)
                 old_pen = pen[np.searchsorted(rows, retry)]
                 better = (pen2 < old_pen) | ((pen2 == old_pen) & (res2 < residual[retry]))
                 iterations[retry] += free_iterations + its2

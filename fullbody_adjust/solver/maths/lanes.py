@@ -86,7 +86,17 @@ def divide(a, b):
 
 
 def maximum(x, c):
-    return np.maximum(x, c) if many(x) or many(c) else max(x, c)
+    """The larger of x and c per lane, NaN where either is NaN (as numpy's)."""
+    if isinstance(x, _ARRAY) or isinstance(c, _ARRAY):
+        return np.maximum(x, c)
+    return x if x >= c or x != x else c
+
+
+def minimum(x, c):
+    """The smaller of x and c per lane, NaN where either is NaN (as numpy's)."""
+    if isinstance(x, _ARRAY) or isinstance(c, _ARRAY):
+        return np.minimum(x, c)
+    return x if x <= c or x != x else c
 
 
 def clip(x, lo, hi):
@@ -122,6 +132,27 @@ def cos(x):
 
 def sin(x):
     return np.sin(x) if isinstance(x, _ARRAY) else float(np.sin(x))
+
+
+def by_rows(kernel, P, rows, *per_row, kinds=(), floats=True):
+    """kernel(pose, rows, *per_row) -> (pose, *values) on the problems `rows` (an index array) of P (B,n,3), which
+    takes the poses it returns. Up to FEW problems (and where `floats`) each alone on its floats: pose a list of
+    joint tuples, rows an int, per_row values (arrays (b,)) as Python scalars; else all at once on arrays: P[rows],
+    the index array, per_row as they are. Returns the values, arrays of the dtypes `kinds` per problem. Where a
+    problem's floats would divide by zero (numpy's inf or NaN), the arrays take every problem."""
+    if floats and 0 < rows.size <= FEW:
+        lists = [np.broadcast_to(v, rows.shape).tolist() for v in per_row]
+        try:
+            out = [kernel([tuple(p) for p in P[r].tolist()], r, *[v[k] for v in lists])
+                   for k, r in enumerate(rows.tolist())]
+        except ZeroDivisionError:
+            out = None
+        if out is not None:
+            P[rows] = [one[0] for one in out]
+            return tuple(np.array([one[k] for one in out], dtype=kind) for k, kind in enumerate(kinds, 1))
+    pose, *values = kernel(P[rows], rows, *[np.broadcast_to(v, rows.shape) for v in per_row])
+    P[rows] = pose
+    return tuple(values)
 
 
 def run(kernel, arrays, *rest, values=(), outputs=1):

@@ -6,9 +6,12 @@ A rotated mesh's bounding box is then the box the user sees, not the larger axis
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 
 from ..errors import SolverInputError
+from ..maths import lanes
 from ..maths.geometry import all_set, any_set
 
 
@@ -212,11 +215,8 @@ def _in_box_frames(points, axes):
 def points_inside(points, boxes):
     """(...,3) points, K boxes -> (..., K) bool: point lies in the closed box."""
     p = np.asarray(points, dtype=np.float64)
-    if _few(p, boxes):
-        return _few_tests(_inside_one, boxes, p)
     mins, maxs, axes = _box_arrays(boxes, p.ndim - 1)
-    q = _in_box_frames(p, axes)
-    within = (q >= mins) & (q <= maxs)
+    within = _within(mins, maxs, _in_box_frames(p, axes))  # every axis at once
     return within[..., 0] & within[..., 1] & within[..., 2]
 
 
@@ -230,156 +230,71 @@ def segments_cross(a, b, boxes):
     A segment with an end inside a box counts as crossing it."""
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
-    if a.shape == b.shape and _few(a, boxes):
-        return _few_tests(_crosses_one, boxes, a, b)
     # Ends of different shapes (one anchor, many candidates) broadcast in the arithmetic: broadcast_arrays cost
     # more than the test on the obstacle response's candidates.
     mins, maxs, axes = _box_arrays(boxes, max(a.ndim, b.ndim) - 1)
-    p = _in_box_frames(a, axes)
-    d = _in_box_frames(b, axes) - p
-    flat = d == 0.0
-    if any_set(np.abs(d) < _TINY_STEP):  # a division may overflow, or divide by zero: quietly (inf, handled below)
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            t1 = (mins - p) / d
-            t2 = (maxs - p) / d
+    p, q = _in_box_frames(a, axes), _in_box_frames(b, axes)
+    if any_set(np.abs(q - p) < _TINY_STEP):  # a division may overflow: quietly (inf, as the test expects)
+        with np.errstate(over="ignore"):
+            near, far = _slab(mins, maxs, p, q)
     else:  # np.errstate costs as much as the divisions
-        t1 = (mins - p) / d
-        t2 = (maxs - p) / d
-    lo = np.minimum(t1, t2)
-    hi = np.maximum(t1, t2)
-    if any_set(flat):
-        # An axis the segment does not move along: inside the slab -> no constraint, outside -> empty interval.
-        in_slab = (p >= mins) & (p <= maxs)
-        lo = np.where(flat, np.where(in_slab, -np.inf, np.inf), lo)
-        hi = np.where(flat, np.where(in_slab, np.inf, -np.inf), hi)
-    # Over the three axes by elementwise max/min of their slices: a reduction over a last axis of 3 costs
-    # several times more on the obstacle response's hundreds of candidates.
-    t_enter = np.maximum(np.maximum(np.maximum(lo[..., 0], lo[..., 1]), lo[..., 2]), 0.0)
-    t_exit = np.minimum(np.minimum(np.minimum(hi[..., 0], hi[..., 1]), hi[..., 2]), 1.0)
-    return t_enter <= t_exit
+        near, far = _slab(mins, maxs, p, q)
+    # Every axis at once, then over the three by elementwise max/min of their slices: a reduction over a last axis
+    # of 3 costs several times more on the obstacle response's hundreds of candidates.
+    enter = np.maximum(np.maximum(np.maximum(near[..., 0], near[..., 1]), near[..., 2]), 0.0)
+    leave = np.minimum(np.minimum(np.minimum(far[..., 0], far[..., 1]), far[..., 2]), 1.0)
+    return enter <= leave
 
 
-# Up to this many point-box (or segment-box) tests, plain floats: the chain solver tests one or two joints at a
-# time, where numpy's per-call cost (and np.errstate's) was most of a test (measured: the obstacle case of
-# bench/solver_speed.py spent a sixth of its solve in segments_cross). Axis-aligned boxes only.
-_FEW_TESTS = 16
+def _within(lo, hi, p):
+    """Whether p lies within [lo, hi] on an axis (floats, or arrays of coordinates that broadcast)."""
+    return (lo <= p) & (p <= hi)
 
 
-def _few(points, boxes):
-    return (boxes.axes is None and points.ndim >= 2 and points.size // 3 * len(boxes) <= _FEW_TESTS
-            and (not boxes.batched or boxes.mins.shape[0] == points.shape[0]))
+def _slab(lo, hi, p, q):
+    """The part of the segment p -> q within the slab [lo, hi] of an axis, as fractions of the segment (near, far)
+    (floats, or arrays of coordinates that broadcast): empty (near > far) where it misses the slab. A segment that
+    does not move along the axis is within the slab everywhere or nowhere; a NaN coordinate makes NaN fractions."""
+    d = q - p
+    flat = d == 0.0
+    step = lanes.where(flat, 1.0, d)
+    t1, t2 = (lo - p) / step, (hi - p) / step
+    near, far = lanes.minimum(t1, t2), lanes.maximum(t1, t2)
+    if lanes.any_(flat):
+        in_slab = _within(lo, hi, p)
+        near = lanes.where(flat, lanes.where(in_slab, -math.inf, math.inf), near)
+        far = lanes.where(flat, lanes.where(in_slab, math.inf, -math.inf), far)
+    return near, far
 
 
-def _few_tests(test, boxes, *points):
-    """points_inside / segments_cross (test: _inside_one / _crosses_one on one point or segment and one box) in
-    plain floats: (..., K) bool. Per-problem boxes pair with the points' first axis, as _box_arrays pairs them."""
-    lead = points[0].shape[:-1]
-    rows = [p.reshape(-1, 3).tolist() for p in points]
-    mins, maxs = boxes.mins.tolist(), boxes.maxs.tolist()
-    per_problem = (len(rows[0]) // lead[0]) if boxes.batched and lead[0] else 0
-    out = []
-    for i, ends in enumerate(zip(*rows)):
-        lo, hi = (mins[i // per_problem], maxs[i // per_problem]) if per_problem else (mins, maxs)
-        out.append([test(lo[k], hi[k], *ends) for k in range(len(lo))])
-    return np.array(out, dtype=bool).reshape(lead + (len(boxes),))
+def inside(lo, hi, p):
+    """Whether the point p (a 3-vector's floats) lies in the closed box [lo, hi]: points_inside's test of one point
+    and one box."""
+    return _within(lo[0], hi[0], p[0]) & _within(lo[1], hi[1], p[1]) & _within(lo[2], hi[2], p[2])
 
 
-def penetrates_few(anchors, points, boxes, ignore_point=None, ignore_segment=None):
-    """Whether any of the points (b,3) lies in, or any segment anchor -> point meets, a box it does not ignore
-    (ignore_point, ignore_segment: (b,K) bool or None), in plain floats: True or False; None when the tests are
-    too many or the boxes oriented (points_inside and segments_cross answer then). The obstacle response asks
-    this of one or two joints at a time, nearly always to hear no."""
-    if boxes.axes is not None or points.shape[0] * len(boxes) > _FEW_TESTS:
-        return None
-    mins, maxs = boxes.mins.tolist(), boxes.maxs.tolist()
-    skip_point = None if ignore_point is None else ignore_point.tolist()
-    skip_segment = None if ignore_segment is None else ignore_segment.tolist()
-    for r, (a, p) in enumerate(zip(anchors.tolist(), points.tolist())):
-        lo, hi = (mins[r], maxs[r]) if boxes.batched else (mins, maxs)
-        if penetrates_one(lo, hi, a, p, None if skip_point is None else skip_point[r],
-                          None if skip_segment is None else skip_segment[r]):
-            return True
-    return False
-
-
-def penetrates_one(lo, hi, anchor, point, skip_point=None, skip_segment=None):
-    """penetrates_few of one point and its segment from ``anchor`` (3-lists), against axis-aligned boxes given as
-    lists of their mins ``lo`` and maxs ``hi``; skip_point, skip_segment: a list of K bools (the boxes ignored) or
-    None."""
-    for k in range(len(lo)):
-        if (skip_point is None or not skip_point[k]) and _inside_one(lo[k], hi[k], point):
-            return True
-        if (skip_segment is None or not skip_segment[k]) and _crosses_one(lo[k], hi[k], anchor, point):
-            return True
-    return False
-
-
-def first_box_holding(lo, hi, point, skip=None):
-    """The index of the first axis-aligned box (lists of mins ``lo`` and maxs ``hi``) that holds ``point`` and is not
-    skipped (``skip``: a list of K bools, or None), or -1: np.argmax of points_inside's row, in plain floats."""
-    for k in range(len(lo)):
-        if (skip is None or not skip[k]) and _inside_one(lo[k], hi[k], point):
-            return k
-    return -1
-
-
-# Up to this many joint-box tests, count_penetrations_few answers in plain floats: the chain solver counts the
-# penetrations of one or two chains after every iteration, where numpy's per-call cost was most of the count.
-_FEW_COUNTS = 48
-
-
-def count_penetrations_few(chains, boxes, ignore_end, ignore_base):
-    """Per chain (b,n,3) of joints: (joints 1..n-1 inside a box, segments meeting one), each a list of b ints, as
-    ChainModel.penetration_counts counts them: the last joint and segment skip the boxes ignore_end (b,K) marks,
-    the first segment those ignore_base marks. None when the tests are too many or the boxes oriented."""
-    b, n = chains.shape[0], chains.shape[1]
-    if boxes.axes is not None or b * n * len(boxes) > _FEW_COUNTS:
-        return None
-    mins, maxs = boxes.mins.tolist(), boxes.maxs.tolist()
-    skip_end, skip_base = ignore_end.tolist(), ignore_base.tolist()
-    inside, crossing = [], []
-    for r, chain in enumerate(chains.tolist()):
-        lo, hi = (mins[r], maxs[r]) if boxes.batched else (mins, maxs)
-        counts = count_penetrations_one(chain, lo, hi, skip_end[r], skip_base[r])
-        inside.append(counts[0])
-        crossing.append(counts[1])
-    return inside, crossing
-
-
-def count_penetrations_one(chain, lo, hi, skip_end, skip_base):
-    """count_penetrations_few of one chain (a list of n joints) against axis-aligned boxes (lists of their mins
-    ``lo`` and maxs ``hi``), skip_end and skip_base lists of K bools: (joints inside, segments meeting a box)."""
-    n = len(chain)
-    last = n - 1
-    boxes_of = range(len(lo))
-    inside = sum(any(_inside_one(lo[k], hi[k], chain[i]) and not (i == last and skip_end[k]) for k in boxes_of)
-                 for i in range(1, n))
-    crossing = sum(any(_crosses_one(lo[k], hi[k], chain[i], chain[i + 1])
-                       and not (i == last - 1 and skip_end[k]) and not (i == 0 and skip_base[k]) for k in boxes_of)
-                   for i in range(n - 1))
-    return inside, crossing
-
-
-def _inside_one(lo, hi, p):
-    return lo[0] <= p[0] <= hi[0] and lo[1] <= p[1] <= hi[1] and lo[2] <= p[2] <= hi[2]
-
-
-def _crosses_one(lo, hi, a, b):
-    """segments_cross for one segment and one box, the same operations (a NaN coordinate: False, as there)."""
-    t_enter, t_exit = 0.0, 1.0
+def crosses(lo, hi, a, b):
+    """Whether the closed segment a -> b (3-vectors' floats) meets the closed box [lo, hi]: segments_cross's test
+    of one segment and one box, axis by axis (a NaN fraction makes it False, as there)."""
+    enter, leave = 0.0, 1.0
     for j in range(3):
-        p, d = a[j], b[j] - a[j]
-        if d == 0.0:  # an axis the segment does not move along: inside the slab or nowhere
-            if not lo[j] <= p <= hi[j]:
-                return False
-            continue
-        t1, t2 = (lo[j] - p) / d, (hi[j] - p) / d
-        if t1 != t1 or t2 != t2:  # NaN: there it makes the entry or the exit NaN, and the test False
-            return False
-        if t1 > t2:
-            t1, t2 = t2, t1
-        t_enter, t_exit = max(t_enter, t1), min(t_exit, t2)
-    return t_enter <= t_exit
+        near, far = _slab(lo[j], hi[j], a[j], b[j])
+        enter, leave = lanes.maximum(enter, near), lanes.minimum(leave, far)
+    return enter <= leave
+
+
+def hits(lo, hi, anchor, point, skip_point=None, skip_segment=None):
+    """Whether one problem's `point` lies in a box, and whether its segment from `anchor` meets one, of its boxes not
+    skipped (lo, hi: lists of their mins and maxs; skip_point, skip_segment: lists of K bools or None): the boxes
+    one by one on the point's floats (many problems' points: points_inside and segments_cross test every box at
+    once)."""
+    found_inside = found_crossing = False
+    for k in range(len(lo)):
+        if not found_inside and (skip_point is None or not skip_point[k]):
+            found_inside = inside(lo[k], hi[k], point)
+        if not found_crossing and (skip_segment is None or not skip_segment[k]):
+            found_crossing = crosses(lo[k], hi[k], anchor, point)
+    return found_inside, found_crossing
 
 
 def penetrations(positions, segments, boxes):

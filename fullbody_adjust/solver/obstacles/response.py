@@ -1,11 +1,14 @@
 """The paper's obstacle response (§4.1) for the batch chain solver: a joint that lands inside a box, or whose
-segment crosses one, is moved to the nearest clear point (ObstacleResponse._avoid, mixed into ChainModel)."""
+segment crosses one, is moved to the nearest clear point (ObstacleResponse.avoid, owned by ChainModel). A few
+problems' joints are first tested on their floats (boxes.hits); the response itself tests the paper's circle and the
+sphere's samples at once on arrays, for one problem as for many."""
 
 import numpy as np
 
+from ..maths import lanes
 from ..maths.geometry import all_set, any_set, cross, dot, norm, outward_angles, unit_or_perpendicular
 from ..errors import SolverInputError
-from .boxes import count_penetrations_few, penetrates_few, points_inside, segments_cross
+from .boxes import hits, points_inside, segments_cross
 
 # Obstacle response candidates (see _avoid for which one is taken).
 # The paper's circle (sphere(anchor, D) ∩ sphere(pos_i, dis)): every point is at distance dis from pos_i, so
@@ -29,6 +32,9 @@ _SPHERE_AXIS, _SPHERE_E1, _SPHERE_E2 = (
     np.cos(_POLAR), np.sin(_POLAR) * np.cos(_AZIMUTH), np.sin(_POLAR) * np.sin(_AZIMUTH))
 _CANDIDATES = _CIRCLE_SAMPLES * (1 + _SPHERE_POLAR.size)
 _ORDER = np.arange(_CANDIDATES) / _CANDIDATES
+# Up to this many axis-aligned boxes, a few problems' joints are tested on their floats, box by box (beyond a few,
+# numpy's one test of all of them costs less).
+_FEW_BOXES = 16
 
 
 class ObstacleResponse:
@@ -47,27 +53,21 @@ class ObstacleResponse:
         self.ignore_end = points_inside(targets, boxes)  # (B,K)
         self.ignore_base = points_inside(base, boxes)
         self.corners = boxes.corners()
+        self._floats = {}
+        # Whether a few problems' tests may run on their floats (maths/lanes.py decides how few).
+        self.floats = boxes.axes is None and len(boxes) <= _FEW_BOXES
 
-    def boxes_of(self, r):
-        """Problem r's boxes as plain lists, for the plain-float paths: (mins, maxs, the boxes its last joint and
-        segment ignore, the boxes its first segment ignores). Axis-aligned boxes only."""
-        mins, maxs = self.boxes.mins, self.boxes.maxs
-        if self.boxes.batched:
-            mins, maxs = mins[r], maxs[r]
-        return mins.tolist(), maxs.tolist(), self.ignore_end[r].tolist(), self.ignore_base[r].tolist()
-
-    def ignored_of(self, boxes, joint, segment):
-        """ignored of one problem from its boxes_of lists: (the boxes ignored for ``joint``, for ``segment``),
-        each a list of K bools or None (nothing ignored)."""
-        _lo, _hi, skip_end, skip_base = boxes
-        last = self.n - 1
-        skip_segment = skip_end if segment == last - 1 else None
-        if segment == 0:
-            skip_segment = skip_base if skip_segment is None else [a or b for a, b in zip(skip_segment, skip_base)]
-        return (skip_end if joint == last else None), skip_segment
+    def _lists(self, r):
+        """Problem r's box mins and maxs as lists of 3-lists (one problem's tests, on its floats)."""
+        if r not in self._floats:
+            mins, maxs = self.boxes.mins, self.boxes.maxs
+            self._floats[r] = (mins[r], maxs[r]) if self.boxes.batched else (mins, maxs)
+            self._floats[r] = tuple(x.tolist() for x in self._floats[r])
+        return self._floats[r]
 
     def ignored(self, rows, joint, segment):
-        """(b,K) boxes ignored for `joint` and (b,K) for `segment` (None: nothing ignored)."""
+        """(b,K) boxes ignored for `joint` and (b,K) for `segment` (None: nothing ignored); one problem's (rows an
+        int): (K,)."""
         last = self.n - 1
         ign_joint = self.ignore_end[rows] if joint == last else None
         ign_seg = None
@@ -90,11 +90,12 @@ class ObstacleResponse:
         """Paper §4.1.2 collision response for joints placed at `cand` (b,3) from `anchor` (b,3) at distance
         `lengths` (b,): if a joint is inside a box or its segment crosses one, move it as described at
         _CIRCLE_ANGLES / _SPHERE_POLAR. Returns (positions, responded (b,), failed (b,))."""
+        b = cand.shape[0]
+        if self.floats and lanes.few(b) and not any(self.penetrates(r, a, p, joint, segment) for r, a, p
+                                                    in zip(rows.tolist(), anchor.tolist(), cand.tolist())):
+            return cand, np.zeros(b, dtype=bool), np.zeros(b, dtype=bool)  # the common case: every joint clear
         boxes = self.boxes.select(rows)
         ign_joint, ign_seg = self.ignored(rows, joint, segment)
-        b = cand.shape[0]
-        if penetrates_few(anchor, cand, boxes, ign_joint, ign_seg) is False:  # the common case, without arrays
-            return cand, np.zeros(b, dtype=bool), np.zeros(b, dtype=bool)
         inside, crossing = self.violations(boxes, anchor, cand, ign_joint, ign_seg)
         hit = inside.any(axis=1) | crossing.any(axis=1)
         if not any_set(hit):
@@ -171,13 +172,28 @@ class ObstacleResponse:
         c_in, c_cross = self.violations(boxes, anchors[:, None, :], pts, ign_joint, ign_seg)
         return pts, c_in.sum(axis=-1) + c_cross.sum(axis=-1)
 
+    def penetrates(self, r, anchor, point, joint, segment):
+        """Whether problem r's `joint` at `point` (floats) lies in, or its `segment` from `anchor` meets, a box it does
+        not ignore: the question avoid answers first, for one problem on its floats."""
+        inside, crossing = self._hits(r, anchor, point, joint, segment)
+        return inside or crossing
+
+    def _hits(self, r, anchor, point, joint, segment):
+        ign_joint, ign_seg = self.ignored(r, joint, segment)
+        return hits(*self._lists(r), anchor, point, None if ign_joint is None else ign_joint.tolist(),
+                    None if ign_seg is None else ign_seg.tolist())
+
     def penetration_counts(self, P, rows):
         """(joints inside, segments crossing) per problem (b,) of P (b,n,3) = problems `rows`, ignoring what each
-        problem must ignore."""
+        problem must ignore; of one problem (rows an int, P its list of joints): two ints, its joints and segments
+        tested on their floats box by box."""
+        if rows.__class__ is int:
+            counts = [self._hits(rows, P[i], P[i + 1], i + 1, i) for i in range(self.n - 1)]
+            return sum(c[0] for c in counts), sum(c[1] for c in counts)
+        if self.floats and lanes.few(len(rows)):
+            counts = [self.penetration_counts(joints, r) for r, joints in zip(rows.tolist(), P.tolist())]
+            return np.array(counts, dtype=np.int64).reshape(-1, 2).T
         boxes = self.boxes.select(rows)
-        few = count_penetrations_few(P, boxes, self.ignore_end[rows], self.ignore_base[rows])
-        if few is not None:
-            return np.array(few[0], dtype=np.int64), np.array(few[1], dtype=np.int64)
         inside = points_inside(P[:, 1:], boxes)  # (b,n-1,K): joint 0 is fixed, reported separately
         inside[:, -1] &= ~self.ignore_end[rows]
         crossing = segments_cross(P[:, :-1], P[:, 1:], boxes)  # (b,n-1,K)
