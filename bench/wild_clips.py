@@ -1,5 +1,6 @@
 """Clips the retargeting was not tuned on, retargeted onto the corpus rigs (issue 27 item 6): per clip and rig,
-pop frames (result / clip), slide p95 over the clip's plants (result / clip, mm), the mesh soles on planted
+pop frames (result / clip), slide p95 over the clip's plants (result / clip, mm; and the result's at the clip's
+size: divided by the legs' ratio), the mesh soles on planted
 frames (p95 of |height|, lowest, mm), limb directions against the clip (median degrees) and the exit code,
 measured from Blender's evaluation of the written file (tests/helpers/wild_clips.py says how).
 
@@ -62,6 +63,7 @@ def line(rig, clip, take, r):
         return f"{rig:22s} {clip + (':' + take if take else ''):38s} ERROR {r['error'][:150]}"
     return (f"{rig:22s} {clip + (':' + take if take else ''):38s} pops {r['pop_frames']:3d}/{r['source_pop_frames']:<3d} "
             f"slide {fmt(r['slide_p95_mm']):>6s}/{fmt(r['source_slide_p95_mm']):<6s} "
+            f"(at its size {fmt(r['slide_p95_at_source_size_mm']):>6s}) "
             f"soles {fmt(r['sole_planted_p95_mm']):>6s}/{fmt(r['sole_planted_min_mm']):<6s} "
             f"limbs {fmt(r['limb_direction_median_deg'], '.2f'):>5s} exit {r['exit_code']} "
             f"planted {r['planted_frames']}/{2 * r['frames']}")

@@ -3,8 +3,10 @@ through the command-line function and measured from Blender's evaluation of the 
 itself on the same frames (tests/helpers/rig_measures.py holds the definitions):
 
   pops            pop frames of the result's and of the clip's hips, upper arms, forearms, thighs and shins;
-  slide           p95 over the clip's plants (ankle or ball < 0.2 m/s within 6 cm of the clip's floor for
-                  >= 0.1 s) of the result's planted joint's horizontal slide, and of the clip's own (mm);
+  slide           p95 over the clip's plants (ankle or ball < 0.2 m/s within 6 cm of the clip's floor, its lowest
+                  ankle or ball of both feet, for >= 0.1 s) of the result's planted joint's horizontal slide, and
+                  of the clip's own (mm); and the result's divided by the legs' ratio (result / clip, hip to knee
+                  to ankle on the first frame), to compare with the clip's at its size;
   soles           the result's mesh soles (its skinned foot vertices' lowest point) on the planted frames: p95 of
                   |height| and the lowest (mm, the floor at 0);
   limbs           median angle of the limb segments against the clip's, each in its body's frame (degrees);
@@ -106,6 +108,12 @@ def wild_case(saved, folder, cli, clip, take=None):
     return out
 
 
+def leg(track):
+    """Hip joint to knee to ankle on the first frame, the mean of both legs (world units)."""
+    return float(np.mean([np.linalg.norm(track[f"knee.{s}"][0] - track[f"hip.{s}"][0])
+                          + np.linalg.norm(track[f"ankle.{s}"][0] - track[f"knee.{s}"][0]) for s in "LR"]))
+
+
 def measure(rig, target, source, source_joints, frames, source_mpu):
     """The figures of the module's docstring, sampling both armatures (and the rig's meshes) over ``frames``."""
     roles = [r for r, b in rig.joints.items() if b]
@@ -117,8 +125,10 @@ def measure(rig, target, source, source_joints, frames, source_mpu):
     source_track = {r: source_heads[:, i] for i, r in enumerate(source_roles)}
     mpu = rig.metres_per_unit
     planted_soles, slide, source_slide, planted_frames = [], [], [], 0
-    for side in ("L", "R"):
-        planted, which = rm.plants(source_track[f"ankle.{side}"], source_track.get(f"ball.{side}"), FPS, source_mpu)
+    floor = min(float(source_track[r][:, 2].min()) for r in source_track if r.split(".")[0] in ("ankle", "ball"))
+    for side in ("L", "R"):  # the clip's floor: the lowest ankle or ball of both feet (one may never come down)
+        planted, which = rm.plants(source_track[f"ankle.{side}"], source_track.get(f"ball.{side}"), FPS, source_mpu,
+                                   floor)
         planted_frames += int(planted.sum())
         foot_bones = {rig.joints[f"ankle.{side}"], rig.joints.get(f"ball.{side}")} - {None}
         masks = rm.foot_vertex_masks(rig.meshes, foot_bones)
@@ -136,6 +146,7 @@ def measure(rig, target, source, source_joints, frames, source_mpu):
     limbs = [i for i, r in enumerate(roles) if r.split(".")[0] in rm.POP_ROLES and r in source_roles]
     source_limbs = [source_roles.index(roles[i]) for i in limbs]
     rots, source_rots = rots[:, limbs], source_rots[:, source_limbs]
+    ratio = leg(track) * mpu / (leg(source_track) * source_mpu)
     mm = 1e3
 
     def p95(values):
@@ -145,7 +156,8 @@ def measure(rig, target, source, source_joints, frames, source_mpu):
         "frames": len(frames), "planted_frames": planted_frames,
         "pop_frames": len(rm.pop_frames(rots)), "source_pop_frames": len(rm.pop_frames(source_rots)),
         "largest_step_deg": rm.largest_step(rots), "source_largest_step_deg": rm.largest_step(source_rots),
-        "slide_p95_mm": p95(slide), "source_slide_p95_mm": p95(source_slide),
+        "slide_p95_mm": p95(slide), "source_slide_p95_mm": p95(source_slide), "leg_ratio": ratio,
+        "slide_p95_at_source_size_mm": p95(slide / ratio),
         "sole_planted_p95_mm": p95(np.abs(soles)), "sole_planted_min_mm": float(soles.min()) * mm if soles.size else None,
         "limb_direction_median_deg": float(np.median(angles)) if angles.size else None,
     }
