@@ -61,7 +61,8 @@ def fmt(value, spec=".1f"):
 def line(rig, clip, take, r):
     if "error" in r:
         return f"{rig:22s} {clip + (':' + take if take else ''):38s} ERROR {r['error'][:150]}"
-    return (f"{rig:22s} {clip + (':' + take if take else ''):38s} pops {r['pop_frames']:3d}/{r['source_pop_frames']:<3d} "
+    name = clip + (':' + take if take else '')
+    return (f"{rig:22s} {name:38s} pops {r['pop_frames']:3d}/{r['source_pop_frames']:<3d} "
             f"slide {fmt(r['slide_p95_mm']):>6s}/{fmt(r['source_slide_p95_mm']):<6s} "
             f"(at its size {fmt(r['slide_p95_at_source_size_mm']):>6s}) "
             f"soles {fmt(r['sole_planted_p95_mm']):>6s}/{fmt(r['sole_planted_min_mm']):<6s} "

@@ -158,6 +158,7 @@ def measure(rig, target, source, source_joints, frames, source_mpu):
         "largest_step_deg": rm.largest_step(rots), "source_largest_step_deg": rm.largest_step(source_rots),
         "slide_p95_mm": p95(slide), "source_slide_p95_mm": p95(source_slide), "leg_ratio": ratio,
         "slide_p95_at_source_size_mm": p95(slide / ratio),
-        "sole_planted_p95_mm": p95(np.abs(soles)), "sole_planted_min_mm": float(soles.min()) * mm if soles.size else None,
+        "sole_planted_p95_mm": p95(np.abs(soles)),
+        "sole_planted_min_mm": float(soles.min()) * mm if soles.size else None,
         "limb_direction_median_deg": float(np.median(angles)) if angles.size else None,
     }

@@ -88,8 +88,8 @@ class RetargetPlan:
     contacts (F,4) bool: frames held at a contact; contact_list {effector: [Contact]} the source's contacts, a
     foot's surface the height it is held at (contact_intervals the same as (start, stop) pairs); leg_ratio
     target/source; ground: world z of the floor (the source's soles, Rig.soles), None when the floor is not a
-    contact; boxes: the contact objects' world boxes (mins, maxs) or None; refit_feet(pose) the world targets with the feet held as shaped in
-    another pose (the solved one); carried: target bones outside the bone map that take the source's motion
+    contact; boxes: the contact objects' world boxes (mins, maxs) or None; refit_feet(pose) the world targets
+    with the feet held as shaped in another pose (the solved one); carried: target bones outside the bone map that take the source's motion
     (fingers both rigs have: fingers), their start pose to be kept relative to their parents."""
 
     start_pose: np.ndarray
