@@ -224,11 +224,13 @@ def sample(frames, tracks, meshes=()):
     return [np.array(h) for h in heads], [np.array(r) for r in rots], verts
 
 
-def plants(ankle, ball, fps, metres_per_unit):
+def plants(ankle, ball, fps, metres_per_unit, floor=None):
     """(F,) bool planted mask and (F,) planted joint ('ball' preferred, 'ankle') of one source foot from its world
-    ankle and ball tracks (F,3) (ball may be None); the floor is the lowest ankle or ball height of the clip."""
+    ankle and ball tracks (F,3) (ball may be None); the floor is ``floor`` (world z), by default the lowest ankle
+    or ball height of this foot in the clip (pass the lowest of both feet where one foot may never come down)."""
     joints = {"ankle": ankle} if ball is None else {"ball": ball, "ankle": ankle}
-    floor = min(float(p[:, 2].min()) for p in joints.values())
+    if floor is None:
+        floor = min(float(p[:, 2].min()) for p in joints.values())
     held = {}
     for name, p in joints.items():
         speed = np.zeros(len(p))

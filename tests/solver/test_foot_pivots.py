@@ -50,6 +50,25 @@ def test_without_pins_the_lowest_point_is_the_pivot():
         assert np.abs(step).max() < 1e-12
 
 
+def test_where_only_the_ankle_is_held_the_ankle_stays():
+    """A heel stand or swivel: the source holds its ankle still but not its ball; the target's ankle keeps its
+    place there (the lowest point of the sole would drag it), while the ball, where held, still wins."""
+    ankle, sole, ball = _rolling_foot()
+    pinned = np.zeros(len(ankle), dtype=bool)
+    pinned[20:] = True
+    ankle_pinned = np.zeros(len(ankle), dtype=bool)
+    ankle_pinned[:12] = ankle_pinned[22:] = True
+    travel = fp.roll(ankle, sole, ball, pinned, 1e-12, ankle_pinned)
+    assert np.abs(travel[:12]).max() < 1e-15  # the ankle's own travel from its first frame: none
+    moved = travel - (ankle[:, :2] - ankle[0, :2])
+    ball_path = ball[:, :2] + moved
+    assert np.abs(ball_path[20:] - ball_path[20]).max() < 1e-12  # both held: the ball
+    unpinned = fp.roll(ankle, sole, ball, pinned, 1e-12)
+    assert np.abs(unpinned[:12]).max() > 1e-3  # the lowest point alone would have moved it
+    np.testing.assert_array_equal(fp.roll(ankle, sole, ball, pinned, 1e-12, np.zeros(len(ankle), dtype=bool)),
+                                  unpinned)
+
+
 def test_held_still_is_slow_and_low():
     fps = 24.0
     z = np.concatenate([np.full(10, 0.02), 0.02 + 0.01 * np.arange(1, 11)])  # still, then rising 0.24 m/s

@@ -695,6 +695,28 @@ def test_a_foot_still_above_the_floor_stands_on_something_raised():
     assert grounded and all(c.stop <= len(frames) // 2 + 1 for c in grounded)
 
 
+def test_a_raised_support_out_of_a_small_targets_scale_is_scaled_with_the_motion():
+    """The same step up 0.3 onto a target a third the size: held at the source's world height, its feet would
+    stand on a step as high as its own legs are long (the body lifted, the legs stretched), so the support,
+    inferred from the source alone, is scaled with the motion about the floor, as far above it as the target's
+    own feet go there; the contact says that height and the planned soles rest on it."""
+    source = cmu_rig(WALK)
+    frames = np.arange(1, 317)
+    pose = source_pose(WALK, source, frames)
+    pose[len(frames) // 2:, :, 2, 3] += 0.3 / np.linalg.norm(source.matrix_world[:3, 0])
+    target = cmu_rig(WALK, scale=0.3)
+    plan = rt.plan_retarget(source, pose, target, np.tile(np.eye(4), (len(target), 1, 1)), rt.RetargetSettings(fps=FPS))
+    floor = rt.source_floor(source, pose)
+    raised = [c for e in ("foot.L", "foot.R") for c in plan.contact_list[e] if c.kind == rt.RAISED]
+    assert len(raised) >= 2
+    for c in raised:
+        own = rt.effector_points(source, pose, c.effector)[c.start:c.stop, :, 2].min(axis=1).mean()
+        assert c.surface == pytest.approx(floor + plan.leg_ratio * (own - floor), abs=1e-12)
+        assert c.surface < floor + 0.5 * (own - floor)  # not the source's world height
+        points = planned_foot_points(target, plan, c.effector)[c.start:c.stop]
+        np.testing.assert_allclose(points[..., 2].min(axis=1), c.surface, atol=1e-12)
+
+
 def test_a_turned_target_keeps_its_own_heading():
     """The target object turned 90° about Z: its motion is the source's turned the same way (the hips'
     path relative to its start, turned), not the source's world direction."""

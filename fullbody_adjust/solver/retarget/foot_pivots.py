@@ -3,8 +3,10 @@
 A viewer sees a plant held when the joint the foot stands on does not slide: the ball of the foot while the heel
 lifts (the foot turns about the joint at the root of the toes, the toes flat on the ground), the ankle on a foot
 without toes. So on the frames where the SOURCE holds that joint still near the floor, the target's own joint is
-the pivot (it keeps its place on the floor, whatever its sole does); elsewhere in a contact the foot rolls about
-the lowest point of its sole (heel strike, toes pushing off: the point on the ground)."""
+the pivot (it keeps its place on the floor, whatever its sole does); where the source holds its ankle still but
+not its ball (standing on the heel, the toes turning or raised: a dancer's swivel), the target's ankle stays;
+elsewhere in a contact the foot rolls about the lowest point of its sole (heel strike, toes pushing off: the point
+on the ground)."""
 
 from __future__ import annotations
 
@@ -49,12 +51,12 @@ def held_still(points, fps, speed, height):
     return (moving < speed) & low
 
 
-def roll(ankle, sole, pivot, pinned, tolerance):
+def roll(ankle, sole, pivot, pinned, tolerance, ankle_pinned=None):
     """(n,2) horizontal travel of a planted foot's ankle from its first frame, that keeps its pivot in place:
     ``ankle`` (n,3), ``sole`` (n,P,3) the foot as posed on each frame; from each frame to the next the foot
     turns about ``pivot`` (n,3: the joint it stands on) where ``pinned`` (n,) holds on both frames, else about
-    the lowest point of its sole (points within ``tolerance`` of the lowest by their mean: a flat heel's two ends
-    turn it about neither)."""
+    its ankle where ``ankle_pinned`` (n,) holds on both (the ankle stays), else about the lowest point of its sole
+    (points within ``tolerance`` of the lowest by their mean: a flat heel's two ends turn it about neither)."""
     n = len(ankle)
     if n < 2:
         return np.zeros((n, 2))
@@ -64,6 +66,8 @@ def roll(ankle, sole, pivot, pinned, tolerance):
     weight /= weight.sum(axis=1, keepdims=True)
     step = np.einsum("fp,fpi->fi", weight, rel[1:] - rel[:-1])
     about = ankle[:, :2] - pivot[:, :2]
+    if ankle_pinned is not None:
+        step[np.asarray(ankle_pinned[:-1], dtype=bool) & np.asarray(ankle_pinned[1:], dtype=bool)] = 0.0
     both = np.asarray(pinned[:-1], dtype=bool) & np.asarray(pinned[1:], dtype=bool)
     step[both] = (about[1:] - about[:-1])[both]
     return np.concatenate([np.zeros((1, 2)), np.cumsum(step, axis=0)])

@@ -8,7 +8,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..fullbody.adjust import sub_base_point
-from .contacts import GROUND, RetargetSettings, detect_contacts, hold
+from .contacts import GROUND, RAISED, RetargetSettings, detect_contacts, hold, intervals
 from ..errors import SolverInputError
 from .foot_pivots import held_still, pivot_bone, roll
 from ..maths.geometry import all_set, norm
@@ -24,6 +24,9 @@ from .transfer import carried_bones, transfer_pose, translate_body
 _UNSEEN_FOOT = 0.15
 # A foot planted on more than this fraction of the frames stands on the floor by its holds.
 _HELD_STANCE = 0.1
+# Something raised (inferred from the source alone) whose world height lies more than this (target leg lengths)
+# from its height scaled with the motion is out of the target's scale: it is scaled (_at_world_height).
+_OUT_OF_SCALE = 0.5
 
 
 def moving_average(values, half_width):
@@ -82,11 +85,11 @@ class RetargetPlan:
     start_pose (F,Jt,4,4): the transferred pose (target armature space); heads/tails (F,Jt,3) of it in
     armature space (tails: the joint ends, joint_ends.end_points, never the importer's tails); targets (F,4,3) for
     EFFECTORS in armature space, world_targets the same in world space;
-    contacts (F,4) bool: frames held at a contact; contact_list {effector: [Contact]} the source's contacts
-    (contact_intervals the same as (start, stop) pairs); leg_ratio target/source; ground: world z of the floor
-    (the source's soles, Rig.soles), None when the floor is not a contact; boxes: the contact objects'
-    world boxes (mins, maxs) or None; refit_feet(pose) the world targets with the feet held as shaped in
-    another pose (the solved one); carried: target bones outside the bone map that take the source's motion
+    contacts (F,4) bool: frames held at a contact; contact_list {effector: [Contact]} the source's contacts, a
+    foot's surface the height it is held at (contact_intervals the same as (start, stop) pairs); leg_ratio
+    target/source; ground: world z of the floor (the source's soles, Rig.soles), None when the floor is not a
+    contact; boxes: the contact objects' world boxes (mins, maxs) or None; refit_feet(pose) the world targets
+    with the feet held as shaped in another pose (the solved one); carried: target bones outside the bone map that take the source's motion
     (fingers both rigs have: fingers), their start pose to be kept relative to their parents."""
 
     start_pose: np.ndarray
@@ -160,7 +163,9 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     contacts = np.zeros((frames, len(EFFECTORS)), dtype=bool)
     found = {}
     for k, e in enumerate(EFFECTORS):
-        found[e] = detect_contacts(e, s_points[e], floor if ground else None, boxes, leg_s, settings)
+        found[e] = [c if not np.isfinite(c.surface) or _at_world_height(c, settings, floor, ratio, leg_t) else
+                    replace(c, surface=floor + ratio * (c.surface - floor))  # the height its foot is held at
+                    for c in detect_contacts(e, s_points[e], floor if ground else None, boxes, leg_s, settings)]
         for c in found[e]:
             contacts[c.start:c.stop, k] = True
     step = settings.blend_speed * leg_t / settings.fps
@@ -169,6 +174,9 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     pivots = {e: pivot_bone(source, target, e) for e in FEET}
     pinned = {e: held_still(s_heads[:, pivots[e][0]], settings.fps, rule.plant_speed * leg_s,
                             rule.plant_height * leg_s) for e in FEET}
+    ankles_pinned = {e: _ankle_alone(held_still(s_heads[:, source.groups[e][0]], settings.fps,
+                                                rule.plant_speed * leg_s, rule.plant_height * leg_s) & ~pinned[e],
+                                     settings.frames(rule.raised_min_duration)) for e in FEET}
 
     # Free of contacts, each wrist and ankle goes where the transferred pose puts it (its limb keeps the
     # source's angles); the holds are blended into that.
@@ -195,9 +203,8 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
                 if e in FEET:
                     foot = effector_points(target, feet[a:b], e)
                     pivot = target.to_world(feet[a:b, pivots[e][1], :3, 3])
-                    path = _foot_path(c, paths[a:b, k], foot, soles[a:b, FEET.index(e)],
-                                      settings.exact or c.kind == GROUND, anchor_t[2], ratio, pivot,
-                                      pinned[e][a:b])
+                    path = _foot_path(c, paths[a:b, k], foot, soles[a:b, FEET.index(e)], pivot, pinned[e][a:b],
+                                      ankles_pinned[e][a:b])
                 else:  # a hand on an object: still, where the source's is (or its scaled place)
                     path = (s_points[e][a:b, 0] if settings.exact else scaled(s_points[e][a:b, 0])).mean(axis=0)
                 holds.append((a, b, path, _blend_frames(path, paths[:, k], a, b, blend, step)))
@@ -263,20 +270,50 @@ def source_floor(source, pose):
     return lowest
 
 
-def _foot_path(contact, free, target_points, soles, on_surface, floor, ratio, pivot, pinned):
+def _ankle_alone(held, shortest):
+    """(F,) bool: the frames of ``held`` (the source's ankle still near the floor, its ball not) in runs of at
+    least ``shortest`` frames: standing on the heel, the toes raised or swivelling (a dancer's heel stand), where
+    the target's ankle stays (foot_pivots.roll). A frame or two between the heel strike and the ball coming
+    down is a foot rolling about its heel, not one standing on it."""
+    out = np.zeros(len(held), dtype=bool)
+    for a, b in intervals(held, shortest):
+        out[a:b] = True
+    return out
+
+
+def _at_world_height(contact, settings, floor, ratio, leg):
+    """Whether a foot's contact rests at its surface's world height (else at that height scaled about the floor
+    by the legs' ``ratio``): the floor always; a contact object's box and something raised with ``exact``. But
+    something raised is only inferred from the source (a foot still above the floor, no object given): where its
+    world height and its scaled height lie more than _OUT_OF_SCALE of a leg apart (``leg``: the target's leg
+    length), it belongs to the source's scale, not to the target's world (a bar the source climbs onto at 1.4 m,
+    out of reach of a character half its size, whose legs would stretch and flip to stand there), and it is
+    scaled with the rest of the motion. A rung a step higher or lower for a target 1.2 times the source's size
+    stays where it is."""
+    if contact.kind == GROUND:
+        return True
+    if not settings.exact:
+        return False
+    if contact.kind != RAISED:
+        return True
+    scaled = floor + ratio * (contact.surface - floor)
+    return abs(scaled - contact.surface) <= _OUT_OF_SCALE * leg
+
+
+def _foot_path(contact, free, target_points, soles, pivot, pinned, ankle_pinned=None):
     """The ankle's path (n,3) over a foot contact: the target's own foot (points (n,P,3), ankle first, then its
     sole, as transferred) rolls and turns as transferred, from each frame to the next about the joint it stands
     on (``pivot`` (n,3), the target's ball or ankle, on the frames ``pinned`` (n,) where the source holds that
-    joint still) or else about whichever point of its sole is lowest (heel, ball, toes: the one on the ground):
+    joint still), else about its ankle on the frames ``ankle_pinned`` (n,) where the source holds its ankle still,
+    or else about whichever point of its sole is lowest (heel, ball, toes: the one on the ground):
     foot_pivots.roll. The point it turns about does not slide; the path is centred on ``free`` (n,3), the
-    ankle's free trajectory. The lowest point of the sole on the surface (its world height with ``on_surface``,
-    else its height scaled about the floor)."""
+    ankle's free trajectory. The lowest point of the sole on the contact's surface (plan_retarget has set it to
+    the height the foot is held at: _at_world_height)."""
     size = float(np.ptp(target_points[0], axis=0).max()) if len(target_points) else 0.0
-    travel = roll(target_points[:, 0], target_points[:, 1:], pivot, pinned, 1e-9 * max(size, 1e-300))
+    travel = roll(target_points[:, 0], target_points[:, 1:], pivot, pinned, 1e-9 * max(size, 1e-300), ankle_pinned)
     path = np.empty_like(free)
     path[:, :2] = travel + (free[:, :2] - travel).mean(axis=0)
-    surface = contact.surface if on_surface else floor + ratio * (contact.surface - floor)
-    path[:, 2] = surface + soles
+    path[:, 2] = contact.surface + soles
     return path
 
 

@@ -1,0 +1,105 @@
+"""Clips the retargeting was not tuned on, retargeted onto the corpus rigs (issue 27 item 6): per clip and rig,
+pop frames (result / clip), slide p95 over the clip's plants (result / clip, mm; and the result's at the clip's
+size: divided by the legs' ratio), the mesh soles on planted
+frames (p95 of |height|, lowest, mm), limb directions against the clip (median degrees) and the exit code,
+measured from Blender's evaluation of the written file (tests/helpers/wild_clips.py says how).
+
+Run: .ci/with-bpy python bench/wild_clips.py [--rigs NAME,NAME] [--clips NAME,NAME[:TAKE]]
+     (a table on stderr, one JSON object on stdout). Clips: tests/helpers/wild_clips.CLIPS; kaykit_advanced
+     without a take runs every take.
+"""
+
+import argparse
+import json
+import shutil
+import sys
+import tempfile
+import time
+import traceback
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+import bpy  # noqa: E402
+
+import fullbody_adjust  # noqa: E402
+from bench.command_line import stdout_to_stderr  # noqa: E402
+from fullbody_adjust import cli  # noqa: E402
+from fullbody_adjust.bpy_exit import leave  # noqa: E402
+from tests.helpers.rig_scenarios import Saved  # noqa: E402
+from tests.helpers.wild_clips import CLIPS, KAYKIT_ADVANCED_TAKES, wild_case  # noqa: E402
+
+RIGS = ("kenney", "quaternius_mannequin_f", "kaykit_manny", "godot_plush", "godot_robot", "gdquest_mannequiny",
+        "matt_feet_parented")
+
+
+def parse():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rigs", help="comma-separated rig names (default: the corpus rigs that map)")
+    parser.add_argument("--clips", help="comma-separated clip names, CLIP:TAKE for one take (default: all)")
+    return parser.parse_args()
+
+
+def clip_list(text):
+    out = []
+    for item in (text.split(",") if text else list(CLIPS)):
+        name, _, take = item.partition(":")
+        if take:
+            out.append((name, take))
+        elif name == "kaykit_advanced":
+            out.extend((name, t) for t in KAYKIT_ADVANCED_TAKES)
+        else:
+            out.append((name, None))
+    return out
+
+
+def fmt(value, spec=".1f"):
+    return "-" if value is None else format(value, spec)
+
+
+def line(rig, clip, take, r):
+    if "error" in r:
+        return f"{rig:22s} {clip + (':' + take if take else ''):38s} ERROR {r['error'][:150]}"
+    name = clip + (':' + take if take else '')
+    return (f"{rig:22s} {name:38s} pops {r['pop_frames']:3d}/{r['source_pop_frames']:<3d} "
+            f"slide {fmt(r['slide_p95_mm']):>6s}/{fmt(r['source_slide_p95_mm']):<6s} "
+            f"(at its size {fmt(r['slide_p95_at_source_size_mm']):>6s}) "
+            f"soles {fmt(r['sole_planted_p95_mm']):>6s}/{fmt(r['sole_planted_min_mm']):<6s} "
+            f"limbs {fmt(r['limb_direction_median_deg'], '.2f'):>5s} exit {r['exit_code']} "
+            f"planted {r['planted_frames']}/{2 * r['frames']}")
+
+
+def main():
+    args = parse()
+    rigs = args.rigs.split(",") if args.rigs else list(RIGS)
+    clips = clip_list(args.clips)
+    folder = Path(tempfile.mkdtemp(prefix="fba_wild_clips_"))
+    report = {"bpy": bpy.app.version_string, "rows": []}
+    started = time.perf_counter()
+    try:
+        with stdout_to_stderr():
+            for rig in rigs:
+                bpy.ops.wm.read_homefile(use_empty=True)
+                if not hasattr(bpy.types.Object, "fullbody_adjust"):
+                    fullbody_adjust.register()
+                saved = Saved(rig, folder)
+                for clip, take in clips:
+                    t = time.perf_counter()
+                    try:
+                        r = wild_case(saved, folder, cli, clip, take)
+                    except Exception as ex:  # noqa: BLE001 - a case that fails is a row with its error
+                        traceback.print_exc()
+                        r = {"error": f"{type(ex).__name__}: {' '.join(str(ex).split())}"[:400]}
+                    r.update(rig=rig, clip=clip, take=take, seconds=round(time.perf_counter() - t, 1))
+                    report["rows"].append(r)
+                    print("ROW " + line(rig, clip, take, r), file=sys.stderr, flush=True)
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+    report["seconds"] = time.perf_counter() - started
+    print(json.dumps(report, indent=1, default=float))
+
+
+if __name__ == "__main__":
+    main()
+    leave(0)
