@@ -40,7 +40,8 @@ if not HAS_BPY:
 # in the view layer update of its switch to Edit Mode) after a few hundred other tests had run in it, at a place
 # that moved as tests were added or reordered; each module alone runs clean. There they are skipped in the suite's
 # own process and run together in a fresh one by test_gltf_in_a_fresh_process.py.
-GLTF_MODULES = ("test_mapping_import.py", "test_real_rigs.py", "test_retarget_soles.py", "test_root_motion.py")
+GLTF_MODULES = ("test_mapping_import.py", "test_real_rigs.py", "test_retarget_soles.py", "test_root_motion.py",
+                "test_wild_clips.py")
 FRESH_PROCESS = "FBA_GLTF_FRESH_PROCESS"
 
 
