@@ -11,7 +11,7 @@ from ..maths import vectors as vec
 from ..body.model import CHAIN, ROOT
 from ..chain.fabrik import solve_chain_batch
 from ..chain.settings import ChainBatchResult, _final_status
-from ..maths.geometry import any_set, apply_matrix, norm, stack_rows
+from ..maths.geometry import all_set, any_set, apply_matrix, norm, stack_rows
 from ..obstacles.easing import ClearanceEasing
 from .limb_rotations import _EYE, LimbSolve, end_rotation, set_segment_rotations
 from ..limits.joint_limits import HINGE, JointLimits, carry_axis
@@ -138,23 +138,20 @@ class LimbPlacement:
                 if role == ROOT:
                     heads[:, j] = H0[:, j] + delta  # x + 0.0 == x: an unmoved root stays bit-exact
                     moved[:, j] = (delta != 0.0).any(axis=1)
-                elif role == CHAIN:
-                    ls = solves[name]
-                    s = ls.solved
-                    if any_set(s):
+                    continue
+                ls = solves[name]
+                s = ls.placed_frames()
+                if s is not None:
+                    if role == CHAIN:
                         heads[s, j] = ls.joints[s, k]
                         rot[s, j] = ls.segment_rotations(self.p.chain0[name], self.p.limits.get(name))[s, k]
-                        moved[s, j] = True
-                else:
-                    ls = solves[name]
-                    s = ls.solved
-                    if any_set(s):
-                        # Hands, feet and the head keep their world orientation on a solved limb.
+                    else:  # hands, feet and the head keep their world orientation on a solved limb
                         heads[s, j] = ls.joints[s, -1]
                         rot[s, j] = _EYE
-                        moved[s, j] = True
-                    if name in self.p.end_turns:  # ... or turn toward a wanted orientation
-                        w = np.nonzero(np.isfinite(self.p.end_turns[name][:, 0, 0]))[0]
+                    moved[s, j] = True
+                if role != CHAIN and name in self.p.end_turns:  # ... or turn toward a wanted orientation
+                    w = np.nonzero(np.isfinite(self.p.end_turns[name][:, 0, 0]))[0]
+                    if w.size:
                         rot[w, j] = end_rotation(self.p.end_turns[name][w], rot[w, p], T0[w, j] - H0[w, j])
                         moved[w, j] = True
         _carry(heads, rot, moved, H0, *self.p.prepared.leaves)  # fingers, face...: on their nearest placed ancestor
@@ -290,6 +287,6 @@ def _carry(heads, rot, moved, H0, bones, carriers):
         mc = moved[:, carriers]
         if any_set(mc):
             h = heads[:, carriers] + apply_matrix(rot[:, carriers], H0[:, bones] - H0[:, carriers])
-            heads[:, bones] = np.where(mc[..., None], h, H0[:, bones])
+            heads[:, bones] = h if all_set(mc) else np.where(mc[..., None], h, H0[:, bones])
             rot[:, bones] = rot[:, carriers]
             moved[:, bones] = mc

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..maths import lanes
 from ..maths import vectors as vec
-from ..maths.geometry import any_perpendicular, any_set, apply_matrix, norm, stack_rows, swing_rotation
+from ..maths.geometry import all_set, any_perpendicular, any_set, apply_matrix, norm, stack_rows, swing_rotation
 from ..limits.joint_limits import HINGE, hinge_twist
 
 _EYE = np.eye(3)
@@ -29,6 +29,12 @@ class LimbSolve:
     status: np.ndarray  # (F,) str ('' where not solved)
     reason: np.ndarray  # (F,) str
     rotations: np.ndarray = field(default=None)  # (F,n-1,3,3) each segment's world rotation delta
+
+    def placed_frames(self):
+        """The solved frames as an index of the frame axis: every frame (a slice), some (their indices) or None."""
+        if all_set(self.solved):
+            return slice(None)
+        return np.nonzero(self.solved)[0] if any_set(self.solved) else None
 
     def segment_rotations(self, start, limits):
         """World rotation deltas of the chain's segments from the start chain `start` (F,n,3) to the solved one,
