@@ -57,13 +57,8 @@ def set_segment_rotations(solves, starts, limits):
         ls.rotations[...] = _EYE
     if not any(f.size for f in frames):
         return
-    kind = axes = None
-    if limits[0] is not None:
-        kind = limits[0].limits.kind
-        if any_set(kind[1:] == HINGE):
-            axes = stack_rows([_frame_axes(ll.limits.hinge_axis, f) for ll, f in zip(limits, frames)])
-    rot = _segment_rotations(stack_rows([s[f] for s, f in zip(starts, frames)]),
-                             stack_rows([ls.joints[f] for ls, f in zip(solves, frames)]), kind, axes)
+    rot = _stacked_rotations([s[f] for s, f in zip(starts, frames)], [ls.joints[f] for ls, f in zip(solves, frames)],
+                             limits, frames)
     at = 0
     for ls, f in zip(solves, frames):
         ls.rotations[f] = rot[at:at + f.size]
@@ -73,12 +68,18 @@ def set_segment_rotations(solves, starts, limits):
 def chain_rotations(start, joints, limits, frames):
     """World rotation deltas (b,n-1,3,3) of chains `joints` (b,n,3) on frames `frames` (b,) from their start
     chains `start` (b,n,3), as set_segment_rotations writes them (`limits` the limb's LimbLimits or None)."""
+    return _stacked_rotations([start], [joints], [limits], [frames])
+
+
+def _stacked_rotations(starts, joints, limits, frames):
+    """_segment_rotations of limbs' chains `starts` -> `joints` (b_i,n,3) each, on their frames `frames` (b_i,) with
+    their LimbLimits (or None) `limits` (the same per-joint kinds), stacked in order."""
     kind = axes = None
-    if limits is not None:
-        kind = limits.limits.kind
+    if limits[0] is not None:
+        kind = limits[0].limits.kind
         if any_set(kind[1:] == HINGE):
-            axes = _frame_axes(limits.limits.hinge_axis, frames)
-    return _segment_rotations(start, joints, kind, axes)
+            axes = stack_rows([_frame_axes(ll.limits.hinge_axis, f) for ll, f in zip(limits, frames)])
+    return _segment_rotations(stack_rows(starts), stack_rows(joints), kind, axes)
 
 
 def _frame_axes(axes, frames):
