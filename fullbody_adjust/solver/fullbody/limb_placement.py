@@ -6,18 +6,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..maths import vectors as gp
+from ..maths import lanes
+from ..maths import vectors as vec
 from ..body.model import CHAIN, ROOT
 from ..chain.fabrik import solve_chain_batch
 from ..chain.settings import ChainBatchResult, _final_status
-from ..maths.geometry import any_set, apply_matrix, norm, stack_rows
+from ..maths.geometry import all_set, any_set, apply_matrix, norm, stack_rows
 from ..obstacles.easing import ClearanceEasing
 from .limb_rotations import _EYE, LimbSolve, end_rotation, set_segment_rotations
 from ..limits.joint_limits import HINGE, JointLimits, carry_axis
 from ..obstacles.boxes import grown_clear_of, points_inside, segments_cross
 from ..chain.two_bone_start import two_bone_start
-
-_EYE_ROWS = _EYE.tolist()
 
 
 class LimbPlacement:
@@ -115,13 +114,8 @@ class LimbPlacement:
     def _propagate(self, delta, trunk):
         """Top-down pass over the bones, one hierarchy level at a time: new heads, tails and world rotation
         deltas; limbs other than the trunk are solved when their first bone is reached (their base then rides
-        on its parent)."""
-        if self.p.F == 1:
-            return self._propagate_one_frame(delta, trunk)
-        return self._propagate_frames(delta, trunk)
-
-    def _propagate_frames(self, delta, trunk):
-        """_propagate on F frames at once, numpy on every level."""
+        on its parent). Each level's bones are placed together, on every frame at once (one frame as a batch of
+        one: a level holds a few bones, and numpy's cost per level is a small part of the limbs' solves)."""
         model, F, H0, T0 = self.p.model, self.p.F, self.p.H0, self.p.T0
         J = len(model.names)
         heads = H0.copy()
@@ -144,74 +138,25 @@ class LimbPlacement:
                 if role == ROOT:
                     heads[:, j] = H0[:, j] + delta  # x + 0.0 == x: an unmoved root stays bit-exact
                     moved[:, j] = (delta != 0.0).any(axis=1)
-                elif role == CHAIN:
-                    ls = solves[name]
-                    s = ls.solved
-                    if any_set(s):
+                    continue
+                ls = solves[name]
+                s = ls.placed_frames()
+                if s is not None:
+                    if role == CHAIN:
                         heads[s, j] = ls.joints[s, k]
                         rot[s, j] = ls.segment_rotations(self.p.chain0[name], self.p.limits.get(name))[s, k]
-                        moved[s, j] = True
-                else:
-                    ls = solves[name]
-                    s = ls.solved
-                    if any_set(s):
-                        # Hands, feet and the head keep their world orientation on a solved limb.
+                    else:  # hands, feet and the head keep their world orientation on a solved limb
                         heads[s, j] = ls.joints[s, -1]
                         rot[s, j] = _EYE
-                        moved[s, j] = True
-                    if name in self.p.end_turns:  # ... or turn toward a wanted orientation
-                        w = np.nonzero(np.isfinite(self.p.end_turns[name][:, 0, 0]))[0]
+                    moved[s, j] = True
+                if role != CHAIN and name in self.p.end_turns:  # ... or turn toward a wanted orientation
+                    w = np.nonzero(np.isfinite(self.p.end_turns[name][:, 0, 0]))[0]
+                    if w.size:
                         rot[w, j] = end_rotation(self.p.end_turns[name][w], rot[w, p], T0[w, j] - H0[w, j])
                         moved[w, j] = True
         _carry(heads, rot, moved, H0, *self.p.prepared.leaves)  # fingers, face...: on their nearest placed ancestor
         tails = np.where(moved[..., None], heads + apply_matrix(rot, T0 - H0), T0) if any_set(moved) else T0.copy()
         return heads, tails, rot, solves
-
-    def _propagate_one_frame(self, delta, trunk):
-        """_propagate on one frame with its levels' per-bone steps in plain floats (the same operations:
-        vectors.apply_matrix adds as geometry.apply_matrix does); the limbs' solves, the leaves (fingers, face: many bones
-        at once) and the tails in numpy as there."""
-        model, H0, T0 = self.p.model, self.p.H0, self.p.T0
-        J = len(model.names)
-        h0 = H0[0].tolist()
-        heads = list(h0)
-        rot = [None] * J  # None: the identity the bone starts with
-        moved = [False] * J
-        solves = {"trunk": trunk}
-        shift = delta[0].tolist()
-        for rigid, par, limb_bones in self.p.prepared.levels:
-            _carry_one(heads, rot, moved, h0, rigid.tolist(), par.tolist())
-            starts = {name: (np.array([heads[j]]), None if p < 0 else np.array([_EYE if rot[p] is None else rot[p]]),
-                             np.array([p >= 0 and moved[p]]))
-                      for j, p, role, name, k in limb_bones if role == CHAIN and k == 0 and name not in solves}
-            if starts:
-                solves.update(self._solve_limbs(starts))
-            for j, p, role, name, k in limb_bones:
-                if role == ROOT:
-                    heads[j] = [h0[j][0] + shift[0], h0[j][1] + shift[1], h0[j][2] + shift[2]]
-                    moved[j] = shift != [0.0, 0.0, 0.0]
-                    continue
-                ls = solves[name]
-                if ls.solved[0]:
-                    heads[j] = ls.joints[0, k if role == CHAIN else -1].tolist()
-                    rot[j] = (ls.segment_rotations(self.p.chain0[name], self.p.limits.get(name))[0, k].tolist()
-                              if role == CHAIN else _EYE_ROWS)
-                    moved[j] = True
-                if role != CHAIN and name in self.p.end_turns and np.isfinite(self.p.end_turns[name][0, 0, 0]):
-                    carried = np.array([_EYE if rot[p] is None else rot[p]])
-                    rot[j] = end_rotation(self.p.end_turns[name], carried, T0[:, j] - H0[:, j])[0].tolist()
-                    moved[j] = True
-        heads = np.array([heads], dtype=np.float64)
-        rotations = np.empty((1, J, 3, 3))
-        rotations[...] = _EYE
-        turned = [j for j in range(J) if rot[j] is not None]
-        if turned:
-            rotations[0, turned] = np.array([rot[j] for j in turned], dtype=np.float64)
-        moved = np.array([moved])
-        _carry(heads, rotations, moved, H0, *self.p.prepared.leaves)  # many at once: numpy's turn
-        tails = np.where(moved[..., None], heads + apply_matrix(rotations, T0 - H0), T0) if any_set(moved) \
-            else T0.copy()
-        return heads, tails, rotations, solves
 
     def _solve_limbs(self, starts):
         """{limb: LimbSolve} for the limbs {name: (base, parent_rot, parent_moved)} (_start_limb); the chain
@@ -281,12 +226,8 @@ class LimbPlacement:
             return keep
         c0, target = self.p.chain0[name][rows], self.p.limb_target[name][rows]
         tol = self.p.settings.chain.tolerance  # a straight limb on its target reaches it, however its lengths round
-        if len(rows) == 1:  # one frame: the same two distances in plain floats
-            r, joints, goal = int(rows[0]), c0[0].tolist(), target[0].tolist()
-            keep[0] = (gp.norm(gp.sub(joints[-1], goal)) <= tol
-                       and not gp.norm(gp.sub(goal, joints[0])) > self.p.reach[name][r] + tol)
-        else:
-            keep &= (norm(c0[:, -1] - target) <= tol) & ~(norm(target - c0[:, 0]) > self.p.reach[name][rows] + tol)
+        keep &= lanes.run(_meets_within_reach, (c0[:, -1], c0[:, 0], target), tol,
+                          values=(self.p.reach[name][rows],)) == 1.0
         if any_set(keep) and self.p.obstacles is not None:
             # Clear of every box, the chain solve finds nothing to respond to and nothing to note.
             boxes = self._limb_boxes([(name, rows, c0[:, 0], target)])
@@ -313,6 +254,13 @@ class ChainTask:
     still: np.ndarray = None
 
 
+def _meets_within_reach(end, base, goal, reach, tol):
+    """1.0 where a limb from `base` to `end` meets `goal` within `tol` and the goal lies within `reach` (+ tol) of
+    the base, else 0.0 (on components: maths/lanes.py)."""
+    met = (vec.norm(vec.sub(end, goal)) <= tol) & lanes.not_(vec.norm(vec.sub(goal, base)) > reach + tol)
+    return lanes.where(met, 1.0, 0.0)
+
+
 def _group_limbs(tasks, key):
     """`tasks` in groups solved by one stacked chain solve each: those with equal key(task), in order."""
     groups = {}
@@ -332,19 +280,6 @@ def _split(res, sizes):
     return out
 
 
-def _carry_one(heads, rot, moved, h0, bones, carriers):
-    """_carry on one frame in plain floats: heads, rot (None: identity) and moved are lists over the bones, h0
-    the start heads; the same operations as _carry's."""
-    for b, c in zip(bones, carriers):
-        if moved[c]:
-            turn = _EYE_ROWS if rot[c] is None else rot[c]
-            offset = [h0[b][0] - h0[c][0], h0[b][1] - h0[c][1], h0[b][2] - h0[c][2]]
-            carried = gp.apply_matrix(turn, offset)
-            heads[b] = [heads[c][0] + carried[0], heads[c][1] + carried[1], heads[c][2] + carried[2]]
-            rot[b] = rot[c]
-            moved[b] = True
-
-
 def _carry(heads, rot, moved, H0, bones, carriers):
     """Place `bones` (k,) rigidly on `carriers` (k,) already placed, in place: head carried by the carrier's
     rotation about its head, the same rotation; where a carrier did not move, a bone stays as initialised."""
@@ -352,6 +287,6 @@ def _carry(heads, rot, moved, H0, bones, carriers):
         mc = moved[:, carriers]
         if any_set(mc):
             h = heads[:, carriers] + apply_matrix(rot[:, carriers], H0[:, bones] - H0[:, carriers])
-            heads[:, bones] = np.where(mc[..., None], h, H0[:, bones])
+            heads[:, bones] = h if all_set(mc) else np.where(mc[..., None], h, H0[:, bones])
             rot[:, bones] = rot[:, carriers]
             moved[:, bones] = mc

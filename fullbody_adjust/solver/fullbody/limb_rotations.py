@@ -9,7 +9,7 @@ import numpy as np
 
 from ..maths import lanes
 from ..maths import vectors as vec
-from ..maths.geometry import any_perpendicular, any_set, apply_matrix, norm, stack_rows, swing_rotation
+from ..maths.geometry import all_set, any_perpendicular, any_set, apply_matrix, norm, stack_rows, swing_rotation
 from ..limits.joint_limits import HINGE, hinge_twist
 
 _EYE = np.eye(3)
@@ -29,6 +29,12 @@ class LimbSolve:
     status: np.ndarray  # (F,) str ('' where not solved)
     reason: np.ndarray  # (F,) str
     rotations: np.ndarray = field(default=None)  # (F,n-1,3,3) each segment's world rotation delta
+
+    def placed_frames(self):
+        """The solved frames as an index of the frame axis: every frame (a slice), some (their indices) or None."""
+        if all_set(self.solved):
+            return slice(None)
+        return np.nonzero(self.solved)[0] if any_set(self.solved) else None
 
     def segment_rotations(self, start, limits):
         """World rotation deltas of the chain's segments from the start chain `start` (F,n,3) to the solved one,
@@ -51,13 +57,8 @@ def set_segment_rotations(solves, starts, limits):
         ls.rotations[...] = _EYE
     if not any(f.size for f in frames):
         return
-    kind = axes = None
-    if limits[0] is not None:
-        kind = limits[0].limits.kind
-        if any_set(kind[1:] == HINGE):
-            axes = stack_rows([_frame_axes(ll.limits.hinge_axis, f) for ll, f in zip(limits, frames)])
-    rot = _segment_rotations(stack_rows([s[f] for s, f in zip(starts, frames)]),
-                             stack_rows([ls.joints[f] for ls, f in zip(solves, frames)]), kind, axes)
+    rot = _stacked_rotations([s[f] for s, f in zip(starts, frames)], [ls.joints[f] for ls, f in zip(solves, frames)],
+                             limits, frames)
     at = 0
     for ls, f in zip(solves, frames):
         ls.rotations[f] = rot[at:at + f.size]
@@ -67,12 +68,18 @@ def set_segment_rotations(solves, starts, limits):
 def chain_rotations(start, joints, limits, frames):
     """World rotation deltas (b,n-1,3,3) of chains `joints` (b,n,3) on frames `frames` (b,) from their start
     chains `start` (b,n,3), as set_segment_rotations writes them (`limits` the limb's LimbLimits or None)."""
+    return _stacked_rotations([start], [joints], [limits], [frames])
+
+
+def _stacked_rotations(starts, joints, limits, frames):
+    """_segment_rotations of limbs' chains `starts` -> `joints` (b_i,n,3) each, on their frames `frames` (b_i,) with
+    their LimbLimits (or None) `limits` (the same per-joint kinds), stacked in order."""
     kind = axes = None
-    if limits is not None:
-        kind = limits.limits.kind
+    if limits[0] is not None:
+        kind = limits[0].limits.kind
         if any_set(kind[1:] == HINGE):
-            axes = _frame_axes(limits.limits.hinge_axis, frames)
-    return _segment_rotations(start, joints, kind, axes)
+            axes = stack_rows([_frame_axes(ll.limits.hinge_axis, f) for ll, f in zip(limits, frames)])
+    return _segment_rotations(stack_rows(starts), stack_rows(joints), kind, axes)
 
 
 def _frame_axes(axes, frames):

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..body.model import LIMB_OF_EFFECTOR
+from ..maths import lanes
 from ..maths import vectors as vec
 from ..maths.geometry import norm
 from ..vocabulary import GROUPS
@@ -32,63 +33,53 @@ def batch_result(model, start_heads, start_tails, effectors, iterations, heads, 
 
 def effector_outcome(model, effectors, targets, active, tol, heads, tails, solves):
     """(residuals, status, reasons) (F,E) of the effectors: each limb's end against its target (F,E,3) where
-    ``active`` (F,E), within ``tol``, and why; ``solves``: {limb name: LimbSolve}."""
-    outcome = _outcome_one_frame if active.shape[0] == 1 else _outcome_frames
-    return outcome(model, effectors, targets, active, tol, heads, tails, solves)
-
-
-def _outcome_one_frame(model, effectors, targets, active, tol, heads, tails, solves):
-    """effector_outcome of one frame, effector by effector in plain floats and strings (the same distances;
-    numpy's per-call cost on five values was most of it)."""
-    trunk = solves["trunk"]
-    trunk_stuck = bool(trunk.solved[0]) and trunk.status[0] in ("blocked", "limited")
-    residuals, status, reasons = [], [], []
-    for k, e in enumerate(effectors):
-        name = LIMB_OF_EFFECTOR[e]
-        if not active[0, k]:
-            residuals.append(np.nan)
-            status.append(UNCONSTRAINED)
-            reasons.append("no target on this frame")
-            continue
-        limb = model.limbs[name]
-        res = vec.norm(vec.sub(limb.end_point(heads[0], tails[0]).tolist(), targets[0, k].tolist()))
-        st, why = solves[name].status[0], solves[name].reason[0]
-        if res <= tol:
-            st, why = "reached", why or "reached"
-        else:
-            if st == "reached":  # met by its chain, then moved (cannot happen with rigid propagation)
-                st, why = "unreachable", "moved off its target after the chain solve"
-            if st == "unreachable" and limb.hub == "sc" and trunk_stuck:
-                st, why = trunk.status[0], f"the trunk could not bring the SC into reach: {trunk.reason[0]}"
-        residuals.append(res)
-        status.append(st)
-        reasons.append(why)
-    return np.array([residuals]), np.array([status], dtype=str), np.array([reasons], dtype=str)
-
-
-def _outcome_frames(model, effectors, targets, act, tol, heads, tails, solves):
-    """effector_outcome of F frames, every effector at once (F,E)."""
+    ``active`` (F,E), within ``tol``, and why; ``solves``: {limb name: LimbSolve}. _effector on every frame and
+    effector: a few frames one (frame, effector) at a time on Python floats and strings, more at once on (F,E)
+    arrays (maths/lanes.py decides)."""
     names = [LIMB_OF_EFFECTOR[e] for e in effectors]
-    pos = np.stack([model.limbs[name].end_point(heads, tails) for name in names], axis=1) if names else \
-        np.zeros((act.shape[0], 0, 3))
-    res = norm(pos - np.where(act[..., None], targets, 0.0))
-    residuals = np.where(act, res, np.nan)
-    met = act & (res <= tol)
-    st = np.stack([solves[name].status for name in names], axis=1).astype(object)
-    why = np.stack([solves[name].reason for name in names], axis=1).astype(object)
-    # Met by its chain, then moved (cannot happen with rigid propagation).
-    moved_off = act & ~met & (st == "reached")
-    st[moved_off] = "unreachable"
-    why[moved_off] = "moved off its target after the chain solve"
+    F, E = active.shape
+    ends = [model.limbs[name].end_point(heads, tails) for name in names]
+    limbs = [solves[name] for name in names]
+    on_sc = [model.limbs[name].hub == "sc" for name in names]
     trunk = solves["trunk"]
-    t_st = np.asarray(trunk.status)
-    trunk_stuck = np.asarray(trunk.solved) & ((t_st == "blocked") | (t_st == "limited"))
-    on_sc = np.array([model.limbs[name].hub == "sc" for name in names])
-    by_trunk = act & ~met & (st == "unreachable") & on_sc & trunk_stuck[:, None]
-    for f, k in zip(*np.nonzero(by_trunk)):
-        st[f, k], why[f, k] = trunk.status[f], f"the trunk could not bring the SC into reach: {trunk.reason[f]}"
-    st[met] = "reached"
-    why[met & (why == "")] = "reached"
-    status = np.where(act, st, UNCONSTRAINED)
-    reasons = np.where(act, why, "no target on this frame")
-    return residuals, status.astype(str), reasons.astype(str)
+    if E and lanes.few(F):
+        out = []
+        for f in range(F):
+            trunk_f = (bool(trunk.solved[f]), trunk.status[f], trunk.reason[f])
+            out.append([_effector(ends[k][f].tolist(), goal, on, limb.status[f], limb.reason[f],
+                                  on_sc[k], *trunk_f, tol)
+                        for k, (goal, on, limb) in enumerate(zip(targets[f].tolist(), active[f].tolist(), limbs))])
+        return tuple(np.array([[o[i] for o in row] for row in out]) for i in range(3))
+    if E == 0:
+        return np.zeros((F, 0)), np.zeros((F, 0), dtype=str), np.zeros((F, 0), dtype=str)
+    column = (lambda a: np.asarray(a, dtype=object)[:, None])  # noqa: E731  the trunk's (F,) against (F,E)
+    residuals, status, reasons = _effector(
+        np.stack(ends, axis=1), targets, active, np.stack([ls.status for ls in limbs], axis=1),
+        np.stack([ls.reason for ls in limbs], axis=1), np.array(on_sc), trunk.solved[:, None],
+        column(trunk.status), column(trunk.reason), tol)
+    return residuals, np.asarray(status).astype(str), np.asarray(reasons).astype(str)
+
+
+def _effector(end, target, active, status, reason, on_sc, trunk_solved, trunk_status, trunk_reason, tol):
+    """(residual, status, reason) of an effector whose limb ends at ``end`` for its target (NaN residual,
+    UNCONSTRAINED where not ``active``), from its chain solve's ``status`` and ``reason``; ``on_sc``: the limb
+    hangs from the SC, whose trunk solve (where ``trunk_solved``) ended with ``trunk_status`` and ``trunk_reason``.
+    On one effector's floats and strings, or on arrays of them (vectors (...,3)), as maths/lanes.py has it."""
+    res = vec.norm(vec.sub(end, target))
+    met = active & (res <= tol)
+    missed = active & lanes.not_(met)
+    if lanes.any_(missed):
+        moved_off = missed & (status == "reached")  # met by its chain, then moved (not with rigid propagation)
+        if lanes.any_(moved_off):
+            status = lanes.where(moved_off, "unreachable", status)
+            reason = lanes.where(moved_off, "moved off its target after the chain solve", reason)
+        by_trunk = missed & (status == "unreachable") & on_sc & trunk_solved
+        if lanes.any_(by_trunk):
+            by_trunk = by_trunk & ((trunk_status == "blocked") | (trunk_status == "limited"))
+        if lanes.any_(by_trunk):
+            status = lanes.where(by_trunk, trunk_status, status)
+            reason = lanes.where(by_trunk, "the trunk could not bring the SC into reach: " + trunk_reason, reason)
+    status = lanes.where(met, "reached", status)
+    reason = lanes.where(met & (reason == ""), "reached", reason)
+    return (lanes.where(active, res, np.nan), lanes.where(active, status, UNCONSTRAINED),
+            lanes.where(active, reason, "no target on this frame"))
