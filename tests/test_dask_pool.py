@@ -1,9 +1,7 @@
 """Clips on a Dask cluster (fullbody_adjust.cli.cluster), without Blender: a real scheduler and real worker
 processes on 127.0.0.1, started and stopped here, running the clip workers of test_batch_pool (small Python
-scripts speaking the clip worker's protocol). The whole command on a cluster is tests/blender/test_export_formats'."""
+scripts speaking the clip worker's protocol). The whole command on a cluster is tests/blender/test_cli_cluster.py's."""
 
-import importlib.util
-import json
 import os
 import signal
 import subprocess
@@ -16,11 +14,11 @@ import pytest
 from fullbody_adjust.cli import cluster
 from fullbody_adjust.cli.pool import WorkerPool
 
+from tests.helpers.dask_cluster import HAS_DISTRIBUTED, WITHOUT_DISTRIBUTED, Cluster
 from tests.test_batch_pool import FAKE_WORKER
 
-HAS_DISTRIBUTED = importlib.util.find_spec("distributed") is not None
-pytestmark = pytest.mark.skipif(not HAS_DISTRIBUTED, reason="the 'distributed' package is not importable in this "
-                                                            "Python (.ci/with-bpy installs it)")
+
+needs_distributed = pytest.mark.skipif(not HAS_DISTRIBUTED, reason=WITHOUT_DISTRIBUTED)
 
 # A clip worker whose every task takes SLOW seconds (long enough to kill its Dask worker in the middle), then
 # answers with its process's parent (the Dask worker) and the job's tag.
@@ -31,41 +29,6 @@ SLOW_WORKER = FAKE_WORKER.replace('    print("chatter that is not a message")',
     '"pid": os.getpid()', '"pid": os.getpid(), "parent": os.getppid(), "slept": task["clip"]')
 
 
-class Cluster:
-    """A scheduler and ``workers`` Dask worker processes (one thread each, under a nanny) on 127.0.0.1."""
-
-    def __init__(self, folder, workers):
-        self.file = str(folder / "scheduler.json")
-        self.log = open(folder / "cluster.log", "ab")
-        common = ["--no-dashboard"]
-        self.processes = [self._start("dask_scheduler", "--host", "127.0.0.1", "--port", "0",
-                                      "--scheduler-file", self.file, *common)]
-        deadline = time.monotonic() + 60
-        while not os.path.exists(self.file) and time.monotonic() < deadline:
-            time.sleep(0.1)
-        self.workers = [self._start("dask_worker", "--scheduler-file", self.file, "--host", "127.0.0.1",
-                                    "--nthreads", "1", "--nworkers", "1", *common) for _ in range(workers)]
-        self.processes += self.workers
-        with open(self.file) as f:
-            self.address = json.load(f)["address"]
-
-    def _start(self, program, *arguments):
-        return subprocess.Popen([sys.executable, "-m", f"distributed.cli.{program}", *arguments],
-                                stdout=self.log, stderr=self.log, start_new_session=True)
-
-    def stop(self):
-        for process in reversed(self.processes):
-            if process.poll() is None:
-                os.killpg(process.pid, signal.SIGTERM)
-        for process in self.processes:
-            try:
-                process.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                os.killpg(process.pid, signal.SIGKILL)
-                process.wait()
-        self.log.close()
-
-
 @pytest.fixture
 def two_workers(tmp_path):
     running = Cluster(tmp_path, 2)
@@ -73,6 +36,7 @@ def two_workers(tmp_path):
     running.stop()
 
 
+@needs_distributed
 def test_clips_on_the_cluster_give_the_rows_of_the_local_pool(two_workers):
     client = cluster.connect(two_workers.address, timeout=60)
     try:
@@ -96,6 +60,7 @@ def test_clips_on_the_cluster_give_the_rows_of_the_local_pool(two_workers):
     assert len({row["pid"] for row in rows if "pid" in row}) <= 3
 
 
+@needs_distributed
 def test_a_dask_worker_killed_mid_clip_costs_a_retry_not_the_clip(two_workers, tmp_path):
     client = cluster.connect(two_workers.address, timeout=60)
     try:
@@ -130,6 +95,14 @@ def test_a_dask_worker_killed_mid_clip_costs_a_retry_not_the_clip(two_workers, t
     assert left == []
 
 
+@needs_distributed
 def test_without_a_scheduler_there_is_one_line():
     with pytest.raises(cluster.ClusterError, match=r"^--scheduler tcp://127.0.0.1:9: cannot reach the scheduler"):
         cluster.connect("tcp://127.0.0.1:9", timeout=2)
+
+
+def test_without_the_distributed_package_there_is_one_line(monkeypatch):
+    monkeypatch.setitem(sys.modules, "distributed", None)  # as if it were not installed: importing it fails
+    with pytest.raises(cluster.ClusterError) as raised:
+        cluster.connect("tcp://127.0.0.1:8786")
+    assert str(raised.value) == cluster.MISSING and "\n" not in cluster.MISSING
