@@ -4,7 +4,8 @@ here, and the ``distributed`` package only once a batch uses it).
 
 Each clip is one Dask task. A Dask worker runs it in the same clip worker process as ``--jobs`` (``pool``'s
 _Worker talking to ``python -m fullbody_adjust --clip-worker``, started with the Dask worker's own Python), kept
-between the clips of a batch so a worker pays Blender's start once, and closed when the batch ends. A clip that
+between the clips of a batch so a worker pays Blender's start once, and closed when the batch ends (or, when the
+batch was interrupted, as the worker's next batch starts). A clip that
 fails is a row with its reason, as with ``--jobs``; a Dask worker that dies mid-clip takes its clip worker with it
 (which ends as soon as its parent is gone, so it writes nothing more), and the scheduler runs the clip again on
 another worker: a retry, not a lost clip (up to the scheduler's ``distributed.scheduler.allowed-failures``).
@@ -102,11 +103,10 @@ class DaskPool:
                 self.on_progress(done, failed, done / len(tasks))
                 if on_row is not None:
                     on_row(index, rows[index])
-        except BaseException:
-            self.client.cancel(list(futures))
+        except BaseException:  # an interrupt: the clips not started are cancelled (idle clip workers are closed by
+            self.client.cancel(list(futures))  # their Dask worker's next batch)
             raise
-        finally:
-            self._close(batch)
+        self._close(batch)
         return rows
 
     def _close(self, batch):

@@ -7,7 +7,8 @@ The settings, chosen so Unreal, Unity and Godot import the file without fixes:
 
 - what: the target armature, selected alone or with the meshes its Armature modifier binds (or parented to it);
   only its deforming bones and their parents (the skeleton an engine skins with; control and mechanism bones of
-  a rig are no use there). No leaf bones (FBX), no modifiers applied but the armature's skinning.
+  a rig are no use there). No leaf bones (FBX). The meshes go at rest, bound to their bones (the skinning is the
+  engine's), their other modifiers not applied, so their shape keys go along.
 - motion: the new action only, baked: one key per frame on every exported bone over the action's frames
   (FBX: no curve simplification; glTF: sampled, no key left out as redundant), so the engine plays what was
   solved and nothing is fitted again. glTF's animation is named after the clip and starts at time 0.
@@ -85,7 +86,7 @@ def _export_fbx(path, meshes):
     bpy.ops.export_scene.fbx(
         filepath=os.path.abspath(path), use_selection=True,
         object_types={'ARMATURE', 'MESH'} if meshes else {'ARMATURE'},
-        use_mesh_modifiers=False,  # the skinning is the engine's: the mesh goes at rest, bound to its bones
+        use_mesh_modifiers=False,  # applied modifiers would drop the shape keys
         use_armature_deform_only=True, add_leaf_bones=False, primary_bone_axis='Y', secondary_bone_axis='X',
         armature_nodetype='NULL',
         apply_unit_scale=True, apply_scale_options='FBX_SCALE_UNITS', global_scale=1.0,
