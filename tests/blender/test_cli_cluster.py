@@ -153,7 +153,8 @@ def test_a_dask_worker_killed_mid_clip_loses_no_clip(cli, capsys, tmp_path, clip
 
 def test_cluster_options_that_cannot_work_are_one_line(cli, capsys, tmp_path, clips, character):
     for extra, words in ((("--scheduler", "tcp://127.0.0.1:9", "--jobs", "2"), "--jobs sets the local workers"),
-                         (("--scheduler", "tcp://127.0.0.1:9"), "--scheduler tcp://127.0.0.1:9: cannot reach")):
+                         (("--scheduler", "tcp://127.0.0.1:9"), "--scheduler tcp://127.0.0.1:9: cannot reach"
+                          if HAS_DISTRIBUTED else "--scheduler needs the 'distributed' package")):
         code, out, err = run(cli, capsys, "retarget", character, "--target", "Hero", "--source-file", clips,
                              "--output-dir", tmp_path / "out", *extra)
         assert code == 2 and words in err and len(err.strip().splitlines()) == 1, err
