@@ -64,12 +64,12 @@ def joints_of(path, tmp_path):
     return json.loads(out.read_text())
 
 
-def batch(cli, capsys, character, clips, folder, *extra):
+def batch(cli, capsys, character, clips, folder, *extra, expected=2):
     folder.mkdir(parents=True)
     code, _, err = run(cli, capsys, "retarget", character, "--target", "Hero", "--source-file", clips, "--jobs", 2,
                        "--output-dir", folder, "--quiet", "--report", folder / "report.json", *extra)
     report = json.loads((folder / "report.json").read_text())
-    assert [row["status"] for row in report["rows"]] == ["done", "done"], err
+    assert [row["status"] for row in report["rows"]] == ["done"] * expected, err
     return code, report
 
 
@@ -120,3 +120,56 @@ def test_bad_format_options_are_one_line(cli, capsys, tmp_path, clips, character
     code, out, err = run(cli, capsys, "retarget", character, "--target", "Hero", "--source-file", clips, *extra)
     assert code == 2 and words in err and len(err.strip().splitlines()) == 1, err
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("name", ["kenney", "metarig_cm_units"])
+@pytest.mark.parametrize("file_format", ["fbx", "glb"])
+def test_characters_users_bring_come_back_in_metres(cli, capsys, tmp_path, clips, name, file_format):
+    """Kenney's FBX character (its meshes skinned to a Mixamo-named skeleton) and a metarig with a body mesh in a
+    centimetre scene (unit scale 0.01): the engine file's joints, re-imported into a metre scene, are where the
+    .blend's are, in metres."""
+    from tests.helpers import real_rigs
+
+    rig = real_rigs.load(name)
+    rig.armature.name = "Hero"
+    meshes = sorted(m.name for m in rig.meshes)
+    character = tmp_path / "hero.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(character))
+    bpy.ops.wm.read_homefile(use_empty=True)
+    (clips / "walk.bvh").unlink()
+    batch(cli, capsys, character, clips, tmp_path / "blend", expected=1)
+    batch(cli, capsys, character, clips, tmp_path / file_format, "--format", file_format, expected=1)
+    solved = joints_of(tmp_path / "blend" / "jump.blend", tmp_path)
+    written = joints_of(tmp_path / file_format / f"jump.{file_format}", tmp_path)
+    assert len(written["frames"]) == len(solved["frames"])
+    assert written["meshes"] == meshes != []
+    bones = [bone for bone in solved["deform"] if bone in written["joints"]]
+    assert len(bones) == len(solved["deform"])
+    for bone in bones:
+        assert np.abs(np.array(written["joints"][bone]) - np.array(solved["joints"][bone])).max() < TOLERANCE, bone
+
+
+@pytest.mark.parametrize("file_format", ["fbx", "glb"])
+def test_writing_an_engine_file_leaves_the_scene_as_it_was(tmp_path, rig, extension_module_name, file_format):
+    export = importlib.import_module(f"{extension_module_name}.bridge.retarget.export")
+    scene = bpy.context.scene
+    scene.unit_settings.scale_length = 0.01  # the glTF path parents the character to a root in metres, then undoes it
+    scene.frame_start, scene.frame_end = 3, 7
+    rig.matrix_parent_inverse[0][3] = 0.5  # unused without a parent, but the user's: kept
+    action = bpy.data.actions.new("clip")
+    rig.animation_data_create().action = action
+    rig.keyframe_insert("location", frame=1)
+    rig.keyframe_insert("location", frame=40)
+    other = bpy.data.objects.new("Other", None)
+    scene.collection.objects.link(other)
+    other.select_set(True)
+    rig.select_set(False)
+    bpy.context.view_layer.objects.active = other
+    objects = sorted(ob.name for ob in bpy.data.objects)
+    export.write_clip(bpy.context, rig, action, tmp_path / f"clip.{file_format}", file_format)
+    assert (tmp_path / f"clip.{file_format}").stat().st_size > 1000
+    assert (scene.frame_start, scene.frame_end) == (3, 7)
+    assert sorted(ob.name for ob in bpy.data.objects) == objects and rig.parent is None
+    assert rig.matrix_parent_inverse[0][3] == 0.5
+    assert [ob.name for ob in bpy.context.selected_objects] == ["Other"]
+    assert bpy.context.view_layer.objects.active == other

@@ -3,7 +3,8 @@
     python tests/helpers/joint_positions.py FILE OUT.json
 
 FILE is a .blend (opened), or an .fbx or .glb imported by Blender's own importer into an empty scene. OUT.json
-gets {"armature", "frames" (its action's, in order), "joints": {bone: [[x, y, z] per frame]}, "meshes": names
+gets {"armature", "frames" (its action's, in order), "joints": {bone: [[x, y, z] per frame], in metres (world
+units times the scene's unit scale)}, "meshes": names
 of the mesh objects its Armature modifiers bind, "actions": names}. A separate process, so the import is in a
 fresh file, and Blender 4.2's glTF importer (which crashed a long test process) runs alone."""
 
@@ -34,10 +35,11 @@ def read(path):
     first, last = (int(math.floor(f + 0.5)) for f in action.frame_range)
     frames = list(range(first, last + 1))
     joints = {bone.name: [] for bone in armature.pose.bones}
+    metres = bpy.context.scene.unit_settings.scale_length
     for frame in frames:
         bpy.context.scene.frame_set(frame)
         for bone in armature.pose.bones:
-            joints[bone.name].append(list(armature.matrix_world @ bone.head))
+            joints[bone.name].append(list(metres * (armature.matrix_world @ bone.head)))
     meshes = sorted(ob.name for ob in bpy.context.scene.objects if ob.type == 'MESH'
                     and any(m.type == 'ARMATURE' and m.object == armature for m in ob.modifiers))
     return {"armature": armature.name, "frames": frames, "joints": joints, "meshes": meshes,

@@ -14,7 +14,9 @@ The settings, chosen so Unreal, Unity and Godot import the file without fixes:
   solved and nothing is fitted again. glTF's animation is named after the clip and starts at time 0.
 - units: FBX says its unit is the scene's (1 Blender unit = 1 m in a metric scene) in the file's unit scale and
   moves nothing (``FBX_SCALE_UNITS``): Unity imports the character at scale 1, Unreal converts metres to its
-  centimetres. glTF is in metres by its specification (Blender units taken as metres).
+  centimetres. glTF is in metres by its specification, and Blender's exporter takes a Blender unit for a metre:
+  in a scene of another unit scale (centimetres: 0.01) the character is written under a root node
+  '<armature>_metres' scaled by the unit scale, so it comes out in metres.
 - axes: FBX's Y up, -Z forward, written in the file's axis system (engines convert on import); glTF's +Y up, as
   its specification asks. Bone axes are Blender's (primary Y, secondary X).
 """
@@ -53,12 +55,18 @@ def write_clip(context, target_obj, action, path, file_format="blend", *, meshes
     try:
         if context.object is not None and context.object.mode != 'OBJECT':
             bpy.ops.object.mode_set(mode='OBJECT')
-        _select([target_obj, *(deformed_meshes(target_obj) if meshes else [])], context)
+        exported = [target_obj, *(deformed_meshes(target_obj) if meshes else [])]
         scene.frame_start, scene.frame_end = first, last  # FBX bakes the scene's frame range
         if file_format == "fbx":
+            _select(exported, context)
             _export_fbx(path, meshes)
         else:
-            _export_glb(path, meshes, action.name)
+            root, parented = _metres_root(scene, exported, target_obj.name)
+            _select(exported + ([root] if root is not None else []), context)
+            try:
+                _export_glb(path, meshes, action.name)
+            finally:
+                _remove_root(root, parented)
     except RuntimeError as ex:
         raise AdjustError(f"Cannot write {path}: {' '.join(str(ex).split())}") from None
     finally:
@@ -70,6 +78,34 @@ def deformed_meshes(armature):
     """The meshes ``armature`` deforms (an Armature modifier bound to it) or carries (parented to it)."""
     return [ob for ob in bpy.data.objects if ob.type == 'MESH' and (
         ob.parent == armature or any(m.type == 'ARMATURE' and m.object == armature for m in ob.modifiers))]
+
+
+def _metres_root(scene, objects, name):
+    """In a scene whose unit is not the metre: (an empty scaled by the unit scale at the origin, made parent of
+    the ``objects`` that had none so their world transforms become metres, {each of them: its parent inverse});
+    (None, {}) in a metre scene."""
+    unit = scene.unit_settings.scale_length
+    if abs(unit - 1.0) <= 1e-9:
+        return None, {}
+    root = bpy.data.objects.new(f"{name}_metres", None)
+    scene.collection.objects.link(root)
+    root.scale = (unit, unit, unit)
+    parented = {}
+    for ob in objects:
+        if ob.parent is None:
+            parented[ob] = ob.matrix_parent_inverse.copy()  # unused without a parent, but given back
+            ob.parent = root
+            ob.matrix_parent_inverse.identity()
+    return root, parented
+
+
+def _remove_root(root, parented):
+    """Undo _metres_root."""
+    for ob, inverse in parented.items():
+        ob.parent = None
+        ob.matrix_parent_inverse = inverse
+    if root is not None:
+        bpy.data.objects.remove(root)
 
 
 def _select(objects, context, active=None):
