@@ -101,6 +101,11 @@ def _checked_outputs(args, input_path, clips):
     saved = None if args.output_dir else checked_outputs(args, input_path)
     if args.output_dir:
         _check_output_dir(args.output_dir)
+    elif args.scheduler:
+        shared = os.path.dirname(os.path.abspath(saved or input_path))
+        if not os.access(shared, os.W_OK | os.X_OK):
+            raise CommandError(f"--scheduler: the workers write their clips' part files beside "
+                               f"{'--output' if saved else 'the input file'}, and folder {shared} is not writable")
     csv_path = os.path.splitext(args.report)[0] + ".csv" if args.report else None
     if csv_path:
         check_writable(csv_path, "--report")

@@ -213,3 +213,14 @@ def _alive(pid):
             return stat.read().rsplit(")", 1)[1].split()[0] != "Z"
     except OSError:
         return False
+
+
+def test_a_merged_cluster_batch_beside_a_folder_it_cannot_write_is_one_line(cli, capsys, tmp_path, clips, character,
+                                                                             monkeypatch):
+    # Root writes anywhere: the folder is reported unwritable as a user without the right would find it.
+    real_access = os.access
+    monkeypatch.setattr(os, "access", lambda path, mode: path != str(tmp_path) and real_access(path, mode))
+    code, _, err = run(cli, capsys, "retarget", character, "--target", "Hero", "--source-file", clips,
+                       "--scheduler", "tcp://127.0.0.1:9")
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert f"part files beside the input file, and folder {tmp_path} is not writable" in err
