@@ -148,10 +148,10 @@ def _client(args):
 
 
 def _run_tasks(args, tasks, jobs, blend_in, target_name, saved, client=None):
-    """The rows of ``tasks``, run by ``jobs`` local workers, or by the Dask cluster of ``client``. Without --output-dir each done clip's action is appended
-    to the open file as it ends, and the file saved as ``saved`` as clips end, at most once every SAVE_EVERY
-    seconds. An interrupt (Ctrl+C) keeps what was done: the clips not ended by then are failed rows
-    ('interrupted')."""
+    """The rows of ``tasks``, run by ``jobs`` local workers, or by the Dask cluster of ``client``. Without
+    --output-dir each done clip's action is appended to the open file as it ends, and the file saved as ``saved``
+    as clips end, at most once every SAVE_EVERY seconds. An interrupt (Ctrl+C) keeps what was done: the clips
+    not ended by then are failed rows ('interrupted')."""
     if not tasks:
         return []
     progress = NoProgress() if args.quiet else ConsoleProgress(

@@ -5,7 +5,8 @@ the clip's row. A clip that fails is a row with its reason; the worker goes on w
 
 The job (first line on stdin): file, target, import (clip_import.ImportOptions fields), contacts (pairs
 [kind, object name or null]), floor, frame_start, frame_end, keep_sources, format and meshes (of the files
-written to --output-dir: bridge.retarget.export). A task: clip, name (of the action), out (the file to write, one
+written to --output-dir: bridge.retarget.export), watch_parent (a Dask worker's clip worker: it ends with the
+process that started it). A task: clip, name (of the action), out (the file to write, one
 per clip) or part (a small .blend holding only the new action, merged by the parent).
 """
 
