@@ -4,7 +4,10 @@ processes (``pool``; each runs ``worker``). Everything the batch can check is ch
 starts (one line, exit 2, nothing written); afterwards a clip that fails is a row of the report with its reason,
 the others go on, and the exit code is 1.
 
-Outputs: with --output-dir, one .blend per clip (the target file with that clip's action, saved by its worker);
+With --scheduler the clips go to a Dask cluster's workers instead (``cluster``), each running the same worker.
+
+Outputs: with --output-dir, one file per clip saved by its worker: the target file with that clip's action, or
+with --format fbx|glb the target and its new action through Blender's exporter (bridge.retarget.export);
 else every clip's action is merged into the target file and saved as --output (or over the input with
 --overwrite): each worker writes its action into a small part file, appended here as the clip ends. An
 interrupted batch keeps the clips done; --skip-existing leaves them out of the next run.
@@ -19,9 +22,10 @@ import time
 import bpy
 
 from ..bridge import files as batch
-from ..bridge.retarget import clip_import, root_motion
+from ..bridge.retarget import clip_import, export, root_motion
 from ..reporting import batch_report
 from ..reporting.progress import ConsoleProgress, NoProgress
+from .cluster import PYTHON, ClusterError, DaskPool, connect
 from .files import CommandError, check_writable, checked_outputs, input_path, same_file, write_text
 from .parser import COMMAND, EXIT_OK, EXIT_TARGETS_MISSED
 from .pool import WorkerPool
@@ -43,12 +47,19 @@ def run(args):
         root_motion.add_requested_bone(bpy.context, target, args.root_motion, args.root_bone,
                                        _floor(args.floor, contacts) if ["ground", None] in contacts else None)
     rows, tasks = _tasks(args, clips)
+    client = _client(args) if tasks else None
     if args.output_dir:
         os.makedirs(args.output_dir, exist_ok=True)
     jobs = min(args.jobs or os.cpu_count() or 1, max(len(tasks), 1))
 
     started = time.perf_counter()
-    rows += _run_tasks(args, tasks, jobs, blend_in, target.name, saved)
+    try:
+        if client is not None:
+            jobs = sum(client.nthreads().values())
+        rows += _run_tasks(args, tasks, jobs, blend_in, target.name, saved, client)
+    finally:
+        if client is not None:
+            client.close()
     if saved is not None:
         batch.save_blend(saved)
     order = {clip: i for i, clip in enumerate(clips)}
@@ -81,12 +92,24 @@ def _checked_outputs(args, input_path, clips):
     if args.new_action and len(clips) > 1:
         raise CommandError("--new-action names one action: with several clips each is named after its clip")
     if args.output_dir and (args.output or args.overwrite):
-        raise CommandError("--output-dir writes one .blend per clip: leave out --output and --overwrite")
+        raise CommandError("--output-dir writes one file per clip: leave out --output and --overwrite")
+    if args.format != "blend" and not args.output_dir:
+        raise CommandError(f"--format {args.format} writes one file per clip: give --output-dir")
+    if args.armature_only and args.format == "blend":
+        raise CommandError("--armature-only leaves the meshes out of --format fbx or glb: give one of them")
+    if args.scheduler and args.jobs:
+        raise CommandError("--jobs sets the local workers: leave it out with --scheduler (the cluster's workers "
+                           "run the clips)")
     if args.clip_fps == "clip" and not args.output_dir:
         raise CommandError("--clip-fps clip changes the scene's frame rate per clip: use it with --output-dir")
     saved = None if args.output_dir else checked_outputs(args, input_path)
     if args.output_dir:
         _check_output_dir(args.output_dir)
+    elif args.scheduler:
+        shared = os.path.dirname(os.path.abspath(saved or input_path))
+        if not os.access(shared, os.W_OK | os.X_OK):
+            raise CommandError(f"--scheduler: the workers write their clips' part files beside "
+                               f"{'--output' if saved else 'the input file'}, and folder {shared} is not writable")
     csv_path = os.path.splitext(args.report)[0] + ".csv" if args.report else None
     if csv_path:
         check_writable(csv_path, "--report")
@@ -100,7 +123,8 @@ def _tasks(args, clips):
         name = args.new_action or os.path.splitext(os.path.basename(clip))[0]
         if args.take and not args.new_action:
             name = f"{name}_{args.take}"  # one file's takes retargeted one after another keep apart
-        out = os.path.join(os.path.abspath(args.output_dir), f"{name}.blend") if args.output_dir else None
+        out = os.path.join(os.path.abspath(args.output_dir), export.output_name(name, args.format)) \
+            if args.output_dir else None
         done_before = os.path.exists(out) if out else name in bpy.data.actions
         if args.skip_existing and done_before:
             rows.append({"clip": clip, "name": name, "status": batch_report.SKIPPED, "output": out,
@@ -117,11 +141,21 @@ def _file_size(path):
         return 0
 
 
-def _run_tasks(args, tasks, jobs, blend_in, target_name, saved):
-    """The rows of ``tasks``, run by ``jobs`` workers. Without --output-dir each done clip's action is appended
-    to the open file as it ends, and the file saved as ``saved`` as clips end, at most once every SAVE_EVERY
-    seconds. An interrupt (Ctrl+C) keeps what was done: the clips not ended by then are failed rows
-    ('interrupted')."""
+def _client(args):
+    """The Dask client of --scheduler (None without it); CommandError when it cannot be had."""
+    if not args.scheduler:
+        return None
+    try:
+        return connect(args.scheduler)
+    except ClusterError as ex:
+        raise CommandError(str(ex)) from None
+
+
+def _run_tasks(args, tasks, jobs, blend_in, target_name, saved, client=None):
+    """The rows of ``tasks``, run by ``jobs`` local workers, or by the Dask cluster of ``client``. Without
+    --output-dir each done clip's action is appended to the open file as it ends, and the file saved as ``saved``
+    as clips end, at most once every SAVE_EVERY seconds. An interrupt (Ctrl+C) keeps what was done: the clips
+    not ended by then are failed rows ('interrupted')."""
     if not tasks:
         return []
     progress = NoProgress() if args.quiet else ConsoleProgress(
@@ -148,12 +182,19 @@ def _run_tasks(args, tasks, jobs, blend_in, target_name, saved):
             batch.save_blend(saved)
             last_save[0] = time.perf_counter()
 
-    with tempfile.TemporaryDirectory(prefix="fba-parts-") as parts:
+    # A cluster's workers write the parts where they see them: beside the saved file (or the input).
+    shared = os.path.dirname(os.path.abspath(saved or blend_in)) if client is not None else None
+    with tempfile.TemporaryDirectory(prefix="fba-parts-", dir=shared) as parts:
         for index, task in enumerate(tasks):
             if task["out"] is None:
                 task["part"] = os.path.join(parts, f"{index}.blend")
-        pool = WorkerPool(worker_command(), _job(args, blend_in, target_name), jobs, env=worker_env(),
-                          on_progress=show, timeout=args.clip_timeout)
+        job = _job(args, blend_in, target_name)
+        if client is None:
+            pool = WorkerPool(worker_command(), job, jobs, env=worker_env(), on_progress=show,
+                              timeout=args.clip_timeout)
+        else:
+            pool = DaskPool(client, cluster_worker_command(), job, env=cluster_worker_env(), on_progress=show,
+                            timeout=args.clip_timeout)
         try:
             pool.run(tasks, on_row=merge)
         except KeyboardInterrupt:
@@ -211,8 +252,8 @@ def _job(args, input_path, target):
                        "fps": args.clip_fps, "start_frame": args.clip_start_frame, "take": args.take},
             "contacts": contacts,
             "floor": _floor(args.floor, contacts), "frame_start": args.frame_start,
-            "frame_end": args.frame_end, "keep_sources": args.keep_sources,
-            "mirror": args.mirror, "groups": args.groups,
+            "frame_end": args.frame_end, "keep_sources": args.keep_sources, "format": args.format,
+            "meshes": not args.armature_only, "mirror": args.mirror, "groups": args.groups,
             "root_motion": args.root_motion, "root_bone": args.root_bone}
 
 
@@ -240,6 +281,18 @@ def worker_command(binary=None):
     if binary and os.path.basename(binary).lower().startswith("blender"):
         return [binary, "-b", "--factory-startup", "--python-expr", worker_code()]
     return [sys.executable, "-m", _package()[1], WORKER_FLAG]
+
+
+def cluster_worker_command():
+    """A clip worker on a Dask worker: its own Python (cluster.PYTHON) with the bpy module, as --jobs starts it
+    with the bpy module."""
+    return [PYTHON, "-m", _package()[1], WORKER_FLAG]
+
+
+def cluster_worker_env():
+    """What a Dask worker adds to its environment for its clip workers: this package's folder in front of its
+    PYTHONPATH (on shared storage, or the worker's own copy is found), OpenBLAS on one thread where unset."""
+    return {"PYTHONPATH": _package()[0], "OPENBLAS_NUM_THREADS": "1"}
 
 
 def worker_code():

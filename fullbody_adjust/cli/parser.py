@@ -149,8 +149,8 @@ def build_parser(prog=f"blender -b FILE.blend -c {COMMAND}"):
                        help="a clip still running after this many seconds is stopped and reported failed, and the "
                             "batch goes on (default: no limit)")
     clips.add_argument("--output-dir", metavar="DIR",
-                       help="write one .blend per clip, DIR/<clip>.blend (the target file with that clip's "
-                            "action), instead of all actions into --output")
+                       help="write one file per clip, DIR/<clip>.blend (the target file with that clip's "
+                            "action; see --format), instead of all actions into --output")
     clips.add_argument("--skip-existing", action="store_true",
                        help="resume a batch: leave out clips already done (their DIR/<clip>.blend exists, or the "
                             "input file already has the clip's action)")
@@ -168,6 +168,8 @@ def build_parser(prog=f"blender -b FILE.blend -c {COMMAND}"):
                                     "'<source action>_<target>'); the target's previous action is kept")
     _add_mirror_arguments(retarget)
     _add_root_motion_arguments(retarget)
+    _add_engine_arguments(retarget)
+    _add_cluster_arguments(retarget)
     retarget.set_defaults(work="retarget")
     return parser
 
@@ -205,6 +207,28 @@ def _add_root_motion_arguments(retarget):
                         help="with --root-motion bone: the root bone, an existing bone above the hips, or a new one "
                              "created at the floor under the hips as parent of the hips' hierarchy (default: the "
                              "topmost bone above the hips; a rig with none needs this)")
+
+
+def _add_engine_arguments(retarget):
+    engine = retarget.add_argument_group("engine-ready files (with --source-file and --output-dir)")
+    engine.add_argument("--format", choices=("blend", "fbx", "glb"), default="blend",
+                        help="the file written per clip in --output-dir: 'blend' (default: the target file with "
+                             "the clip's action), 'fbx' or 'glb' (glTF binary): the target armature with the "
+                             "meshes it deforms and the clip baked one key per frame, through Blender's own "
+                             "exporter, set as game engines import it (deforming bones only, no leaf bones; FBX "
+                             "Y up, -Z forward, the scene's unit in the file's unit scale; glTF Y up, metres)")
+    engine.add_argument("--armature-only", action="store_true",
+                        help="with --format fbx or glb: the armature and its motion alone, without its meshes (an "
+                             "animation for a skeleton the engine already has)")
+
+
+def _add_cluster_arguments(retarget):
+    cluster = retarget.add_argument_group("a Dask cluster (with --source-file)")
+    cluster.add_argument("--scheduler", metavar="ADDRESS",
+                         help="send the clips to the Dask scheduler at ADDRESS (e.g. tcp://10.0.0.5:8786) instead of "
+                              "local worker processes: each Dask worker runs them as --jobs does (it needs the "
+                              "'distributed' package, as this Python does); the input, the clips and the outputs "
+                              "must be on storage every worker sees under the same paths")
 
 
 def _add_subcommand(subparsers, name, summary, description):

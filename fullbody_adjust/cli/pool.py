@@ -83,18 +83,9 @@ class WorkerPool:
                         self._finish(index, {"clip": task["clip"], "status": FAILED,
                                              "reason": f"cannot start a worker process: {ex}"})
                         continue
-                watchdog = None
-                if self.timeout is not None:
-                    watchdog = threading.Timer(self.timeout, worker.stop)
-                    watchdog.start()
-                row = worker.do(task, lambda fraction, i=index: self._progress(i, fraction))
-                if watchdog is not None:
-                    watchdog.cancel()
-                if row is None:  # the worker died: this task failed, a new worker takes the next one
-                    reason = (f"stopped after {self.timeout:g} s (the clip time limit)" if worker.stopped
-                              else worker.death())
-                    worker.close()
-                    row = {"clip": task["clip"], "status": FAILED, "reason": reason}
+                row, alive = attempt(worker, task, self.timeout,
+                                     lambda fraction, i=index: self._progress(i, fraction))
+                if not alive:  # the worker died: this task failed, a new worker takes the next one
                     worker = None
                 self._finish(index, row)
         finally:
@@ -117,6 +108,24 @@ class WorkerPool:
     def _report(self):
         fraction = (self._done + sum(self._share.values())) / max(self._total, 1)
         self.on_progress(self._done, self._failed, fraction)
+
+
+def attempt(worker, task, timeout, progress):
+    """(row, whether ``worker`` lives on) of ``task`` run by ``worker`` (a _Worker), stopped after ``timeout``
+    seconds (None: no limit). A worker that died is closed, and its task a failed row saying why. Also what a
+    Dask worker runs (cli.cluster): it must use nothing of this package but this module's _Worker."""
+    watchdog = None
+    if timeout is not None:
+        watchdog = threading.Timer(timeout, worker.stop)
+        watchdog.start()
+    row = worker.do(task, progress)
+    if watchdog is not None:
+        watchdog.cancel()
+    if row is not None:
+        return row, True
+    reason = f"stopped after {timeout:g} s (the clip time limit)" if worker.stopped else worker.death()
+    worker.close()
+    return {"clip": task["clip"], "status": FAILED, "reason": reason}, False
 
 
 class _Worker:

@@ -4,13 +4,16 @@ open the target's .blend, import the clip, retarget it onto the target, and writ
 the clip's row. A clip that fails is a row with its reason; the worker goes on with the next one.
 
 The job (first line on stdin): file, target, import (clip_import.ImportOptions fields), contacts (pairs
-[kind, object name or null]), floor, frame_start, frame_end, keep_sources. A task: clip, name (of the action), out (the
-.blend to save, one per clip) or part (a small .blend holding only the new action, merged by the parent).
+[kind, object name or null]), floor, frame_start, frame_end, keep_sources, format and meshes (of the files
+written to --output-dir: bridge.retarget.export), watch_parent (a Dask worker's clip worker: it ends with the
+process that started it). A task: clip, name (of the action), out (the file to write, one
+per clip) or part (a small .blend holding only the new action, merged by the parent).
 """
 
 import json
 import os
 import sys
+import threading
 import time
 import traceback
 
@@ -18,7 +21,7 @@ import bpy
 import numpy as np
 
 from ..bridge import files as batch
-from ..bridge.retarget import clip_import
+from ..bridge.retarget import clip_import, export
 from ..bridge.errors import AdjustError
 from ..bridge.retarget.run import retarget
 from ..reporting import summary
@@ -32,6 +35,8 @@ def serve():
     sys.stdout.flush()
     os.dup2(2, 1)
     job = json.loads(sys.stdin.readline())
+    if job.get("watch_parent"):
+        _end_with_parent()
 
     def send(message):
         protocol.write(json.dumps(message) + "\n")
@@ -41,6 +46,19 @@ def serve():
             task = json.loads(line)
             send({"row": retarget_task(bpy.context, job, task, lambda f: send({"progress": f}))})
     protocol.close()
+
+
+def _end_with_parent(every=0.5):
+    """End this process as soon as the process that started it is gone (a Dask worker killed mid-clip: the clip
+    is retried elsewhere, and this one must not write its output too)."""
+    parent = os.getppid()
+
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(every)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True).start()
 
 
 def retarget_task(context, job, task, progress=lambda fraction: None):
@@ -79,7 +97,8 @@ def _retarget_clip(context, job, task, progress):
     if not job.get("keep_sources"):
         clip_import.remove_ids(added)
     if task.get("out"):
-        batch.save_blend(task["out"])
+        export.write_clip(context, target, outcome.action, task["out"], job.get("format", "blend"),
+                          meshes=job.get("meshes", True))
     else:
         kept = [ob for ob in added if isinstance(ob, bpy.types.Object)] if job.get("keep_sources") else []
         batch.write_datablocks(task["part"], [outcome.action, *kept])
