@@ -105,33 +105,26 @@ def apply_channels(obj, channels):
             writes.append((pose_bone, mode, prop, value))
     for pose_bone, mode, prop, value in writes:
         if prop.startswith("rotation_"):
-            value = _continuous_one(prop, mode, value, getattr(pose_bone, prop))
+            value = continuous_rotation(prop, mode, value, getattr(pose_bone, prop))
         setattr(pose_bone, prop, value)
 
 
-def _continuous_one(prop, mode, value, current):
-    """continuous_rotation of one value (a list) against a bone's current one (a mathutils value), as a list: the
-    same comparisons in plain floats for a quaternion and an Euler that need no conversion."""
-    if prop == "rotation_quaternion":
-        if value[0] * current[0] + value[1] * current[1] + value[2] * current[2] + value[3] * current[3] < 0.0:
-            return [-v for v in value]
-        return value
-    if prop == "rotation_euler" and all(abs(v - c) <= math.pi for v, c in zip(value, current)):
-        return value
-    return continuous_rotation(prop, mode, np.array(value), np.array(current)).tolist()
-
-
 def continuous_rotation(prop, mode, value, reference):
-    """``value`` (a rotation stored in ``prop`` for rotation ``mode``) re-expressed as the representation of
-    the same rotation nearest ``reference``. Already-continuous values come back unchanged (bit for bit)."""
-    value = np.asarray(value, dtype=np.float64)
+    """``value`` (a rotation stored in ``prop`` for rotation ``mode``; a list, an array or a mathutils value)
+    re-expressed as the representation of the same rotation nearest ``reference``: a list for a list, else an
+    array. Already-continuous values come back unchanged (bit for bit). Compared in plain floats: numpy's
+    per-call cost on a few values per bone was most of a Live update's writing."""
+    values, near = [float(v) for v in value], [float(r) for r in reference]
     if prop == "rotation_quaternion":
-        return -value if np.dot(value, reference) < 0.0 else value
-    if prop == "rotation_axis_angle":
-        return _nearest_axis_angle(value[0], value[1:], reference)
-    if np.all(np.abs(value - reference) <= math.pi):
-        return value
-    return np.array(Euler(value, mode).to_matrix().to_euler(mode, Euler(reference, mode)))
+        dot = values[0] * near[0] + values[1] * near[1] + values[2] * near[2] + values[3] * near[3]
+        out = [-v for v in values] if dot < 0.0 else values
+    elif prop == "rotation_axis_angle":
+        out = _nearest_axis_angle(values[0], values[1:], near).tolist()
+    elif all(abs(v - r) <= math.pi for v, r in zip(values, near)):
+        out = values
+    else:
+        out = list(Euler(values, mode).to_matrix().to_euler(mode, Euler(near, mode)))
+    return out if isinstance(value, list) else np.array(out)
 
 
 def _channels_per_frame(obj, snapshot, armature, idx):

@@ -168,34 +168,35 @@ def cross_components(u, v):
 
 def affine_inverse(m):
     """Inverses of affine matrices (…,4,4) (last row 0 0 0 1), in closed form: numpy's batched inv is
-    several times slower for many small matrices. Computed entry by entry on contiguous component arrays
-    (adjugate rows = cross products of the columns, over the determinant). One matrix in plain floats, the same
-    operations (numpy's per-call cost was most of it; a singular one goes the numpy way, to inf or NaN)."""
+    several times slower for many small matrices. One calculation (_inverse_components) on the entries as
+    contiguous component arrays, or as plain floats for one matrix (numpy's per-call cost was most of it; a
+    singular one goes the arrays' way, to inf or NaN): adjugate rows = cross products of the columns, over the
+    determinant."""
     m = np.asarray(m, dtype=np.float64)
     if m.size == 16:
+        rows = m.reshape(4, 4).tolist()
         try:
-            return np.array(_affine_inverse_one(m.reshape(4, 4).tolist())).reshape(m.shape)
+            inv, shift = _inverse_components([row[:3] for row in rows[:3]], [row[3] for row in rows[:3]])
         except ZeroDivisionError:
             pass
-    a = [[np.ascontiguousarray(m[..., i, j]) for j in range(3)] for i in range(3)]
-    col = [[a[0][j], a[1][j], a[2][j]] for j in range(3)]
-    rows = [cross_components(col[1], col[2]), cross_components(col[2], col[0]), cross_components(col[0], col[1])]
-    det = col[0][0] * rows[0][0] + col[0][1] * rows[0][1] + col[0][2] * rows[0][2]
+        else:
+            return np.array([[*inv[i], shift[i]] for i in range(3)] + [[0.0, 0.0, 0.0, 1.0]]).reshape(m.shape)
+    inv, shift = _inverse_components([[np.ascontiguousarray(m[..., i, j]) for j in range(3)] for i in range(3)],
+                                     [np.ascontiguousarray(m[..., i, 3]) for i in range(3)])
     out = np.zeros(m.shape)
-    inv = [[rows[i][j] / det for j in range(3)] for i in range(3)]
-    t = [np.ascontiguousarray(m[..., i, 3]) for i in range(3)]
     for i in range(3):
         for j in range(3):
             out[..., i, j] = inv[i][j]
-        out[..., i, 3] = -(inv[i][0] * t[0] + inv[i][1] * t[1] + inv[i][2] * t[2])
+        out[..., i, 3] = shift[i]
     out[..., 3, 3] = 1.0
     return out
 
 
-def _affine_inverse_one(m):
-    col = [[m[0][j], m[1][j], m[2][j]] for j in range(3)]
+def _inverse_components(a, t):
+    """(inverse linear part, its translation) of an affine matrix given as components: ``a`` [i][j] its linear
+    part, ``t`` [i] its translation, each a float or an array."""
+    col = [[a[0][j], a[1][j], a[2][j]] for j in range(3)]
     rows = [cross_components(col[1], col[2]), cross_components(col[2], col[0]), cross_components(col[0], col[1])]
     det = col[0][0] * rows[0][0] + col[0][1] * rows[0][1] + col[0][2] * rows[0][2]
     inv = [[rows[i][j] / det for j in range(3)] for i in range(3)]
-    return [[*inv[i], -(inv[i][0] * m[0][3] + inv[i][1] * m[1][3] + inv[i][2] * m[2][3])] for i in range(3)] \
-        + [[0.0, 0.0, 0.0, 1.0]]
+    return inv, [-(inv[i][0] * t[0] + inv[i][1] * t[1] + inv[i][2] * t[2]) for i in range(3)]
