@@ -109,6 +109,14 @@ def test_clips_on_a_cluster_match_the_local_pool(cli, capsys, tmp_path, clips, c
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith("fba-parts-")) == []
 
 
+def clip_workers(psutil, pid):
+    """The clip worker processes process ``pid`` has started (none where it or they just ended)."""
+    try:
+        return [c for c in psutil.Process(pid).children() if "--clip-worker" in " ".join(c.cmdline())]
+    except psutil.Error:
+        return []
+
+
 @needs_distributed
 def test_a_dask_worker_killed_mid_clip_loses_no_clip(cli, capsys, tmp_path, clips, character, two_workers):
     import distributed
@@ -120,16 +128,17 @@ def test_a_dask_worker_killed_mid_clip_loses_no_clip(cli, capsys, tmp_path, clip
     killed = {}
 
     def kill_one_mid_clip():
-        """Kill the Dask worker of the first clip seen running once its clip worker has run 2 s."""
+        """Kill the Dask worker of the first clip seen running as soon as its clip worker is up: a clip takes about
+        a second on an idle machine, so waiting longer could see every clip end first."""
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline:
             for address, keys in watcher.processing().items():
-                children = psutil.Process(pids[address]).children() if keys else []
-                if children and time.time() - children[0].create_time() > 2.0:
-                    killed.update(address=address, keys=list(keys), clip_worker=children[0])
+                workers = clip_workers(psutil, pids[address]) if keys else []
+                if workers:
+                    killed.update(address=address, keys=list(keys), clip_worker=workers[0])
                     os.kill(pids[address], signal.SIGKILL)
                     return
-            time.sleep(0.05)
+            time.sleep(0.01)
 
     killer = threading.Thread(target=kill_one_mid_clip)
     killer.start()
