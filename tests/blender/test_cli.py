@@ -22,11 +22,6 @@ SAMPLES = REPO / "sample_scenes"
 ADJUST_SAMPLES = {"reach_near_far": "Character", "arm_obstacles": "Character", "captured_pose": "Actor"}
 
 
-@pytest.fixture(scope="module")
-def cli(extension_module_name):
-    return importlib.import_module(f"{extension_module_name}.cli")
-
-
 def sample(tmp_path, name):
     """A copy of sample_scenes/<name>.blend in tmp_path (the copy is the run's input)."""
     path = tmp_path / f"{name}.blend"

@@ -22,11 +22,6 @@ CUTS = {"walk_a": ("cmu_07_01_walk.bvh", 1, 100), "walk_b": ("cmu_07_01_walk.bvh
         "jump": ("cmu_02_04_jump.bvh", 1, 90)}  # name: (clip, first, last frame line, 0-based, end excluded)
 
 
-@pytest.fixture(scope="module")
-def cli(extension_module_name):
-    return importlib.import_module(f"{extension_module_name}.cli")
-
-
 @pytest.fixture
 def clips(tmp_path):
     """A folder of three good clip cuts and a corrupt one (its header cut off mid-hierarchy)."""

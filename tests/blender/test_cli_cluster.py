@@ -17,17 +17,11 @@ from tests.helpers.bvh import MOCAP_DIR, cut_bvh
 from tests.helpers.dask_cluster import HAS_DISTRIBUTED, WITHOUT_DISTRIBUTED, Cluster
 
 from .test_cli import keyed_values, reopen, run
+from .test_cli_clips import CUTS
 
 needs_distributed = pytest.mark.skipif(not HAS_DISTRIBUTED, reason=WITHOUT_DISTRIBUTED)
 
-CUTS = {"walk_a": ("cmu_07_01_walk.bvh", 1, 100), "walk_b": ("cmu_07_01_walk.bvh", 150, 260),
-        "jump": ("cmu_02_04_jump.bvh", 1, 90)}
 TIMES = ("seconds", "solve_seconds", "import_seconds")  # the only columns that differ from run to run
-
-
-@pytest.fixture(scope="module")
-def cli(extension_module_name):
-    return importlib.import_module(f"{extension_module_name}.cli")
 
 
 @pytest.fixture

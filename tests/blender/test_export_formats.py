@@ -20,11 +20,6 @@ HELPER = Path(__file__).resolve().parents[1] / "helpers" / "joint_positions.py"
 TOLERANCE = 1e-3  # m: the goal for a re-imported file
 
 
-@pytest.fixture(scope="module")
-def cli(extension_module_name):
-    return importlib.import_module(f"{extension_module_name}.cli")
-
-
 @pytest.fixture
 def clips(tmp_path):
     folder = tmp_path / "clips"

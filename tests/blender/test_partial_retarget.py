@@ -6,7 +6,6 @@ The target is the metarig with an action of its own (keys on every bone, some Be
 moved handles). Measured in the written file, reopened: the new action's F-Curves against the target's own action
 (kept in the file), and Blender's evaluated local rotations against a full retarget's and the target's own."""
 
-import importlib
 
 import bpy
 import numpy as np
@@ -21,11 +20,6 @@ from .test_retarget import FRAMES, add_metarig, import_clip
 FIRST, LAST = 2, 61
 GROUPS = ("arm.L", "leg.R")
 PARTS = {"arm.L": ("arm.L", "hand.L"), "leg.R": ("leg.R", "foot.R")}
-
-
-@pytest.fixture(scope="module")
-def cli(extension_module_name):
-    return importlib.import_module(f"{extension_module_name}.cli")
 
 
 def own_action(rig):

@@ -9,7 +9,6 @@ A case that fails on today's code is marked xfail(strict=True) with the figure m
 
 import functools
 import hashlib
-import importlib
 import shutil
 import tempfile
 from pathlib import Path
@@ -41,11 +40,6 @@ NOT_A_CHAIN = {"quaternius_matt": ("Foot.R", "Root", "LowerLeg.R")}
 def cases(test, rigs=RIGS):
     return [pytest.param(rig, marks=pytest.mark.xfail(strict=True, reason=KNOWN[(test, rig)]))
             if (test, rig) in KNOWN else rig for rig in rigs if rig not in NOT_A_CHAIN]
-
-
-@pytest.fixture(scope="module")
-def cli(extension_module_name):
-    return importlib.import_module(f"{extension_module_name}.cli")
 
 
 @functools.lru_cache(maxsize=None)

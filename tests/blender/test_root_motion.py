@@ -46,11 +46,6 @@ class Case:
     results: dict = field(default_factory=dict)
 
 
-@pytest.fixture(scope="module")
-def cli(extension_module_name):
-    return importlib.import_module(f"{extension_module_name}.cli")
-
-
 def measure(path, target, hips, action=None):
     """The target's evaluated world matrices over its action's frames (``action``, assigned to it, if given) in
     the file at ``path``."""

@@ -13,7 +13,6 @@ A goal a case misses on today's code is marked xfail(strict=True) with the figur
 """
 
 import functools
-import importlib
 import shutil
 import tempfile
 from pathlib import Path
@@ -59,11 +58,6 @@ def cases(goal):
         marks = [pytest.mark.xfail(strict=True, reason=KNOWN[key])] if key in KNOWN else []
         out.append(pytest.param(*case, marks=marks, id=_id(case)))
     return out
-
-
-@pytest.fixture(scope="module")
-def cli(extension_module_name):
-    return importlib.import_module(f"{extension_module_name}.cli")
 
 
 @functools.lru_cache(maxsize=None)
