@@ -359,6 +359,37 @@ def measure_walk(saved, last, contacts):
     }
 
 
+def retarget_clip_file(saved, folder, cli, clip, tag, take=None):
+    """The open scene saved as ``tag``.blend in ``folder``, the clip file ``clip`` retargeted onto the saved rig with
+    `retarget FILE --target RIG --source-file CLIP [--take TAKE] --jobs 1` (cli.main), the result reopened and the
+    clip imported again with Blender's importer (defaults), given the take the batch carried (``take``, else the
+    longest action the import made) with its first key moved onto the result's first frame, as the batch does.
+    Returns (out, target, source, frames): out {"exit_code"} (with "error", and None for the rest, when the clip's
+    row is not done), the two armatures and the result's frames."""
+    path_in, path_out, report_path = (folder / f"{tag}{ext}" for ext in (".blend", "_out.blend", ".json"))
+    bpy.ops.wm.save_as_mainfile(filepath=str(path_in))
+    said = io.StringIO()
+    with contextlib.redirect_stderr(said):
+        code = cli.main(["retarget", str(path_in), "--target", saved.armature_name, "--source-file", str(clip),
+                         *(("--take", take) if take else ()), "--jobs", "1", "--output", str(path_out),
+                         "--report", str(report_path), "--quiet"])
+    out = {"exit_code": code}
+    row = json.loads(report_path.read_text())["rows"][0] if report_path.exists() else {}
+    if row.get("status") != "done":
+        out["error"] = f"exit {code}: {row.get('reason') or said.getvalue().strip()[-300:]}"
+        return out, None, None, None
+    reopen(path_out)
+    target = bpy.data.objects[saved.armature_name]
+    rm.assign_action(target, bpy.data.actions[row["action"]])
+    before = set(bpy.data.actions)
+    source = next(ob for ob in real_rigs.import_file(clip) if ob.type == 'ARMATURE')
+    takes = [a for a in bpy.data.actions if a not in before]
+    rm.assign_action(source, next(a for a in takes if a.name.rsplit("|", 1)[-1].startswith(take)) if take else
+                     max(takes, key=lambda a: a.frame_range[1] - a.frame_range[0]))
+    rm.shift_keys(source, row["frame_start"] - source.animation_data.action.frame_range[0])
+    return out, target, source, np.arange(int(row["frame_start"]), int(row["frame_end"]) + 1)
+
+
 def clip_case(saved, folder, cli, clip_name="kenney_run", take=None):
     """A clip file of the corpus (its own character's skeleton) retargeted onto the saved rig with
     `retarget FILE --target RIG --source-file CLIP [--take TAKE] --jobs 1` (cli.main); the written action and the
@@ -370,29 +401,10 @@ def clip_case(saved, folder, cli, clip_name="kenney_run", take=None):
     saved.open()
     clip = real_rigs.RIGS_DIR / real_rigs.CLIP_FILES[clip_name]
     source_joints = real_rigs.CORPUS[real_rigs.CLIP_CHARACTER[clip_name]]["joints"]
-    path_in, path_out, report_path = (folder / f"{saved.name}_{clip_name}_{take}{ext}"
-                                      for ext in (".blend", "_out.blend", ".json"))
-    bpy.ops.wm.save_as_mainfile(filepath=str(path_in))
-    said = io.StringIO()
-    with contextlib.redirect_stderr(said):
-        code = cli.main(["retarget", str(path_in), "--target", saved.armature_name, "--source-file", str(clip),
-                         *(("--take", take) if take else ()), "--jobs", "1", "--output", str(path_out),
-                         "--report", str(report_path), "--quiet"])
-    out = {"exit_code": code}
-    row = json.loads(report_path.read_text())["rows"][0] if report_path.exists() else {}
-    if row.get("status") != "done":
-        out["error"] = f"exit {code}: {row.get('reason') or said.getvalue().strip()[-300:]}"
+    out, target, source, frames = retarget_clip_file(saved, folder, cli, clip, f"{saved.name}_{clip_name}_{take}",
+                                                     take)
+    if target is None:
         return out
-    reopen(path_out)
-    target = bpy.data.objects[saved.armature_name]
-    rm.assign_action(target, bpy.data.actions[row["action"]])
-    before = set(bpy.data.actions)
-    source = next(ob for ob in real_rigs.import_file(clip) if ob.type == 'ARMATURE')
-    takes = [a for a in bpy.data.actions if a not in before]
-    rm.assign_action(source, next(a for a in takes if a.name.rsplit("|", 1)[-1].startswith(take)) if take else
-                     max(takes, key=lambda a: a.frame_range[1] - a.frame_range[0]))
-    rm.shift_keys(source, row["frame_start"] - source.animation_data.action.frame_range[0])
-    frames = np.arange(int(row["frame_start"]), int(row["frame_end"]) + 1)
     roles = [r for r, b in saved.rig.joints.items() if b and source_joints.get(r)]
     (heads, source_heads), (rots, source_rots), _ = rm.sample(
         frames, [(target, [saved.rig.joints[r] for r in roles]), (source, [source_joints[r] for r in roles])])

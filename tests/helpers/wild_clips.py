@@ -23,14 +23,13 @@ importer, its take's first key moved onto the result's first frame).
 
 import contextlib
 import io
-import json
 
 import bpy
 import numpy as np
 
 from tests.helpers import real_rigs, rig_measures as rm
 from tests.helpers.bvh import CMU_SCALE, MOCAP_DIR
-from tests.helpers.rig_scenarios import CMU_JOINTS, FIRST_FRAME, FPS, reopen
+from tests.helpers.rig_scenarios import CMU_JOINTS, FIRST_FRAME, FPS, reopen, retarget_clip_file
 
 CLIPS = {
     "cmu_jump": dict(bvh="cmu_02_04_jump.bvh"),
@@ -80,26 +79,10 @@ def wild_case(saved, folder, cli, clip, take=None):
         frames = np.arange(FIRST_FRAME, last + 1)
         source_joints, source_mpu = CMU_JOINTS, rig.metres_per_unit
     else:
-        path = real_rigs.RIGS_DIR / spec["file"]
-        bpy.ops.wm.save_as_mainfile(filepath=str(path_in))
-        code, said = _run(cli, ["retarget", str(path_in), "--target", saved.armature_name, "--source-file",
-                                str(path), *(("--take", take) if take else ()), "--jobs", "1", "--output",
-                                str(path_out), "--report", str(report_path), "--quiet"])
-        out = {"exit_code": code}
-        row = json.loads(report_path.read_text())["rows"][0] if report_path.exists() else {}
-        if row.get("status") != "done":
-            out["error"] = f"exit {code}: {row.get('reason') or said.strip()[-300:]}"
+        out, target, source, frames = retarget_clip_file(saved, folder, cli, real_rigs.RIGS_DIR / spec["file"], tag,
+                                                         take)
+        if target is None:
             return out
-        reopen(path_out)
-        target = bpy.data.objects[saved.armature_name]
-        rm.assign_action(target, bpy.data.actions[row["action"]])
-        before = set(bpy.data.actions)
-        source = next(ob for ob in real_rigs.import_file(path) if ob.type == 'ARMATURE')
-        takes = [a for a in bpy.data.actions if a not in before]
-        rm.assign_action(source, next(a for a in takes if a.name.rsplit("|", 1)[-1].startswith(take)) if take else
-                         max(takes, key=lambda a: a.frame_range[1] - a.frame_range[0]))
-        rm.shift_keys(source, row["frame_start"] - source.animation_data.action.frame_range[0])
-        frames = np.arange(int(row["frame_start"]), int(row["frame_end"]) + 1)
         source_joints, source_mpu = real_rigs.CORPUS[spec["character"]]["joints"], 1.0
     rig.armature = target
     rig.meshes = [bpy.data.objects[n] for n in saved.mesh_names]
