@@ -22,13 +22,19 @@ CUTS = {"walk_a": ("cmu_07_01_walk.bvh", 1, 100), "walk_b": ("cmu_07_01_walk.bvh
         "jump": ("cmu_02_04_jump.bvh", 1, 90)}  # name: (clip, first, last frame line, 0-based, end excluded)
 
 
-@pytest.fixture
-def clips(tmp_path):
-    """A folder of three good clip cuts and a corrupt one (its header cut off mid-hierarchy)."""
+def good_clips(tmp_path):
+    """A folder of the three good clip cuts (CUTS)."""
     folder = tmp_path / "clips"
     folder.mkdir()
     for name, (clip, first, last) in CUTS.items():
         cut_bvh(MOCAP_DIR / clip, folder / f"{name}.bvh", first, last)
+    return folder
+
+
+@pytest.fixture
+def clips(tmp_path):
+    """A folder of three good clip cuts and a corrupt one (its header cut off mid-hierarchy)."""
+    folder = good_clips(tmp_path)
     (folder / "broken.bvh").write_text((MOCAP_DIR / "cmu_07_01_walk.bvh").read_text()[:400])
     return folder
 

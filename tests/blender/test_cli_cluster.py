@@ -13,11 +13,10 @@ import bpy
 import numpy as np
 import pytest
 
-from tests.helpers.bvh import MOCAP_DIR, cut_bvh
 from tests.helpers.dask_cluster import HAS_DISTRIBUTED, WITHOUT_DISTRIBUTED, Cluster
 
 from .test_cli import keyed_values, reopen, run
-from .test_cli_clips import CUTS
+from .test_cli_clips import CUTS, good_clips
 
 needs_distributed = pytest.mark.skipif(not HAS_DISTRIBUTED, reason=WITHOUT_DISTRIBUTED)
 
@@ -26,11 +25,7 @@ TIMES = ("seconds", "solve_seconds", "import_seconds")  # the only columns that 
 
 @pytest.fixture
 def clips(tmp_path):
-    folder = tmp_path / "clips"
-    folder.mkdir()
-    for name, (clip, first, last) in CUTS.items():
-        cut_bvh(MOCAP_DIR / clip, folder / f"{name}.bvh", first, last)
-    return folder
+    return good_clips(tmp_path)
 
 
 @pytest.fixture
