@@ -88,6 +88,10 @@ def test_engine_files_carry_the_blend_results_motion_within_a_millimetre(cli, ca
         # The skeleton an engine skins with: every deforming bone (and no other), the mesh bound to it.
         assert sorted(written["joints"]) == solved["deform"]
         assert written["meshes"] == ["Body"]
+        # The engine's animation is named after the clip: FBX's take, glTF's animation (imported as
+        # '<armature>|<take>', '<animation>' or, by Blender 4.2's glTF importer, '<animation>_<armature>').
+        suffix = f"_{written['armature']}"
+        assert [name.split("|")[-1].removesuffix(suffix) for name in written["actions"]] == [row["action"]]
         moved = 0.0
         for bone in solved["deform"]:
             expected = np.array(solved["joints"][bone])

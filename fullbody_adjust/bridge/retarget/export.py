@@ -11,7 +11,8 @@ The settings, chosen so Unreal, Unity and Godot import the file without fixes:
   engine's), their other modifiers not applied, so their shape keys go along.
 - motion: the new action only, baked: one key per frame on every exported bone over the action's frames
   (FBX: no curve simplification; glTF: sampled, no key left out as redundant), so the engine plays what was
-  solved and nothing is fitted again. glTF's animation is named after the clip and starts at time 0.
+  solved and nothing is fitted again. The animation (FBX's take, glTF's animation) is named after the clip; glTF's
+  starts at time 0.
 - units: FBX says its unit is the scene's (1 Blender unit = 1 m in a metric scene) in the file's unit scale and
   moves nothing (``FBX_SCALE_UNITS``): Unity imports the character at scale 1, Unreal converts metres to its
   centimetres. glTF is in metres by its specification, and Blender's exporter takes a Blender unit for a metre:
@@ -59,7 +60,7 @@ def write_clip(context, target_obj, action, path, file_format="blend", *, meshes
         scene.frame_start, scene.frame_end = first, last  # FBX bakes the scene's frame range
         if file_format == "fbx":
             _select(exported, context)
-            _export_fbx(path, meshes)
+            _export_fbx(path, meshes, scene, action.name)
         else:
             root, parented = _metres_root(scene, exported, target_obj.name)
             _select(exported + ([root] if root is not None else []), context)
@@ -118,7 +119,17 @@ def _select(objects, context, active=None):
     layer.objects.active = active if active is not None else (objects[0] if objects else None)
 
 
-def _export_fbx(path, meshes):
+def _export_fbx(path, meshes, scene, name):
+    """The FBX take is named after the scene whose frames it bakes: the scene goes by the clip's name meanwhile, so
+    the engine's animation is named after the clip (as glTF's is), not 'Scene' in every file."""
+    kept, scene.name = scene.name, name
+    try:
+        _fbx(path, meshes)
+    finally:
+        scene.name = kept
+
+
+def _fbx(path, meshes):
     bpy.ops.export_scene.fbx(
         filepath=os.path.abspath(path), use_selection=True,
         object_types={'ARMATURE', 'MESH'} if meshes else {'ARMATURE'},
