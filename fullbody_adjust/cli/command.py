@@ -19,7 +19,7 @@ from . import clips
 from .adjust import adjust
 from .files import CommandError, checked_outputs, input_path, one_line, same_file, write_png, write_text
 from .parser import (COMMAND, EXIT_BAD_INPUT, EXIT_INTERNAL, EXIT_OK, EXIT_TARGETS_MISSED, ParserExit, UsageError,
-    build_parser)
+    build_parser, file_only_options)
 from .retarget import retarget
 
 _WORK = {"adjust": adjust, "retarget": retarget}
@@ -39,6 +39,11 @@ def run(argv, prog):
         print(f"{prog}: error: choose a subcommand: adjust or retarget (see --help)", file=sys.stderr)
         return EXIT_BAD_INPUT
     where = f"{COMMAND} {args.subcommand}"
+    ignored = file_only_options(args)
+    if ignored:
+        print(f"{where}: error: {', '.join(ignored)} act on clips from files (--source-file), not on --source "
+              f"(see --help)", file=sys.stderr)
+        return EXIT_BAD_INPUT
     try:
         if getattr(args, "source_file", None):
             return clips.run(args)  # the batch of clip files: worker processes, one row per clip

@@ -35,6 +35,23 @@ AXES = ("X", "Y", "Z", "-X", "-Y", "-Z")
 VARIANT_ENUMS = {variant: variant.upper() for variant in VARIANTS}
 
 
+# The retarget options that act on clips from files only: option -> (its attribute, its default).
+FILE_ONLY = {"--clip-scale": ("clip_scale", None), "--clip-forward": ("clip_forward", None),
+             "--clip-up": ("clip_up", None), "--clip-fps": ("clip_fps", "scene"), "--take": ("take", None),
+             "--clip-start-frame": ("clip_start_frame", 1), "--jobs": ("jobs", None),
+             "--clip-timeout": ("clip_timeout", None), "--output-dir": ("output_dir", None),
+             "--skip-existing": ("skip_existing", False), "--keep-sources": ("keep_sources", False),
+             "--format": ("format", "blend"), "--armature-only": ("armature_only", False),
+             "--scheduler": ("scheduler", None)}
+
+
+def file_only_options(args):
+    """The options of FILE_ONLY given to a retarget of an armature in the file (--source): they would do nothing."""
+    if getattr(args, "subcommand", None) != "retarget" or args.source_file:
+        return []
+    return [option for option, (name, default) in FILE_ONLY.items() if getattr(args, name) != default]
+
+
 class UsageError(Exception):
     pass
 

@@ -443,3 +443,27 @@ def test_retarget_writes_the_targets_motion(cli, capsys, tmp_path, target, conta
     action = bpy.data.objects[target].animation_data.action
     assert action.name == "Carried"
     assert {float(f) for frames, _ in keyed_values(action).values() for f in frames} == {20.0, 21.0, 22.0}
+
+
+@pytest.mark.parametrize("extra, named", [(["--format", "fbx"], "--format"), (["--jobs", "2"], "--jobs"),
+                                          (["--scheduler", "tcp://127.0.0.1:1", "--take", "Run"], "--take"),
+                                          (["--output-dir", "out", "--armature-only"], "--armature-only")])
+def test_clip_file_options_given_with_source_are_one_line_and_the_file_untouched(cli, capsys, tmp_path, extra,
+                                                                                  named):
+    """Options that act on clips from files only would do nothing to a retarget of an armature in the file."""
+    path = sample(tmp_path, "retarget_cmu")
+    untouched = Untouched(path)
+    code, out, err = run(cli, capsys, "retarget", path, "--source", "Source", "--target", "Large", "--overwrite",
+                         *extra)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and named in err and "--source-file" in err, err
+    untouched.check()
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_clip_file_options_listed_have_the_parsers_defaults(cli):
+    """FILE_ONLY's defaults are the parser's: a retarget of an armature in the file given none of them runs."""
+    args = cli.build_parser().parse_args(["retarget", "F", "--source", "S", "--target", "T"])
+    assert cli.parser.file_only_options(args) == []
+    clip_args = cli.build_parser().parse_args(["retarget", "F", "--source-file", "c.bvh", "--target", "T"])
+    assert {option: getattr(clip_args, name) for option, (name, _) in cli.parser.FILE_ONLY.items()} == {
+        option: default for option, (_, default) in cli.parser.FILE_ONLY.items()}
