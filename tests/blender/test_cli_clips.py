@@ -41,6 +41,10 @@ def clips(tmp_path):
 
 @pytest.fixture
 def character(tmp_path, rig):
+    return save_character(tmp_path, rig)
+
+
+def save_character(tmp_path, rig):
     """A .blend with the Rigify basic metarig named 'Hero' and nothing else."""
     rig.name = "Hero"
     path = tmp_path / "hero.blend"

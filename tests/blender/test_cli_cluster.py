@@ -16,7 +16,7 @@ import pytest
 from tests.helpers.dask_cluster import HAS_DISTRIBUTED, WITHOUT_DISTRIBUTED, Cluster
 
 from .test_cli import keyed_values, reopen, run
-from .test_cli_clips import CUTS, good_clips
+from .test_cli_clips import CUTS, good_clips, save_character
 
 needs_distributed = pytest.mark.skipif(not HAS_DISTRIBUTED, reason=WITHOUT_DISTRIBUTED)
 
@@ -30,11 +30,7 @@ def clips(tmp_path):
 
 @pytest.fixture
 def character(tmp_path, rig):
-    rig.name = "Hero"
-    path = tmp_path / "hero.blend"
-    bpy.ops.wm.save_as_mainfile(filepath=str(path))
-    bpy.ops.wm.read_homefile(use_empty=True)
-    return path
+    return save_character(tmp_path, rig)
 
 
 @pytest.fixture

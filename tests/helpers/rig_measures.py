@@ -170,6 +170,17 @@ def mesh_vertices(meshes):
     return np.concatenate(out) if out else np.zeros((0, 3))
 
 
+def sole_heights(rig, side, verts):
+    """The sole height of the rig's ``side`` foot ('L' or 'R') on each sampled frame (``verts``: per frame the
+    evaluated world vertices of rig.meshes, stacked), in metres; None where no mesh is weighted to the foot."""
+    foot_bones = {rig.joints[f"ankle.{side}"], rig.joints.get(f"ball.{side}")} - {None}
+    masks = foot_vertex_masks(rig.meshes, foot_bones)
+    mask = np.concatenate(masks) if masks else None
+    if mask is None or not mask.any():
+        return None
+    return np.array([v[mask, 2].min() for v in verts]) * rig.metres_per_unit
+
+
 def foot_vertex_masks(meshes, bones):
     """Per mesh, the (n,) bool mask of vertices weighted to ``bones`` together: >= 0.5 where any vertex of the
     meshes reaches it, else > 0. Masks follow mesh_vertices' order."""

@@ -322,11 +322,8 @@ def measure_walk(saved, last, contacts):
     soles_planted, soles_all, slide, soles, source_slide = [], [], [], {}, []
     for side in ("L", "R"):
         planted, which = rm.plants(source_track[f"ankle.{side}"], source_track.get(f"ball.{side}"), FPS, mpu)
-        foot_bones = {rig.joints[f"ankle.{side}"], rig.joints.get(f"ball.{side}")} - {None}
-        masks = rm.foot_vertex_masks(rig.meshes, foot_bones)
-        mask = np.concatenate(masks) if masks else None
-        if mask is not None and mask.any():
-            sole = np.array([v[mask, 2].min() for v in verts]) * mpu
+        sole = rm.sole_heights(rig, side, verts)
+        if sole is not None:
             soles_planted.append(sole[planted])
             soles_all.append(sole)
             soles[side] = sole

@@ -113,11 +113,8 @@ def measure(rig, target, source, source_joints, frames, source_mpu):
         planted, which = rm.plants(source_track[f"ankle.{side}"], source_track.get(f"ball.{side}"), FPS, source_mpu,
                                    floor)
         planted_frames += int(planted.sum())
-        foot_bones = {rig.joints[f"ankle.{side}"], rig.joints.get(f"ball.{side}")} - {None}
-        masks = rm.foot_vertex_masks(rig.meshes, foot_bones)
-        mask = np.concatenate(masks) if masks else None
-        if mask is not None and mask.any():
-            sole = np.array([v[mask, 2].min() for v in verts]) * mpu
+        sole = rm.sole_heights(rig, side, verts)
+        if sole is not None:
             planted_soles.append(sole[planted])
         slide.append(rm.slides(planted, which, {"ankle": track[f"ankle.{side}"], "ball": track.get(f"ball.{side}")})
                      * mpu)
