@@ -199,7 +199,7 @@ def test_retargeted_walk_limbs_point_as_the_sources(rig, cli):
 @pytest.mark.parametrize("rig", cases("walk_heading"))
 def test_retargeted_walk_heads_where_the_source_travels(rig, cli):
     found = figures(rig, "walk", cli)
-    assert abs(found["heading_error_deg"]) <= 10.0, found["heading_error_deg"]
+    assert abs(found["heading_error_deg"]) <= 5.0, found["heading_error_deg"]
 
 
 @pytest.mark.parametrize("rig", cases("walk_pops"))

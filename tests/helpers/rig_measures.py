@@ -15,8 +15,10 @@ callers convert with the rig's metres per unit. The definitions:
   planted; the ball when both, if the rig has one) from where it was on the plant's first frame;
 - limb direction angle: the angle between a limb segment's direction (upper arm, forearm, thigh, shin) in the
   result and in the source, each expressed in its own body's frame of the same frame (left = hips line, up = +Z);
-- heading error: the angle between the result's hips travel, expressed relative to its rest facing, and the
-  source's hips travel relative to the source's facing on its first frame (both horizontal);
+- heading error: the angle between the result's hips travel, expressed relative to the way its hips face (the
+  normal of the hip joints' line, averaged over the clip), and the source's hips travel relative to the source's
+  hips the same way (both horizontal). The hips, not an axis declared for the rig: a skeleton may stand turned from
+  its object's axes (GDQuest's is some 12 degrees off -Y at rest, its toes, hips and shoulders alike);
 - pop frame: a frame on which any of the hips, upper arm, forearm, thigh or shin bones' world orientation turned
   more than POP_DEGREES since the previous frame (compared with the source's own count on the same frames).
 """

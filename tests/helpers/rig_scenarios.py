@@ -336,7 +336,8 @@ def measure_walk(saved, last, contacts):
     slide = np.concatenate(slide)
     angles = rm.limb_direction_angles(track, source_track)
     source_facing = rm.body_frames(source_track["hip.L"], source_track["hip.R"])[:, 1].mean(axis=0)
-    heading = rm.heading_error(track["hips"], rig.facing, source_track["hips"], source_facing)
+    facing = rm.body_frames(track["hip.L"], track["hip.R"])[:, 1].mean(axis=0)
+    heading = rm.heading_error(track["hips"], facing, source_track["hips"], source_facing)
     limbs = [i for i, r in enumerate(roles) if r.split(".")[0] in rm.POP_ROLES]
     source_limbs = [i for i, r in enumerate(source_roles) if r.split(".")[0] in rm.POP_ROLES]
     rots, source_rots = rots[:, limbs], source_rots[:, source_limbs]
