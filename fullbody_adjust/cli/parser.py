@@ -197,7 +197,7 @@ def _add_mirror_arguments(retarget):
     group.add_argument("--mirror", action="store_true",
                        help="carry the source's motion mirrored: left and right swapped through the bone map and "
                             "reflected across the character's own sagittal plane (its left-foot plants become "
-                            "right-foot plants)")
+                            "right-foot plants; contact objects are held where their mirror images stand)")
     group.add_argument("--groups", type=_body_groups, metavar="GROUP,...",
                        help=f"carry only these body groups, comma separated, of {', '.join(BODY_GROUPS)} (the trunk "
                             f"with the pelvis and head, each arm with its hand and fingers, each leg with its "

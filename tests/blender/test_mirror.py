@@ -17,9 +17,11 @@ import pytest
 from fullbody_adjust.bridge.retarget import run as retarget
 from fullbody_adjust.bridge.retarget.read import read_motion, rig_of, source_map
 from fullbody_adjust.solver.retarget.mirror import mirror_pose
+from fullbody_adjust.bridge.reading.pose import read_pose_frames
 from tests.helpers import rig_measures
+from tests.helpers.climb_bar import MARGIN, hanging_frames
 
-from .test_retarget import FRAMES, add_metarig, import_clip
+from .test_retarget import CLIMB, FRAMES, add_metarig, bone_indices, contacts_of, effector_bones, import_clip
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -298,3 +300,46 @@ def test_clip_batches_hand_mirror_and_groups_to_their_workers(extension_module_n
     for key, (frames, values) in batch.items():
         np.testing.assert_array_equal(frames, here[True][key][0])
         np.testing.assert_allclose(values, here[True][key][1], atol=1e-6)
+
+
+def test_retarget_mirror_holds_the_hand_on_the_mirrored_contact_object():
+    """The climb clip hangs from a bar with both hands; a ledge is built here around the left wrist's hanging
+    positions only, 2 cm larger on every side, off to the source's left. Retargeted mirrored onto the metarig with
+    the floor and the ledge as contacts, the ledge goes with the mirrored clip: the right hand (no longer the left)
+    holds it, within 5 cm of the ledge reflected across the source's hip line (the test's own reading of its
+    sagittal plane) on every frame the report says it holds, and farther than 10 cm from where the ledge stands;
+    the left hand touches no object."""
+    source = import_clip(CLIMB, fps=30)
+    lo, hi = source.animation_data.action.frame_range
+    frames = np.arange(int(np.ceil(lo)) + 1, int(hi) + 1, dtype=float)
+    heads = read_pose_frames(source, frames).heads
+    wrists = heads[:, bone_indices(source, ["LeftHand", "RightHand"])]
+    left = wrists[hanging_frames(wrists, 30), 0]
+    ledge_lo, ledge_hi = left.min(axis=0) - MARGIN, left.max(axis=0) + MARGIN
+    bpy.ops.mesh.primitive_cube_add(location=(ledge_lo + ledge_hi) / 2)
+    ledge = bpy.context.active_object
+    ledge.name, ledge.scale = "Ledge", (ledge_hi - ledge_lo) / 2
+    bpy.context.view_layer.update()
+    s = reflection_of_bvh_rig(source)
+    corners = np.array([[(ledge_lo, ledge_hi)[(c >> a) & 1][a] for a in range(3)] for c in range(8)])
+    mirrored = corners @ s[:3, :3].T + s[:3, 3]
+    mirror_lo, mirror_hi = mirrored.min(axis=0), mirrored.max(axis=0)
+
+    target = add_metarig(1.0, location=(0.0, 0.0, 0.0))
+    outcome = retarget.retarget(bpy.context, source, target, int(frames[0]), int(frames[-1]), mirror=True,
+                                contacts=["ground", ("object", "Ledge")])
+    snapshot = read_pose_frames(target, frames)
+    effectors = outcome.contact_report["effectors"]
+    assert not [c for c in effectors["hand.L"]["contacts"] if c["kind"] == "object"]
+    runs = contacts_of(outcome, "hand.R", "object")
+    assert runs and {c["touches"] for c in effectors["hand.R"]["contacts"] if c["kind"] == "object"} == {"Ledge"}
+    hand = bone_indices(target, effector_bones(target)[1:2])[0]
+    assert target.data.bones[hand].name.endswith(".R")
+
+    def distance(points, lo, hi):
+        return np.linalg.norm(np.maximum(np.maximum(lo - points, points - hi), 0.0), axis=-1)
+
+    on = np.concatenate([np.arange(a, b) for a, b in runs])
+    points = np.stack([snapshot.heads[on, hand], snapshot.tails[on, hand]], axis=1)
+    assert distance(points, mirror_lo, mirror_hi).min(axis=1).max() < 0.05
+    assert distance(points, ledge_lo, ledge_hi).min(axis=1).min() > 0.10

@@ -111,7 +111,8 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
     the floor, still) and any number of ('object', Object or name) (hands and feet touching the object's box
     are held on it; feet still off the floor stand on something raised). exact: hands on objects at the
     source's own world positions (else scaled like the motion). ``floor``: world height the source's ground is
-    moved to (None: where it is). ``mirror``: the source's motion mirrored first (solver/retarget/mirror.py).
+    moved to (None: where it is). ``mirror``: the source's motion mirrored first, its contact objects' boxes with it
+    (solver/retarget/mirror.py).
     ``groups``: only these body groups carried (solver/retarget/partial.py), every other bone keeping the
     target's own F-Curves (bridge/retarget/partial.py). ``root_motion``: where the travel is written, 'hips'
     (None, the default), 'bone' (onto ``root_bone``, created when missing), 'object' or 'in-place'
@@ -298,8 +299,9 @@ def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *
         target = rig_of(target_obj, target_bones)
         source_pose, source_world, read_from = read_motion(source_obj, source, frames)
         source = with_world(source, source_world)
-        if mirror:
+        if mirror:  # the clip mirrored in a mirrored scene: its contact objects go with it
             source_pose = mirroring.mirror_pose(source, source_pose)
+            boxes = mirroring.mirror_boxes(source, boxes) if boxes is not None else None
         settings = rt.RetargetSettings(fps=scene.render.fps / scene.render.fps_base, exact=bool(exact))
         target_basis = pose_property(target_obj.pose.bones, "matrix_basis", (4, 4)).transpose(0, 2, 1)
         if len(target.names) != len(target_basis):  # a control rig's skeleton: its bones' own bases

@@ -33,6 +33,23 @@ def reflection(rig):
     """(4,4) armature-space matrix of the reflection across the rig's sagittal plane at rest (module
     docstring). SolverInputError when the mapped left and right joints do not lie apart."""
     world = rig.matrix_world
+    return np.linalg.inv(world) @ _world_reflection(rig) @ world
+
+
+def mirror_boxes(rig, boxes):
+    """World boxes (mins, maxs) (K,3) reflected across the rig's sagittal plane, as the source's motion is: a contact
+    object mirrored with the clip that touches it. Each is the axis-aligned box around its reflected corners (the
+    box itself where the plane is normal to a world axis)."""
+    mins, maxs = (np.asarray(b, dtype=np.float64) for b in boxes)
+    pick = np.array([[(c >> axis) & 1 for axis in range(3)] for c in range(8)], dtype=bool)  # (8,3) corner bits
+    corners = np.where(pick[None], maxs[:, None], mins[:, None])  # (K,8,3)
+    s = _world_reflection(rig)
+    reflected = corners @ s[:3, :3].T + s[:3, 3]
+    return reflected.min(axis=1), reflected.max(axis=1)
+
+
+def _world_reflection(rig):
+    """(4,4) world matrix of the reflection across the rig's sagittal plane at rest."""
     heads = rig.to_world(rig.rest[:, :3, 3])
     left, right = _mapped_pairs(rig)
     lateral = across(UP, heads[left] - heads[right]).sum(axis=0)
@@ -44,7 +61,7 @@ def reflection(rig):
     plane = np.eye(4)
     plane[:3, :3] -= 2.0 * np.outer(normal, normal)
     plane[:3, 3] = 2.0 * float(point @ normal) * normal
-    return np.linalg.inv(world) @ plane @ world
+    return plane
 
 
 def partners(rig, s=None):
