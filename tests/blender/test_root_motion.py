@@ -371,21 +371,31 @@ def test_bad_root_motion_exits_2_with_one_line(cli, capsys, tmp_path, extra, wor
 
 
 def test_the_retarget_operator_offers_root_motion(extension_module_name):
-    """Retarget Motion with Root Motion 'Root Bone' (a root bone created) and 'Object', against its default."""
-    bpy.ops.wm.open_mainfile(filepath=str(SAMPLE), load_ui=False)
-    source, target = bpy.data.objects["Source"], bpy.data.objects["Large"]
-    bpy.context.view_layer.objects.active = target
-    source.select_set(True)
-    target.select_set(True)
+    """Retarget Motion with Root Motion 'Root Bone' (a root bone created) and 'Object' (Root Smoothing its default,
+    and 0: the hips' ground place exactly on the object's), against its default."""
     results = {}
-    for mode, extra in (("HIPS", {}), ("BONE", {"root_bone": "root"}), ("OBJECT", {})):
+    for label, mode, extra in (("HIPS", "HIPS", {}), ("BONE", "BONE", {"root_bone": "root"}), ("OBJECT", "OBJECT", {}),
+                               ("EXACT", "OBJECT", {"root_smoothing": 0.0})):
+        if label in ("HIPS", "EXACT"):  # the object where it stands, not where the last run's keys put it
+            bpy.ops.wm.open_mainfile(filepath=str(SAMPLE), load_ui=False)
+            source, target = bpy.data.objects["Source"], bpy.data.objects["Large"]
+            bpy.context.view_layer.objects.active = target
+            source.select_set(True)
+            target.select_set(True)
         assert bpy.ops.fullbody_adjust.retarget(frame_start=1, frame_end=30, root_motion=mode, **extra) == {'FINISHED'}
-        results[mode] = sample_armature(target, "Hips")
+        results[label] = sample_armature(target, "Hips")
         if mode == "OBJECT":  # its keys in the action, on the object's own channels
             assert {"location", "rotation_euler"} <= {fc.data_path for fc in rm.animating_fcurves(target)}
     names = results["HIPS"]["body"]
-    for mode in ("BONE", "OBJECT"):
+    for mode in ("BONE", "OBJECT", "EXACT"):
         assert np.abs(heads(results[mode], names) - heads(results["HIPS"], names)).max() < 0.1 * MM
+    on_object = {m: relative_to(results[m]["object"], results[m]["bones"]["Hips"])[:, :3, 3]
+                 for m in ("OBJECT", "EXACT")}
+    # exact: the hips' horizontal place (the object's X and Y) fixed on the object; smoothed: swaying on it
+    sway = {m: np.ptp(on_object[m][:, :2], axis=0).max() for m in on_object}
+    print(f"operator: the hips' horizontal range on the object {sway['OBJECT'] / MM:.2f} mm, with Root Smoothing 0 "
+          f"{sway['EXACT'] / MM:.5f} mm")
+    assert sway["EXACT"] < 0.1 * MM < sway["OBJECT"]
     root = results["BONE"]["bones"]["root"]
     assert np.ptp(root[:, 0, 3]) + np.ptp(root[:, 1, 3]) > 0.05  # the root bone carries the travel
     with pytest.raises(RuntimeError, match="is for root motion 'bone'"):
