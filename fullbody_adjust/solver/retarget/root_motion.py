@@ -28,7 +28,7 @@ from ..maths.rotation_channels import quaternions_of
 
 UP = np.array([0.0, 0.0, 1.0])
 # Seconds the root's path is smoothed over: a walking stride (two steps, 1-1.2 s at 100-120 steps a minute) is the
-# period of the hips' side-to-side sway and yaw wobble, each step's back-and-forth its half; 1.2 s leaves under 6%
+# period of the hips' side-to-side sway and yaw wobble, each step's back-and-forth its half; 1.2 s leaves under 7%
 # of them on the root for strides from a run's 0.7 s to a slow walk's 2 s (``smooth``), while a turn or a change
 # of speed over 4 s is 79% followed, over 6 s 95%.
 DEFAULT_SMOOTHING = 1.2  # seconds
