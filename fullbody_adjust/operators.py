@@ -4,13 +4,14 @@ AdjustError and reports it as one line, so a bad input never shows a traceback a
 is SKIP_SAVE, so a run starts from its defaults and the stored settings, never from the last run's values."""
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, StringProperty
 
 from .bridge import adjustment, live
 from .bridge import files as batch
 from .bridge.rig import mapping
 from .bridge.retarget import run as retarget
 from .bridge.retarget.mirror import mirror_armature_pose
+from .solver.retarget.root_motion import DEFAULT_SMOOTHING
 from .bridge.errors import AdjustError
 from .properties import FULLBODY_ADJUST_PG_settings
 
@@ -287,6 +288,11 @@ to the source's trajectories and contacts)"""
     root_bone: StringProperty(name="Root Bone", options={'SKIP_SAVE'},
                               description="With Root Bone: the bone above the hips, created at the floor when the "
                                           "armature has none of this name (default: the topmost bone above them)")
+    root_smoothing: FloatProperty(name="Root Smoothing", default=DEFAULT_SMOOTHING, min=0.0, soft_max=3.0,
+                                  unit='TIME_ABSOLUTE', options={'SKIP_SAVE'},
+                                  description="Seconds the root's path and heading are smoothed over (a walking "
+                                              "stride): it travels steadily, the hips keeping their sway relative "
+                                              "to it; 0: the root follows the hips exactly")
 
     def execute(self, context):
         props = self.properties
@@ -296,17 +302,19 @@ to the source's trajectories and contacts)"""
             self.frame_end if props.is_property_set("frame_end") else None,
             contacts=contact_list(self.contacts, self.contact_object), exact=self.exact,
             new_action=self.new_action or None, progress=progress,
-            root_motion=self.root_motion.lower().replace("_", "-"), root_bone=self.root_bone or None))
+            root_motion=self.root_motion.lower().replace("_", "-"), root_bone=self.root_bone or None,
+            root_smoothing=None if self.root_motion == 'HIPS' else self.root_smoothing))
 
     def draw(self, context):
         layout = self.layout
         layout.use_property_split = True
         for name in ("source", "frame_start", "frame_end", "contacts", "contact_object", "exact", "new_action",
-                     "root_motion", "root_bone"):
+                     "root_motion", "root_bone", "root_smoothing"):
             row = layout.row()
             row.prop(self, name)
             row.enabled = ((name != "contact_object" or 'OBJECT' in self.contacts)
-                           and (name != "root_bone" or self.root_motion == 'BONE'))
+                           and (name != "root_bone" or self.root_motion == 'BONE')
+                           and (name != "root_smoothing" or self.root_motion != 'HIPS'))
 
 
 class FULLBODY_ADJUST_OT_mirror_pose(ArmatureOperator, bpy.types.Operator):

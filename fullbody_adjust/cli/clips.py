@@ -254,7 +254,7 @@ def _job(args, input_path, target):
             "floor": _floor(args.floor, contacts), "frame_start": args.frame_start,
             "frame_end": args.frame_end, "keep_sources": args.keep_sources, "format": args.format,
             "meshes": not args.armature_only, "mirror": args.mirror, "groups": args.groups,
-            "root_motion": args.root_motion, "root_bone": args.root_bone}
+            "root_motion": args.root_motion, "root_bone": args.root_bone, "root_smoothing": args.root_smoothing}
 
 
 def _floor(floor, contacts):

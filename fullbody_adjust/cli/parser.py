@@ -9,6 +9,7 @@ import sys
 import numpy as np
 
 from ..solver.retarget.partial import BODY_GROUPS, parse_groups
+from ..solver.retarget.root_motion import DEFAULT_SMOOTHING
 from ..solver.vocabulary import VARIANTS
 
 COMMAND = "fullbody_adjust"
@@ -224,6 +225,21 @@ def _add_root_motion_arguments(retarget):
                         help="with --root-motion bone: the root bone, an existing bone above the hips, or a new one "
                              "created at the floor under the hips as parent of the hips' hierarchy (default: the "
                              "topmost bone above the hips; a rig with none needs this)")
+    motion.add_argument("--root-smoothing", type=_seconds, metavar="SECONDS",
+                        help="with --root-motion bone, object or in-place: the root follows the hips' ground path "
+                             "and heading smoothed over this many seconds, steady, the hips keeping their sway and "
+                             f"each step's back-and-forth relative to it (default {DEFAULT_SMOOTHING:g}, a walking "
+                             f"stride; 0: the root follows the hips exactly)")
+
+
+def _seconds(text):
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0.0 <= value <= 1e6:
+        raise argparse.ArgumentTypeError(f"{text!r} is not 0 or more seconds")
+    return value
 
 
 def _add_engine_arguments(retarget):

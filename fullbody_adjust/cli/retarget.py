@@ -24,7 +24,8 @@ def retarget_target(args, context):
     if args.groups is not None and args.root_motion not in (None, "hips"):
         raise CommandError(f"--root-motion {args.root_motion} moves every bone, so it cannot go with --groups (a "
                            f"partial retarget keeps the target's own keys elsewhere)")
-    root_motion.check(target, args.root_motion, args.root_bone)  # a batch's too, before any clip starts
+    # a batch's too, before any clip starts
+    root_motion.check(target, args.root_motion, args.root_bone, smoothing=args.root_smoothing)
     contacts = [kind if name is None else (kind, batch.object_named(context, name, "--contacts object"))
                 for kind, name in args.contacts or [("ground", None)]]
     return target, contacts
@@ -45,7 +46,8 @@ def retarget(args, context):
     started = time.perf_counter()
     outcome = retarget_motion(context, source, target, start, end, contacts=contacts, new_action=args.new_action,
                               floor=args.floor, progress=progress, mirror=args.mirror, groups=args.groups,
-                              root_motion=args.root_motion, root_bone=args.root_bone)
+                              root_motion=args.root_motion, root_bone=args.root_bone,
+                              root_smoothing=args.root_smoothing)
     seconds = time.perf_counter() - started
     progress.finish()
 

@@ -91,6 +91,7 @@ def _retarget_clip(context, job, task, progress):
     solve_started = time.perf_counter()
     outcome = retarget(context, source, target, start, end, contacts=job.get("contacts", [["ground", None]]),
                        floor=job.get("floor"), root_motion=job.get("root_motion"), root_bone=job.get("root_bone"),
+                       root_smoothing=job.get("root_smoothing"),
                        new_action=task["name"], mirror=job.get("mirror", False), groups=job.get("groups"),
                        progress=lambda stage, fraction: progress(0.3 + 0.6 * fraction))
     solve_seconds = time.perf_counter() - solve_started

@@ -5,16 +5,20 @@
     bone      the hips' horizontal travel and turn about the vertical go onto the root bone above them (an
               existing ancestor of the hips, or --root-bone NAME, created at the floor under the hips when the
               rig has no such bone; on a generated Rigify rig its 'root' control, the controls posed in place
-              under it); the hips keep their height and tilt relative to it;
+              under it); the hips keep their height, tilt and sway relative to it;
     object    the same travel and turn on the armature object's location and rotation keys (in the same action);
-    in-place  the travel and turn removed: the body stays over its rest place, facing its rest heading.
+    in-place  the travel and turn removed: the body stays over its rest place, facing its rest heading, swaying.
 
-In ``bone`` and ``object`` every bone of the hips' hierarchy ends where the default puts it in the world, on every
-frame; bones outside it (e.g. a game rig's IK bones under its root) follow the root. ``check`` refuses a bad
-request in one line before the solve; ``write`` writes the retarget's pose (write.write_pose) and the root's keys.
+The root's travel and turn are the hips' ground path and heading smoothed over ``smoothing`` seconds
+(``--root-smoothing``, default the solver's DEFAULT_SMOOTHING, a walking stride; times the scene's frame rate in
+frames, solver root_motion.smooth): steady, the hips keeping their sway, the back-and-forth of each step and their
+yaw wobble relative to the root; 0: the root follows the hips exactly (they keep only height and tilt). In ``bone``
+and ``object`` every bone of the hips' hierarchy ends where the default puts it in the world, on every frame; bones
+outside it (e.g. a game rig's IK bones under its root) follow the root. ``check`` refuses a bad request in one
+line before the solve; ``write`` writes the retarget's pose (write.write_pose) and the root's keys.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import bpy
 import numpy as np
@@ -35,22 +39,36 @@ _ROOT_LENGTH = 0.25  # a created root bone's length, in hips heights above the f
 @dataclass(frozen=True)
 class Request:
     """How the travel is written: ``mode`` (MODES), and for 'bone' the root bone's name, whether it is to be
-    created, and whether it is a generated control rig's root control."""
+    created, and whether it is a generated control rig's root control; ``smoothing``: seconds the root's path is
+    smoothed over (0: the hips' exactly)."""
 
     mode: str = "hips"
     bone: str = None
     create: bool = False
     control: bool = False  # the root control of a generated control rig
+    smoothing: float = split.DEFAULT_SMOOTHING
 
 
-def check(target_obj, mode=None, root_bone=None, hips=None):
-    """The Request of ``mode`` and ``root_bone`` on ``target_obj``, whose hips bone is ``hips`` (default: its bone
-    map's); AdjustError (one line) when it cannot be done, before anything changes."""
+def check(target_obj, mode=None, root_bone=None, hips=None, smoothing=None):
+    """The Request of ``mode``, ``root_bone`` and ``smoothing`` (seconds, None: the default) on
+    ``target_obj``, whose hips bone is ``hips`` (default: its bone map's); AdjustError (one line) when it cannot be
+    done, before anything changes."""
     mode = mode or "hips"
     if mode not in MODES:
         raise AdjustError(f"Unknown root motion '{mode}' (use {', '.join(MODES)})")
     if root_bone is not None and mode != "bone":
         raise AdjustError(f"A root bone ('{root_bone}') is for root motion 'bone', not '{mode}'")
+    if smoothing is not None:
+        if mode == "hips":
+            raise AdjustError(f"A root smoothing ({smoothing:g} s) is for root motion 'bone', 'object' or "
+                              f"'in-place', not 'hips'")
+        if not 0.0 <= smoothing <= 1e6:  # NaN too
+            raise AdjustError(f"The root smoothing must be 0 or more seconds, got {smoothing:g}")
+    request = _request_of(target_obj, mode, root_bone, hips)
+    return request if smoothing is None else replace(request, smoothing=float(smoothing))
+
+
+def _request_of(target_obj, mode, root_bone, hips):
     if mode != "bone":
         return Request(mode)
     if control_rig.is_generated_rigify(target_obj):
@@ -98,7 +116,8 @@ def write(context, request, target_obj, target, posed, frames, name, carried=(),
         return write_pose(context, target_obj, target, posed, frames, name, carried)
     hips = target.groups["root"][0]
     world = target.matrix_world
-    travel = split.split_travel(world @ posed[:, hips], world @ target.rest[hips])
+    fps = context.scene.render.fps / context.scene.render.fps_base
+    travel = split.split_travel(world @ posed[:, hips], world @ target.rest[hips], request.smoothing * fps)
     motion = split.in_armature_space(travel.matrices, world)  # (F,4,4), a left factor of armature-space poses
     if request.mode in ("object", "in-place") or request.control:
         body = target.descendants(hips)

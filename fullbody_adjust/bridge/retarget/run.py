@@ -103,7 +103,7 @@ class RetargetOutcome:
 
 def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, *, contacts=("ground",),
              exact=True, new_action=None, floor=None, progress=None, mirror=False, groups=None, root_motion=None,
-             root_bone=None):
+             root_bone=None, root_smoothing=None):
     """Retarget ``source_obj``'s motion over [frame_start, frame_end] (default: its action's frame range)
     onto ``target_obj``, into a new action named ``new_action`` (default '<source action>_<target>').
 
@@ -116,7 +116,8 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
     ``groups``: only these body groups carried (solver/retarget/partial.py), every other bone keeping the
     target's own F-Curves (bridge/retarget/partial.py). ``root_motion``: where the travel is written, 'hips'
     (None, the default), 'bone' (onto ``root_bone``, created when missing), 'object' or 'in-place'
-    (bridge/retarget/root_motion.py; not with ``groups``); the contact figures are those of the world motion the
+    (bridge/retarget/root_motion.py; not with ``groups``), its path smoothed over ``root_smoothing`` seconds
+    (None: the default, 0: the hips' exactly); the contact figures are those of the world motion the
     root and pose build. Returns a RetargetOutcome; AdjustError (one
     line) on bad input, before anything changes (but the bone map stored on the target, see
     mapping.ensure_map)."""
@@ -130,7 +131,8 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
     prepared = prepare(context, source_obj, target_obj, frame_start, frame_end, contacts=contacts, exact=exact,
                        floor=floor, mirror=mirror)
     target, plan = prepared.target, prepared.plan
-    root_request = root_travel.check(target_obj, root_motion, root_bone, target.names[target.groups["root"][0]])
+    root_request = root_travel.check(target_obj, root_motion, root_bone, target.names[target.groups["root"][0]],
+                                     root_smoothing)
 
     progress("solving", 0.2)
     try:
