@@ -402,6 +402,41 @@ def test_the_retarget_operator_offers_root_motion(extension_module_name):
         bpy.ops.fullbody_adjust.retarget(frame_start=1, frame_end=30, root_motion='OBJECT', root_bone="root")
 
 
+def test_retargeting_again_after_object_root_motion_gives_what_the_first_run_gave(extension_module_name):
+    """The sample's Large moved and turned, the scene at frame 20 (where the travel keyed on the object is well
+    away from its start): Retarget Motion with Root Motion 'Object' twice, then with the default 'Hips'. The second
+    object run keys the object on every frame where the first did (within 1e-6) and every bone with it (0.001 mm);
+    the hips run after them leaves the object where it stood before the first, every frame, and every bone where
+    a hips run on the file as opened puts it."""
+
+    def opened():
+        bpy.ops.wm.open_mainfile(filepath=str(SAMPLE), load_ui=False)
+        source, target = bpy.data.objects["Source"], bpy.data.objects["Large"]
+        target.location, target.rotation_euler = (0.3, -0.2, 0.0), (0.0, 0.0, 0.5)
+        bpy.context.scene.frame_set(20)
+        bpy.context.view_layer.objects.active = target
+        source.select_set(True)
+        target.select_set(True)
+        return target
+
+    def run(target, mode):
+        assert bpy.ops.fullbody_adjust.retarget(frame_start=1, frame_end=30, root_motion=mode) == {'FINISHED'}
+        result = sample_armature(target, "Hips")
+        bpy.context.scene.frame_set(20)
+        return result
+
+    fresh = run(opened(), "HIPS")
+    target = opened()
+    stood = np.array(target.matrix_world)
+    first, second, hips = run(target, "OBJECT"), run(target, "OBJECT"), run(target, "HIPS")
+    names = fresh["body"]
+    assert np.ptp(first["object"][:, :2, 3], axis=0).max() > 0.05  # the object travels
+    assert np.abs(second["object"] - first["object"]).max() < 1e-6
+    assert np.abs(heads(second, names) - heads(first, names)).max() < 0.001 * MM
+    assert np.abs(hips["object"] - stood).max() < 1e-6
+    assert np.abs(heads(hips, names) - heads(fresh, names)).max() < 0.001 * MM
+
+
 def test_a_generated_rigify_rig_takes_every_mode(extension_module_name):
     """On a generated control rig the keys go on its controls: 'bone' (its 'root' control, which every control
     hangs from) and 'object' leave the hands and feet where the default puts them (0.1 mm; the other deform bones

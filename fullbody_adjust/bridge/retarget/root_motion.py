@@ -16,12 +16,16 @@ yaw wobble relative to the root; 0: the root follows the hips exactly (they keep
 and ``object`` every bone of the hips' hierarchy ends where the default puts it in the world, on every frame; bones
 outside it (e.g. a game rig's IK bones under its root) follow the root. ``check`` refuses a bad request in one
 line before the solve; ``write`` writes the retarget's pose (write.write_pose) and the root's keys.
+
+An armature whose travel ``object`` keyed stands, for the next retarget onto it, where it stood before those keys
+(``standing_basis``): retargeting again, in any mode, gives what the first run gave, not its travel added twice.
 """
 
 from dataclasses import dataclass, replace
 
 import bpy
 import numpy as np
+from mathutils import Matrix
 
 from ...solver.retarget import motion as rt
 from ...solver.retarget import root_motion as split
@@ -34,6 +38,9 @@ from .write import write_pose
 MODES = ("hips", "bone", "object", "in-place")
 _CONTROL_ROOT = "root"  # the bone every control of a generated Rigify rig hangs from
 _ROOT_LENGTH = 0.25  # a created root bone's length, in hips heights above the floor
+# Set on an armature whose travel 'object' keyed: the action holding those keys and the object's matrix_basis they
+# start from (row by row).
+_STANDING = "fullbody_adjust_standing"
 
 
 @dataclass(frozen=True)
@@ -108,10 +115,35 @@ def add_requested_bone(context, target_obj, mode=None, root_bone=None, floor=Non
         _add_root_bone(context, target_obj, rig_of(target_obj, mapping.ensure_map(target_obj)), request.bone, floor)
 
 
+def standing_basis(obj):
+    """(4,4) the matrix_basis ``obj`` had before an earlier 'object' root motion keyed its travel, while its
+    action is still that run's (its keys move it); else None."""
+    record = obj.get(_STANDING)
+    action = obj.animation_data.action if obj.animation_data is not None else None
+    if record is None or action is None or action.name != record.get("action"):
+        return None
+    return np.array(record["basis"], dtype=np.float64).reshape(4, 4)
+
+
+def standing_world(obj):
+    """(4,4) ``obj``'s world matrix where it stands for a retarget: its current one, or before an earlier
+    'object' root motion's keys moved it (standing_basis)."""
+    world = np.array(obj.matrix_world, dtype=np.float64)
+    basis = standing_basis(obj)
+    if basis is None:
+        return world
+    return world @ np.linalg.inv(np.array(obj.matrix_basis, dtype=np.float64)) @ basis
+
+
 def write(context, request, target_obj, target, posed, frames, name, carried=(), floor=None):
     """write.write_pose of the retarget's pose ``posed`` (F,J,4,4, armature space of ``target``) as ``request``
     asks; ``floor``: the world height a created root bone stands at (None: the rig's lowest rest joint).
-    Returns (action, keyed bones; the object's own keys in 'object' are not among them)."""
+    Returns (action, keyed bones; the object's own keys in 'object' are not among them). An object an earlier
+    'object' run moved goes back to where it stood (standing_basis), or its new keys start from there."""
+    standing = standing_basis(target_obj)
+    if standing is not None and (request is None or request.mode != "object"):
+        target_obj.matrix_basis = Matrix(standing)  # the new action does not key the object: it stands there
+        del target_obj[_STANDING]
     if request is None or request.mode == "hips":
         return write_pose(context, target_obj, target, posed, frames, name, carried)
     hips = target.groups["root"][0]
@@ -124,8 +156,8 @@ def write(context, request, target_obj, target, posed, frames, name, carried=(),
         moved = posed.copy()
         moved[:, body] = split.residual(motion, posed[:, body])
         action, keyed = write_pose(context, target_obj, target, moved, frames, name, carried)
-        if request.mode == "object":
-            _key_object(context, target_obj, action, frames, travel.matrices)  # not a bone: not in ``keyed``
+        if request.mode == "object":  # not a bone: not in ``keyed``
+            _key_object(context, target_obj, action, frames, travel.matrices, standing)
         elif request.control:  # the controls posed in place under the root control, which takes the travel
             _key_control_root(context, target_obj, request.bone, motion, frames)
             keyed = keyed + (request.bone,)
@@ -210,15 +242,18 @@ def _key_bone_basis(context, target_obj, bone, basis, frames):
     context.scene.frame_set(context.scene.frame_current)
 
 
-def _key_object(context, target_obj, action, frames, motions):
-    """Key the object's location and rotation so its world matrix is M @ its current one on every frame
-    (through its parent, if any)."""
-    basis0 = np.array(target_obj.matrix_basis, dtype=np.float64)
-    outer = np.array(target_obj.matrix_world, dtype=np.float64) @ np.linalg.inv(basis0)  # parent and its inverse
+def _key_object(context, target_obj, action, frames, motions, standing=None):
+    """Key the object's location and rotation so its world matrix is M @ the one it stands at on every frame
+    (through its parent, if any): its current one, or ``standing`` (matrix_basis) where an earlier run's keys
+    moved it; recorded for the next run (standing_basis)."""
+    now = np.array(target_obj.matrix_basis, dtype=np.float64)
+    basis0 = now if standing is None else standing
+    outer = np.array(target_obj.matrix_world, dtype=np.float64) @ np.linalg.inv(now)  # parent and its inverse
     basis = np.linalg.inv(outer) @ motions @ outer @ basis0
     mode = target_obj.rotation_mode
     prop = rt.ROTATION_PROPERTY[mode]
     current = np.array(getattr(target_obj, prop), dtype=np.float64)[None]
     rotation = rt.rotation_channel(mode, rt.unit_columns(basis[:, None, :3, :3]), current)[:, 0]
     keyframes.key_object_frames(target_obj, action, frames, {"location": basis[:, :3, 3], prop: rotation})
+    target_obj[_STANDING] = {"action": action.name, "basis": [float(v) for v in basis0.reshape(-1)]}
     context.scene.frame_set(context.scene.frame_current)

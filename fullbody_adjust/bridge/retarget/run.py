@@ -129,7 +129,7 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
             raise AdjustError(f"Root motion '{root_motion}' moves every bone, so it cannot go with --groups "
                               f"(a partial retarget keeps the target's own keys elsewhere)")
     prepared = prepare(context, source_obj, target_obj, frame_start, frame_end, contacts=contacts, exact=exact,
-                       floor=floor, mirror=mirror)
+                       floor=floor, mirror=mirror, standing=groups is None)
     target, plan = prepared.target, prepared.plan
     root_request = root_travel.check(target_obj, root_motion, root_bone, target.names[target.groups["root"][0]],
                                      root_smoothing)
@@ -277,9 +277,10 @@ def contact_specs(context, contacts):
 
 
 def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *, contacts=("ground",),
-            exact=True, floor=None, mirror=False):
+            exact=True, floor=None, mirror=False, standing=True):
     """Check the input, read the source's motion and plan the retarget (see ``retarget``); changes nothing
-    but the target's stored bone map."""
+    but the target's stored bone map. ``standing``: the target stands where an earlier 'object' root motion's
+    keys found it (root_motion.standing_world; not for a partial retarget, which keeps those keys)."""
     check_source(source_obj)
     start_checks.check_armature(target_obj)
     if target_obj.mode == 'EDIT':
@@ -299,6 +300,8 @@ def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *
     try:
         source = rig_of(source_obj, source_bones)
         target = rig_of(target_obj, target_bones)
+        if standing and root_travel.standing_basis(target_obj) is not None:  # an earlier run's root keys moved it
+            target = with_world(target, root_travel.standing_world(target_obj))
         source_pose, source_world, read_from = read_motion(source_obj, source, frames)
         source = with_world(source, source_world)
         if mirror:  # the clip mirrored in a mirrored scene: its contact objects go with it
