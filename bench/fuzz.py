@@ -15,7 +15,9 @@ Checked on every frame:
   - statuses: how many effectors ended in each status.
 Timed: --sample frames of each batch solved alone (adjust_pose, process time; a batch has one time): the slowest
 against the median of its batch (goal: none above 10x), the worst batches listed with their seed and kinds to
-reproduce them; each such single solve is also compared to its row of the batch, bit for bit (mismatches).
+reproduce them (batch k's generator is numpy's default_rng([seed, k])); each such single solve is also compared to
+its row of the batch, bit for bit (mismatches). Counted: the chain iterations each frame spent (the batch's
+result.iterations), their median, 99th percentile and largest, and those of each worst batch's slowest frame.
 Bad input: --bad problems with a target, start pose, pole or box holding NaN or inf where a number must be: each
 must be refused with one SolverInputError line (refused), never solved (solved) nor fail otherwise (failed).
 
@@ -171,6 +173,11 @@ def bad_inputs(rng, rig, count):
     return dict(out), dict(messages.most_common(12)), solved[:5]
 
 
+def _spread(x):
+    return {"median": float(np.median(x)), "p99": float(np.percentile(x, 99)), "max": int(x.max()),
+            "mean": round(float(x.mean()), 2)}
+
+
 def run(problems, batch, sample, bad, seed, time_singles=True):
     """The fuzz report (a dict) of `problems` frames in batches of `batch`, `sample` per batch timed alone."""
     rig = metarig.load()
@@ -180,7 +187,7 @@ def run(problems, batch, sample, bad, seed, time_singles=True):
     statuses, kinds_seen = Counter(), Counter()
     nan_frames = mismatches = errors = 0
     worst_length = 0.0
-    ratios, slow, error_cases, nan_cases = [], [], [], []
+    ratios, slow, error_cases, nan_cases, frame_iterations = [], [], [], [], []
     batch_seconds = single_seconds = 0.0
     singles = 0
     for k in range(batches):
@@ -203,10 +210,11 @@ def run(problems, batch, sample, bad, seed, time_singles=True):
             nan_cases.append({"batch": k, "frames": np.nonzero(nan)[0].tolist()[:5], "kinds": b.kinds})
         worst_length = max(worst_length, float(worst.max()))
         statuses.update(result.status.ravel().tolist())
+        frame_iterations.append(result.iterations)
         if not time_singles or sample <= 0:
             continue
-        times = []
-        for f in sorted(brng.choice(batch, min(sample, batch), replace=False).tolist()):
+        times, frames = [], sorted(brng.choice(batch, min(sample, batch), replace=False).tolist())
+        for f in frames:
             one_args, one_kwargs = one_frame(args, kwargs, f)
             t0 = time.process_time()
             single = adjust_pose(*one_args, **one_kwargs)
@@ -217,7 +225,9 @@ def run(problems, batch, sample, bad, seed, time_singles=True):
         ratio = max(times) / float(np.median(times))
         ratios.append(ratio)
         slow.append({"batch": k, "ratio": round(ratio, 2), "slowest_ms": round(1e3 * max(times), 2),
-                     "median_ms": round(1e3 * float(np.median(times)), 2), "kinds": b.kinds,
+                     "median_ms": round(1e3 * float(np.median(times)), 2),
+                     "slowest_iterations": int(result.iterations[frames[int(np.argmax(times))]]),
+                     "median_iterations": float(np.median(result.iterations[frames])), "kinds": b.kinds,
                      "boxes": 0 if b.obstacles is None else len(b.obstacles), "height": b.height,
                      "jitter": b.jitter})
     slow.sort(key=lambda case: -case["ratio"])
@@ -229,6 +239,7 @@ def run(problems, batch, sample, bad, seed, time_singles=True):
         "nan_outputs": nan_frames, "nan_cases": nan_cases[:5],
         "max_relative_length_change": worst_length, "lengths_within": worst_length <= LENGTH_TOLERANCE,
         "statuses": dict(statuses), "target_kinds": dict(kinds_seen),
+        "iterations_per_frame": _spread(np.concatenate(frame_iterations) if frame_iterations else np.zeros(1)),
         "bad_inputs": refused, "bad_input_messages": messages, "bad_inputs_solved": accepted,
         "timing": {
             "batch_ms_per_frame": round(1e3 * batch_seconds / max(1, batches * batch), 3),

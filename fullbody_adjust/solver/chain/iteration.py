@@ -9,7 +9,7 @@ import numpy as np
 
 from ..maths import lanes
 from ..maths import vectors as vec
-from .settings import _NUDGE, _NUDGES, _PATIENCE, _STALL
+from .settings import _NUDGE, _NUDGES, _PATIENCE, _PROGRESS, _STALL
 
 _NO_PENETRATION_YET = np.iinfo(np.int64).max  # the best penetration count before the first iterate
 
@@ -97,10 +97,11 @@ class Iteration:
             lane = np.nonzero(go)[0]  # the problems still iterating, as positions in rows
             if lane.size == 0:
                 return tuple(out)
-            active, pose, target = rows[lane], pose[lane], target[lane]
+            active, pose, target, residual = rows[lane], pose[lane], target[lane], residual[lane]
             zero = np.zeros(lane.size, dtype=np.int64)
-        iterations = nudges = best_iter = zero
+        iterations = nudges = marked = zero
         best, best_res, best_pen = pose, zero + np.inf, zero + (_NO_PENETRATION_YET if constrained else 0)
+        mark = residual  # the best residual when progress was last marked (at first the start's)
         while True:
             prev = pose
             placed = list(prev) if one else prev.copy()
@@ -118,16 +119,19 @@ class Iteration:
                 pose = _chosen(free, self.nudged(placed, active, nudges), placed)
                 nudges = nudges + free
                 stalled = stalled & lanes.not_(free)
+            # Progress: the kept iterate has fewer penetrations, or its residual's excess over the tolerance shrank
+            # by _PROGRESS of what it was at the last mark (at least by `stall`).
+            gained = mark - res > lanes.maximum((mark - tol) * _PROGRESS, stall)
             if constrained:
                 pen = self.penetrations(placed, active)  # of the iterate, not of the nudged pose
-                improved = (pen < best_pen) | (res < best_res - stall)  # against the best before this iterate
                 better = (pen < best_pen) | ((pen == best_pen) & (res < best_res))
+                improved = (pen < best_pen) | ((pen == best_pen) & gained)  # against the best before this iterate
                 best = _chosen(better, placed, best)
                 best_res, best_pen = lanes.where(better, res, best_res), lanes.where(better, pen, best_pen)
-                best_iter = lanes.where(improved, iterations, best_iter)
-                stalled = stalled | ((res > tol) & (iterations - best_iter >= _PATIENCE))
             else:
-                best, best_res = placed, res
+                best, best_res, improved = placed, res, gained
+            mark, marked = lanes.where(improved, res, mark), lanes.where(improved, iterations, marked)
+            stalled = stalled | ((res > tol) & (iterations - marked >= _PATIENCE))
             done = (res <= tol) | stalled | (iterations >= cap)
             if one:
                 if done:
@@ -140,8 +144,8 @@ class Iteration:
             keep = ~done
             if not lanes.any_(keep):
                 return tuple(out)
-            lane, active, target, pose, iterations, nudges, best, best_res, best_pen, best_iter = (
-                x[keep] for x in (lane, active, target, pose, iterations, nudges, best, best_res, best_pen, best_iter))
+            (lane, active, target, pose, iterations, nudges, best, best_res, best_pen, mark, marked) = (
+                x[keep] for x in (lane, active, target, pose, iterations, nudges, best, best_res, best_pen, mark, marked))
 
     def nudged(self, pose, rows, nudges):
         """The pose (as the passes take it) with its interior joints pushed sideways (see _NUDGES), by each problem's

@@ -17,12 +17,16 @@ MIN_SEGMENT_LENGTH = 1e-12
 _COINCIDENT = 1e-12
 # An iteration that moves the end effector less than tolerance * _STALL has stalled.
 _STALL = 1e-3
-# With limits or obstacles FABRIK is no longer a descent method: it can creep away from the target or cycle
-# (the forward pass proposes poses the constrained backward pass cannot keep). Such a problem also stops when
-# its best residual has not improved by tolerance * _STALL for _PATIENCE iterations, and returns its best
-# iterate (fewest penetrations, then smallest residual; every iterate ends on a backward pass, so each one
-# satisfies the limits).
+# With limits or obstacles FABRIK is no longer a descent method: it can creep away from the target or cycle (the
+# forward pass proposes poses the constrained backward pass cannot keep), and near the edge of its reach it creeps
+# even without them. A problem also stops when, for _PATIENCE iterations, its best iterate has neither lost a
+# penetration nor cut its residual's excess over the tolerance by _PROGRESS of that excess (and at least by
+# tolerance * _STALL): creeping at that pace could not reach the tolerance within the cap, and what it would still
+# gain there is a small share of its residual. A problem with limits or obstacles returns its best iterate (fewest
+# penetrations, then smallest residual; every iterate ends on a backward pass, so each one satisfies the limits);
+# one without returns its last.
 _PATIENCE = 20
+_PROGRESS = 0.01
 # A stall with no limit or obstacle in play is a symmetric fixed point of FABRIK: a straight chain whose
 # target lies on its own line (every direction toward the old joints is along the line, or undefined and
 # falling back to the previous one). Up to _NUDGES times such a chain gets its interior joints pushed
