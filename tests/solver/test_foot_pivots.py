@@ -91,3 +91,15 @@ def test_the_ball_is_the_farthest_bone_below_the_ankle():
     assert fp.ball_bone(rig, "foot.L") == 4
     rig.parents = np.array([-1, 0, 1, -1, -1, -1])
     assert fp.ball_bone(rig, "foot.L") is None
+
+
+def test_a_frame_the_joint_comes_to_rest_on_is_held():
+    """The frame a ball arrives on (fast before, still after) and the one it leaves from are still as a viewer sees
+    them: the mean of both steps (0.3 m/s here) would leave them out, and the foot would turn about its sole there."""
+    fps = 24.0
+    y = 0.025 * np.concatenate([np.arange(10), np.full(10, 10), 10 + np.arange(1, 11)])  # 0.6 m/s, still, 0.6 m/s
+    track = np.stack([np.zeros(30), y, np.full(30, 0.02)], axis=1)
+    held = fp.held_still(track, fps, speed=0.2, height=0.06)
+    assert held[10:20].all() and not held[:10].any() and not held[20:].any()
+    central = np.linalg.norm(np.gradient(track, axis=0), axis=1) * fps
+    assert central[10] > 0.2 and central[19] > 0.2  # what central differences would have said

@@ -245,11 +245,19 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     heads = start[..., :3, 3]
     tails = end_points(start, target.ends)
 
+    asked = [world_targets, None]  # the targets the pose to refit was solved for, and how far the last refit moved them
+
     def refit_feet(pose):
         """World targets (F,E,3) again, each held foot shaped as in ``pose`` (F,Jt,4,4: the solved pose, every
         bone as Blender poses it), so that its sole, skinned partly to the shin as a mesh's heel often is,
-        rests and rolls on the floor as the knee is finally bent."""
-        return held(free + shift[:, None], pose, ankle_above_sole(target, pose))
+        rests and rolls on the floor as the knee is finally bent. ``pose`` is the one solved for the targets this
+        returned last (the plan's world_targets the first time): from the second call on, each coordinate moves
+        to where the last two refits say the targets and the feet they shape agree (_secant_step)."""
+        wanted = held(free + shift[:, None], pose, ankle_above_sole(target, pose))
+        moved = wanted - asked[0]
+        out = asked[0] + (moved if asked[1] is None else _secant_step(moved, asked[1], 1e-6 * leg_t))
+        asked[:] = [out, moved]
+        return out
 
     return RetargetPlan(start_pose=start, heads=heads, tails=tails, targets=target.to_armature(world_targets),
                         world_targets=world_targets, contacts=contacts,
@@ -383,6 +391,19 @@ def _held_offset(targets, free, contacts, half_width):
     that moves the body as its contacts moved, so that arms and legs share what is left to reach."""
     weight = moving_average(contacts.astype(np.float64), half_width)
     return np.einsum("fe,fei->fi", weight, targets - free) / np.maximum(weight.sum(axis=1), 1.0)[:, None]
+
+
+def _secant_step(moved, before, tiny):
+    """How far to move targets that a refit moved by ``moved`` after moving them by ``before`` (arrays alike).
+    Where the feet hang on the knee (a heel skinned to the shin: the ankle lowered, the knee bends and the sole
+    sinks further), each refit moves a target by a fraction ``ratio`` of the one before, and alternately up and
+    down (KayKit's crouch: -0.67), so plain refits stop millimetres short. Taken as steady, the series sums to
+    moved / (1 - ratio) (Aitken's step), where the refits shrink: a ratio in [-0.95, 0.5] (at most twice
+    ``moved`` where they creep one way). Elsewhere (a refit moving a target further than the one before: the
+    sole's lowest point changed, not a steady series; or ``before`` under ``tiny``), the plain refit."""
+    ratio = np.where(np.abs(before) > tiny, moved / np.where(np.abs(before) > tiny, before, 1.0), 0.0)
+    steady = (ratio >= -0.95) & (ratio <= 0.5)
+    return moved / (1.0 - np.where(steady, ratio, 0.0))
 
 
 def _blend_frames(path, free, start, stop, shortest, step):
