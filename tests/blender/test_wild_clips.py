@@ -40,9 +40,6 @@ CASES = (
 KNOWN = {
     ("pops", "godot_plush", "cmu_dance"): "22 pop frames (the clip itself 16)",
     ("slide", "godot_plush", "cmu_dance"): "slide p95 17.4 mm, 39.6 mm at the clip's size (the clip's own 16.6)",
-    ("slide", "kaykit_manny", "cmu_climb_sit"): "slide p95 7.5 mm, 16.6 mm at the clip's size (the clip's own 16.2)",
-    ("slide", "kaykit_manny", "kaykit_advanced:Sneaking"): "slide p95 10.1 mm (the clip's own 9.6, same size)",
-    ("soles", "kaykit_manny", "kaykit_advanced:Sneaking"): "planted soles p95 11.5 mm above the floor",
 }
 
 

@@ -457,10 +457,13 @@ def test_a_step_is_found_as_two_plants():
     runs = sorted((c.start, c.stop) for c in found)
     (a0, b0), (a1, b1) = runs
     assert a0 == 0 and b1 == frames
-    # The plants end and start where the foot is still moving slower than the threshold.
-    speed = np.linalg.norm(np.gradient(ankle, axis=0), axis=1) * FPS
+    # The plants end and start where the foot is still moving slower than the threshold towards one neighbouring
+    # frame at least: the frame it comes to rest on, and the one it leaves from, are the plant's.
+    steps = np.linalg.norm(np.diff(ankle, axis=0), axis=1) * FPS
+    speed = np.minimum(np.concatenate([steps[:1], steps]), np.concatenate([steps, steps[-1:]]))
     limit = settings.detection.plant_speed * 0.9
     assert np.all(speed[a0:b0] < limit) and np.all(speed[a1:b1] < limit)
+    assert speed[b0] >= limit and speed[a1 - 1] >= limit
     assert 38 <= b0 <= 41 and 79 <= a1 <= 82
 
 

@@ -14,6 +14,10 @@ import numpy as np
 
 from ..maths.geometry import norm
 
+# How much higher than a plant's height above its lowest place a ball held still may stand while the foot pitches
+# onto its toes (pivot_held).
+_PIVOT_RISE = 1.5
+
 
 def ball_bone(rig, foot):
     """The bone at the ball of a foot (its head is the joint at the root of the toes): of the bones whose parent
@@ -53,6 +57,21 @@ def held_still(points, fps, speed, height):
     moving = np.minimum(np.concatenate([steps[:1], steps]), np.concatenate([steps, steps[-1:]]))
     low = points[:, 2] - np.percentile(points[:, 2], 2) <= height
     return (moving < speed) & low
+
+
+def pivot_held(pivot, ankle, fps, speed, height):
+    """(F,) bool: the frames a foot stands on its ``pivot`` joint (F,3: the ball; the ankle ``ankle`` (F,3)), held
+    still (held_still) within ``height`` of its lowest place, or within _PIVOT_RISE times that where it has risen
+    no more than the ankle has above its own lowest place: a ball held still while the heel lifts and the foot
+    pitches onto its toes rises with the foot's thickness (KayKit's sneak: 4-6 cm, its ball sliding 12 mm as the foot
+    turned about its toe tip instead), where a heel stand raising the toes (a dancer's swivel) lifts the ball
+    more than the ankle, and the ankle is what stays."""
+    def rise(points):
+        return points[:, 2] - np.percentile(points[:, 2], 2)
+
+    pivot, ankle = np.asarray(pivot, dtype=np.float64), np.asarray(ankle, dtype=np.float64)
+    toes_down = rise(pivot) <= rise(ankle) if len(pivot) else np.zeros(0, dtype=bool)
+    return held_still(pivot, fps, speed, height) | (held_still(pivot, fps, speed, _PIVOT_RISE * height) & toes_down)
 
 
 def roll(ankle, sole, pivot, pinned, tolerance, ankle_pinned=None):

@@ -10,7 +10,7 @@ import numpy as np
 from ..fullbody.adjust import sub_base_point
 from .contacts import GROUND, RAISED, RetargetSettings, detect_contacts, hold, intervals
 from ..errors import SolverInputError
-from .foot_pivots import held_still, pivot_bone, roll
+from .foot_pivots import held_still, pivot_bone, pivot_held, roll
 from ..maths.geometry import all_set, norm
 from ..body.joint_ends import end_points
 from .feet import limit_toe_roll
@@ -172,8 +172,8 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     # The joint each foot stands on (ball, or ankle), and the frames the source holds it still near the floor.
     rule = settings.detection
     pivots = {e: pivot_bone(source, target, e) for e in FEET}
-    pinned = {e: held_still(s_heads[:, pivots[e][0]], settings.fps, rule.plant_speed * leg_s,
-                            rule.plant_height * leg_s) for e in FEET}
+    pinned = {e: pivot_held(s_heads[:, pivots[e][0]], s_heads[:, source.groups[e][0]], settings.fps,
+                            rule.plant_speed * leg_s, rule.plant_height * leg_s) for e in FEET}
     ankles_pinned = {e: _ankle_alone(held_still(s_heads[:, source.groups[e][0]], settings.fps,
                                                 rule.plant_speed * leg_s, rule.plant_height * leg_s) & ~pinned[e],
                                      settings.frames(rule.raised_min_duration)) for e in FEET}
