@@ -23,7 +23,8 @@ from tests.helpers import rig_scenarios as sc
 from tests.helpers.wild_clips import wild_case
 
 # (rig, clip, take): a dance (the feet swivel on heel and ball), a jump, a bend to pick something up, a climb onto a
-# bar and a sit, Kenney's held jump pose and idle, KayKit's sneak, onto characters of other sizes and skeletons.
+# bar and a sit (onto a smaller character, a much smaller one with big feet, a larger one), Kenney's held jump pose and
+# idle, KayKit's sneak, onto characters of other sizes and skeletons.
 CASES = (
     ("kenney", "cmu_dance", None),
     ("quaternius_mannequin_f", "cmu_dance", None),
@@ -31,6 +32,8 @@ CASES = (
     ("kaykit_manny", "cmu_jump", None),
     ("kaykit_manny", "cmu_pickup", None),
     ("kaykit_manny", "cmu_climb_sit", None),
+    ("godot_plush", "cmu_climb_sit", None),
+    ("godot_robot", "cmu_climb_sit", None),
     ("quaternius_mannequin_f", "kenney_jump", None),
     ("godot_plush", "kenney_idle", None),
     ("kaykit_manny", "kaykit_advanced", "Sneaking"),
@@ -40,6 +43,9 @@ CASES = (
 KNOWN = {
     ("pops", "godot_plush", "cmu_dance"): "22 pop frames (the clip itself 16)",
     ("slide", "godot_plush", "cmu_dance"): "slide p95 17.4 mm, 39.6 mm at the clip's size (the clip's own 16.6)",
+    ("exit", "godot_robot", "cmu_climb_sit"): "exit 1: feet missed within reach (limited) beside bars out of reach",
+    ("pops", "godot_robot", "cmu_climb_sit"): "15 pop frames (the clip itself 2)",
+    ("slide", "godot_robot", "cmu_climb_sit"): "slide p95 46.1 mm, 61.8 mm at the clip's size (the clip's own 16.2)",
 }
 
 

@@ -13,15 +13,12 @@ from ..errors import SolverInputError
 from .foot_pivots import held_still, pivot_bone, pivot_held, roll
 from ..maths.geometry import all_set, norm
 from ..body.joint_ends import end_points
-from .feet import limit_toe_roll
+from .feet import UNSEEN_FOOT, limit_toe_roll, raised_offsets, refit_step, resting_offsets
 from .rig import (EFFECTOR_CHAIN, EFFECTORS, FEET, Rig, ankle_above_sole, chain_joints, effector_joint,
                   effector_points, facing_turn, hip_centres, leg_length, rest_points, sole_heights)
 from .transfer import carried_bones, transfer_pose, translate_body
 
 
-# How far above the world's ground plane (in leg lengths) a source's lowest joints may rest for that plane to be
-# its floor: a foot's height at the ankle is about a seventh of a leg.
-_UNSEEN_FOOT = 0.15
 # A foot planted on more than this fraction of the frames stands on the floor by its holds.
 _HELD_STANCE = 0.1
 # Something raised (inferred from the source alone) whose world height lies more than this (target leg lengths)
@@ -153,7 +150,8 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     soles = ankle_above_sole(target, start)  # the transferred feet's own ankle heights above their soles
     if ground:  # the body at the height where the feet stand on the floor as the source's do
         ankles = np.stack([target.to_world(start[:, target.groups[e][0], :3, 3])[:, 2] for e in FEET], axis=1)
-        offsets = _resting_offsets(ankles, s_points, soles, floor, leg_s, settings)
+        offsets = resting_offsets(ankles, s_points, soles, floor, leg_s, settings) \
+            or raised_offsets(ankles, s_points, soles, floor, ratio)
         if offsets:
             translate_body(target, start, np.broadcast_to([0.0, 0.0, np.mean(list(offsets.values()))],
                                                           (len(start), 3)))
@@ -252,10 +250,10 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
         bone as Blender poses it), so that its sole, skinned partly to the shin as a mesh's heel often is,
         rests and rolls on the floor as the knee is finally bent. ``pose`` is the one solved for the targets this
         returned last (the plan's world_targets the first time): from the second call on, each coordinate moves
-        to where the last two refits say the targets and the feet they shape agree (_secant_step)."""
+        to where the last two refits say the targets and the feet they shape agree (feet.refit_step)."""
         wanted = held(free + shift[:, None], pose, ankle_above_sole(target, pose))
         moved = wanted - asked[0]
-        out = asked[0] + (moved if asked[1] is None else _secant_step(moved, asked[1], 1e-6 * leg_t))
+        out = asked[0] + (moved if asked[1] is None else refit_step(moved, asked[1], 1e-6 * leg_t))
         asked[:] = [out, moved]
         return out
 
@@ -271,9 +269,9 @@ def source_floor(source, pose):
     lowest points, the 2nd percentile over frames (a stumble below the floor is not the floor). A source
     without a mesh has only its joints for soles, and a game character's toe and ankle joints lie inside a
     foot we do not see: where they rest a little above the world's ground plane (above z = 0 by less than
-    ``_UNSEEN_FOOT`` of a leg) the character was made standing on it, and that plane is the floor."""
+    ``UNSEEN_FOOT`` of a leg) the character was made standing on it, and that plane is the floor."""
     lowest = float(np.percentile(sole_heights(source, pose), 2))
-    if not source.skinned_soles and 0.0 < lowest <= _UNSEEN_FOOT * leg_length(source):
+    if not source.skinned_soles and 0.0 < lowest <= UNSEEN_FOOT * leg_length(source):
         return 0.0
     return lowest
 
@@ -325,41 +323,15 @@ def _foot_path(contact, free, target_points, soles, pivot, pinned, ankle_pinned=
     return path
 
 
-def _resting_offsets(ankles, s_points, soles, floor, leg, settings):
-    """{foot index: how far (world z) its ankle must move so that its sole is on the floor on the frames the
-    source's is lowest (its lower half, the median there)}, of the feet that come down to the floor there (the
-    source's soles within the plant height, and _UNSEEN_FOOT, of it). ``ankles`` (F,2): the target's ankle
-    heights; ``soles`` (F,2): its ankles above their soles; ``s_points``: the source's effector points; ``leg``:
-    the source's leg length.
-
-    Scaled with the legs (hip joint to ankle), the target's ankles come down where the source's do, but each rig
-    has its own foot below the ankle: one whose ankle stands higher above its sole than the scaled source's would
-    stand in the floor (KayKit's and Godot's plush characters by a seventh to a quarter of a leg on Kenney's run),
-    and lifting its feet out of it bends its knees far more than the source's, most where the source's leg is
-    nearly straight. The body moves by the feet's mean offset instead, its legs as straight as the source's."""
-    near = floor + (settings.detection.plant_height + _UNSEEN_FOOT) * leg
-    out = {}
-    for i, (e, resting) in enumerate(zip(FEET, _resting(s_points).T)):
-        if np.median(s_points[e][resting, 1:, 2].min(axis=1)) <= near:
-            out[i] = float(np.median((floor + soles[:, i] - ankles[:, i])[resting]))
-    return out
-
-
-def _resting(s_points):
-    """(F,2) bool: per foot, the frames its sole is lowest in the source (the lower half of its heights)."""
-    low = np.stack([s_points[e][:, 1:, 2].min(axis=1) for e in FEET], axis=1)
-    return low <= np.percentile(low, 50, axis=0)
-
-
 def _stand_in_place(free, found, s_points, soles, floor, leg, settings):
     """A foot the source hardly ever holds still on the floor (planted on at most _HELD_STANCE of the frames:
     an in-place clip, whose stance slides under the body) but that comes down to it: its free trajectory in
     ``free`` (F,E,3, changed in place) raised or lowered as a whole, so that its sole is on the floor on the
-    frames the source's is lowest (_resting_offsets). Whatever each rig's ankle height and sole, the stance
+    frames the source's is lowest (feet.resting_offsets). Whatever each rig's ankle height and sole, the stance
     stands on the floor, and one height per foot adds no jerk. ``soles`` (F,2): the target's ankles above
     their soles."""
     ankles = free[:, [EFFECTORS.index(e) for e in FEET], 2]
-    for i, offset in _resting_offsets(ankles, s_points, soles, floor, leg, settings).items():
+    for i, offset in resting_offsets(ankles, s_points, soles, floor, leg, settings).items():
         if sum(c.stop - c.start for c in found[FEET[i]] if c.kind == GROUND) > _HELD_STANCE * len(free):
             continue  # its stances are held on the floor
         free[:, EFFECTORS.index(FEET[i]), 2] += offset
@@ -391,19 +363,6 @@ def _held_offset(targets, free, contacts, half_width):
     that moves the body as its contacts moved, so that arms and legs share what is left to reach."""
     weight = moving_average(contacts.astype(np.float64), half_width)
     return np.einsum("fe,fei->fi", weight, targets - free) / np.maximum(weight.sum(axis=1), 1.0)[:, None]
-
-
-def _secant_step(moved, before, tiny):
-    """How far to move targets that a refit moved by ``moved`` after moving them by ``before`` (arrays alike).
-    Where the feet hang on the knee (a heel skinned to the shin: the ankle lowered, the knee bends and the sole
-    sinks further), each refit moves a target by a fraction ``ratio`` of the one before, and alternately up and
-    down (KayKit's crouch: -0.67), so plain refits stop millimetres short. Taken as steady, the series sums to
-    moved / (1 - ratio) (Aitken's step), where the refits shrink: a ratio in [-0.95, 0.5] (at most twice
-    ``moved`` where they creep one way). Elsewhere (a refit moving a target further than the one before: the
-    sole's lowest point changed, not a steady series; or ``before`` under ``tiny``), the plain refit."""
-    ratio = np.where(np.abs(before) > tiny, moved / np.where(np.abs(before) > tiny, before, 1.0), 0.0)
-    steady = (ratio >= -0.95) & (ratio <= 0.5)
-    return moved / (1.0 - np.where(steady, ratio, 0.0))
 
 
 def _blend_frames(path, free, start, stop, shortest, step):
