@@ -720,6 +720,31 @@ def test_a_raised_support_out_of_a_small_targets_scale_is_scaled_with_the_motion
         np.testing.assert_allclose(points[..., 2].min(axis=1), c.surface, atol=1e-12)
 
 
+def test_raised_supports_are_scaled_together_when_one_is_out_of_scale():
+    """The walk onto a step 0.3 up, then onto one 1.0 up, retargeted onto a target 0.6 times the size: the high
+    step alone is out of its scale (its world and scaled heights more than half a target leg apart), and the
+    supports are one structure: both scaled with the motion, so the higher step stays the higher for the target
+    (the low one kept at its world height would stand above where the scaled motion puts it)."""
+    source = cmu_rig(WALK)
+    frames = np.arange(1, 317)
+    pose = source_pose(WALK, source, frames)
+    third = len(frames) // 3
+    unit = np.linalg.norm(source.matrix_world[:3, 0])
+    pose[third:2 * third, :, 2, 3] += 0.3 / unit
+    pose[2 * third:, :, 2, 3] += 1.0 / unit
+    target = cmu_rig(WALK, scale=0.6)
+    plan = rt.plan_retarget(source, pose, target, np.tile(np.eye(4), (len(target), 1, 1)), rt.RetargetSettings(fps=FPS))
+    floor = rt.source_floor(source, pose)
+    leg = rt.leg_length(target)
+    raised = [c for e in ("foot.L", "foot.R") for c in plan.contact_list[e] if c.kind == rt.RAISED]
+    owns = [rt.effector_points(source, pose, c.effector)[c.start:c.stop, :, 2].min(axis=1).mean() for c in raised]
+    low = [own for own in owns if own < floor + 0.6]
+    assert low and len(low) < len(owns)  # plants on both steps
+    assert all((1.0 - plan.leg_ratio) * (own - floor) <= 0.5 * leg for own in low)  # the low step: within scale
+    for c, own in zip(raised, owns):
+        assert c.surface == pytest.approx(floor + plan.leg_ratio * (own - floor), abs=1e-12)
+
+
 def test_a_turned_target_keeps_its_own_heading():
     """The target object turned 90° about Z: its motion is the source's turned the same way (the hips'
     path relative to its start, turned), not the source's world direction."""

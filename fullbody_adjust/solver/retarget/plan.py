@@ -159,11 +159,12 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     frames = len(source_pose)
     blend = settings.frames(settings.blend_duration) if settings.blend_duration else 0
     contacts = np.zeros((frames, len(EFFECTORS)), dtype=bool)
-    found = {}
+    found = {e: detect_contacts(e, s_points[e], floor if ground else None, boxes, leg_s, settings) for e in EFFECTORS}
+    raised_scaled = any(_out_of_scale(c, floor, ratio, leg_t) for cs in found.values() for c in cs)
     for k, e in enumerate(EFFECTORS):
-        found[e] = [c if not np.isfinite(c.surface) or _at_world_height(c, settings, floor, ratio, leg_t) else
+        found[e] = [c if not np.isfinite(c.surface) or _at_world_height(c, settings, raised_scaled) else
                     replace(c, surface=floor + ratio * (c.surface - floor))  # the height its foot is held at
-                    for c in detect_contacts(e, s_points[e], floor if ground else None, boxes, leg_s, settings)]
+                    for c in found[e]]
         for c in found[e]:
             contacts[c.start:c.stop, k] = True
     step = settings.blend_speed * leg_t / settings.fps
@@ -287,23 +288,30 @@ def _ankle_alone(held, shortest):
     return out
 
 
-def _at_world_height(contact, settings, floor, ratio, leg):
+def _at_world_height(contact, settings, raised_scaled):
     """Whether a foot's contact rests at its surface's world height (else at that height scaled about the floor
-    by the legs' ``ratio``): the floor always; a contact object's box and something raised with ``exact``. But
-    something raised is only inferred from the source (a foot still above the floor, no object given): where its
-    world height and its scaled height lie more than _OUT_OF_SCALE of a leg apart (``leg``: the target's leg
-    length), it belongs to the source's scale, not to the target's world (a bar the source climbs onto at 1.4 m,
-    out of reach of a character half its size, whose legs would stretch and flip to stand there), and it is
-    scaled with the rest of the motion. A rung a step higher or lower for a target 1.2 times the source's size
-    stays where it is."""
+    by the legs' ratio): the floor always; a contact object's box and something raised with ``exact``. But
+    something raised is only inferred from the source (a foot still above the floor, no object given): where one
+    of the clip's raised supports is out of the target's scale (``raised_scaled``: _out_of_scale), they all
+    belong to the source's scale, not to the target's world, and are scaled with the rest of the motion, as one
+    structure (Godot's robot, its legs 0.75 of the CMU performer's: the climb's bar at 1.22 m kept and the one at
+    1.37 m scaled to 1.02 m put its left foot's bar above its right's, where the source's is below, out of reach)."""
     if contact.kind == GROUND:
         return True
     if not settings.exact:
         return False
+    return contact.kind != RAISED or not raised_scaled
+
+
+def _out_of_scale(contact, floor, ratio, leg):
+    """Whether a raised contact's world height and its height scaled about the floor by the legs' ``ratio`` lie
+    more than _OUT_OF_SCALE of a leg apart (``leg``: the target's leg length): a bar the source climbs onto at
+    1.4 m, out of reach of a character half its size, whose legs would stretch and flip to stand there. A rung a
+    step higher or lower for a target 1.2 times the source's size is not."""
     if contact.kind != RAISED:
-        return True
+        return False
     scaled = floor + ratio * (contact.surface - floor)
-    return abs(scaled - contact.surface) <= _OUT_OF_SCALE * leg
+    return abs(scaled - contact.surface) > _OUT_OF_SCALE * leg
 
 
 def _foot_path(contact, free, target_points, soles, pivot, pinned, ankle_pinned=None):
