@@ -5,8 +5,8 @@ frames (p95 of |height|, lowest, mm), limb directions against the clip (median d
 measured from Blender's evaluation of the written file (tests/helpers/wild_clips.py says how).
 
 Run: .ci/with-bpy python bench/wild_clips.py [--rigs NAME,NAME] [--clips NAME,NAME[:TAKE]]
-     (a table on stderr, one JSON object on stdout). Clips: tests/helpers/wild_clips.CLIPS; kaykit_advanced
-     without a take runs every take.
+     (a table on stderr, one JSON object on stdout, its "totals" summed over the rows: see totals). Clips:
+     tests/helpers/wild_clips.CLIPS; kaykit_advanced without a take runs every take.
 """
 
 import argparse
@@ -70,6 +70,32 @@ def line(rig, clip, take, r):
             f"planted {r['planted_frames']}/{2 * r['frames']}")
 
 
+def totals(rows):
+    """Sums over the rows, to compare two runs at a glance: exit codes other than 0 (and rows with an error), pop
+    frames (the result's, the clip's, and beyond the clip's row by row), slide p95 (mm, the result's and the clip's)
+    and the rows missing the slide goal (5 mm, or the clip's own at its size), planted soles p95 (mm) and the rows
+    missing the soles goal (10 mm up, 5 mm down), rows whose limbs are off by more than 5 degrees (median)."""
+    done = [r for r in rows if "error" not in r]
+
+    def total(key):
+        return sum(r[key] for r in done if r.get(key) is not None)
+
+    slid = [r for r in done if r.get("slide_p95_mm") is not None]
+    soled = [r for r in done if r.get("sole_planted_p95_mm") is not None]
+    return {
+        "rows": len(rows), "errors": len(rows) - len(done),
+        "exit_not_0": sum(1 for r in done if r["exit_code"] != 0),
+        "pop_frames": total("pop_frames"), "source_pop_frames": total("source_pop_frames"),
+        "pop_frames_beyond_source": sum(max(0, r["pop_frames"] - r["source_pop_frames"]) for r in done),
+        "slide_p95_mm": round(total("slide_p95_mm"), 1), "source_slide_p95_mm": round(total("source_slide_p95_mm"), 1),
+        "slide_missed": sum(1 for r in slid if r["slide_p95_mm"] >= 5.0
+                            and r["slide_p95_at_source_size_mm"] > r["source_slide_p95_mm"]),
+        "sole_planted_p95_mm": round(total("sole_planted_p95_mm"), 1),
+        "soles_missed": sum(1 for r in soled if r["sole_planted_p95_mm"] > 10.0 or r["sole_planted_min_mm"] < -5.0),
+        "limbs_missed": sum(1 for r in done if (r.get("limb_direction_median_deg") or 0.0) > 5.0),
+    }
+
+
 def main():
     args = parse()
     rigs = args.rigs.split(",") if args.rigs else list(RIGS)
@@ -97,6 +123,8 @@ def main():
     finally:
         shutil.rmtree(folder, ignore_errors=True)
     report["seconds"] = time.perf_counter() - started
+    report["totals"] = totals(report["rows"])
+    print("TOTALS " + json.dumps(report["totals"]), file=sys.stderr)
     print(json.dumps(report, indent=1, default=float))
 
 

@@ -43,7 +43,7 @@ if not HAS_BPY:
 # own process and each runs in a fresh one of its own by test_gltf_in_a_fresh_process.py (together, they
 # crashed there too, after some 400 tests).
 GLTF_MODULES = ("test_mapping_import.py", "test_real_rigs.py", "test_retarget_soles.py", "test_root_motion.py",
-                "test_wild_clips.py", "test_export_formats.py")
+                "test_wild_clips.py", "test_export_formats.py", "test_walk_plants.py")
 FRESH_PROCESS = "FBA_GLTF_FRESH_PROCESS"
 
 

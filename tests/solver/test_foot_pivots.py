@@ -91,3 +91,33 @@ def test_the_ball_is_the_farthest_bone_below_the_ankle():
     assert fp.ball_bone(rig, "foot.L") == 4
     rig.parents = np.array([-1, 0, 1, -1, -1, -1])
     assert fp.ball_bone(rig, "foot.L") is None
+
+
+def test_a_frame_the_joint_comes_to_rest_on_is_held():
+    """The frame a ball arrives on (fast before, still after) and the one it leaves from are still as a viewer sees
+    them: the mean of both steps (0.3 m/s here) would leave them out, and the foot would turn about its sole there."""
+    fps = 24.0
+    y = 0.025 * np.concatenate([np.arange(10), np.full(10, 10), 10 + np.arange(1, 11)])  # 0.6 m/s, still, 0.6 m/s
+    track = np.stack([np.zeros(30), y, np.full(30, 0.02)], axis=1)
+    held = fp.held_still(track, fps, speed=0.2, height=0.06)
+    assert held[10:20].all() and not held[:10].any() and not held[20:].any()
+    central = np.linalg.norm(np.gradient(track, axis=0), axis=1) * fps
+    assert central[10] > 0.2 and central[19] > 0.2  # what central differences would have said
+
+
+def test_a_ball_is_held_as_the_foot_pitches_onto_its_toes_but_not_on_a_heel_stand():
+    """The ball held still while it rises a little over a plant's height: held where the heel lifts more (toes
+    down), not where the toes are raised about a still ankle (a heel stand: the ankle is what stays)."""
+    fps, height = 24.0, 0.04
+    lift = np.concatenate([np.zeros(8), np.linspace(0.0, 0.05, 8), np.full(8, 0.05)])  # 5 cm: over 4, under 6
+    still = np.zeros(24)
+    ball = np.stack([still, still, 0.02 + lift], axis=1)
+    ball[:, 1] += 0.0005 * np.arange(24)  # creeping at 12 mm/s
+    heel_up = np.stack([still, still - 0.12, 0.08 + 2.0 * lift], axis=1)
+    heel_down = np.stack([still, still - 0.12, np.full(24, 0.08)], axis=1)
+    toes_down = fp.pivot_held(ball, heel_up, fps, speed=0.2, height=height)
+    heel_stand = fp.pivot_held(ball, heel_down, fps, speed=0.2, height=height)
+    plain = fp.held_still(ball, fps, speed=0.2, height=height)
+    assert toes_down.all()
+    assert not plain[16:].any()  # 5 cm up: over the plant's height
+    np.testing.assert_array_equal(heel_stand, plain)

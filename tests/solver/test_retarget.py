@@ -457,10 +457,13 @@ def test_a_step_is_found_as_two_plants():
     runs = sorted((c.start, c.stop) for c in found)
     (a0, b0), (a1, b1) = runs
     assert a0 == 0 and b1 == frames
-    # The plants end and start where the foot is still moving slower than the threshold.
-    speed = np.linalg.norm(np.gradient(ankle, axis=0), axis=1) * FPS
+    # The plants end and start where the foot is still moving slower than the threshold towards one neighbouring
+    # frame at least: the frame it comes to rest on, and the one it leaves from, are the plant's.
+    steps = np.linalg.norm(np.diff(ankle, axis=0), axis=1) * FPS
+    speed = np.minimum(np.concatenate([steps[:1], steps]), np.concatenate([steps, steps[-1:]]))
     limit = settings.detection.plant_speed * 0.9
     assert np.all(speed[a0:b0] < limit) and np.all(speed[a1:b1] < limit)
+    assert speed[b0] >= limit and speed[a1 - 1] >= limit
     assert 38 <= b0 <= 41 and 79 <= a1 <= 82
 
 
@@ -715,6 +718,31 @@ def test_a_raised_support_out_of_a_small_targets_scale_is_scaled_with_the_motion
         assert c.surface < floor + 0.5 * (own - floor)  # not the source's world height
         points = planned_foot_points(target, plan, c.effector)[c.start:c.stop]
         np.testing.assert_allclose(points[..., 2].min(axis=1), c.surface, atol=1e-12)
+
+
+def test_raised_supports_are_scaled_together_when_one_is_out_of_scale():
+    """The walk onto a step 0.3 up, then onto one 1.0 up, retargeted onto a target 0.6 times the size: the high
+    step alone is out of its scale (its world and scaled heights more than half a target leg apart), and the
+    supports are one structure: both scaled with the motion, so the higher step stays the higher for the target
+    (the low one kept at its world height would stand above where the scaled motion puts it)."""
+    source = cmu_rig(WALK)
+    frames = np.arange(1, 317)
+    pose = source_pose(WALK, source, frames)
+    third = len(frames) // 3
+    unit = np.linalg.norm(source.matrix_world[:3, 0])
+    pose[third:2 * third, :, 2, 3] += 0.3 / unit
+    pose[2 * third:, :, 2, 3] += 1.0 / unit
+    target = cmu_rig(WALK, scale=0.6)
+    plan = rt.plan_retarget(source, pose, target, np.tile(np.eye(4), (len(target), 1, 1)), rt.RetargetSettings(fps=FPS))
+    floor = rt.source_floor(source, pose)
+    leg = rt.leg_length(target)
+    raised = [c for e in ("foot.L", "foot.R") for c in plan.contact_list[e] if c.kind == rt.RAISED]
+    owns = [rt.effector_points(source, pose, c.effector)[c.start:c.stop, :, 2].min(axis=1).mean() for c in raised]
+    low = [own for own in owns if own < floor + 0.6]
+    assert low and len(low) < len(owns)  # plants on both steps
+    assert all((1.0 - plan.leg_ratio) * (own - floor) <= 0.5 * leg for own in low)  # the low step: within scale
+    for c, own in zip(raised, owns):
+        assert c.surface == pytest.approx(floor + plan.leg_ratio * (own - floor), abs=1e-12)
 
 
 def test_a_turned_target_keeps_its_own_heading():

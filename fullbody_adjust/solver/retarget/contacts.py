@@ -112,10 +112,13 @@ def intervals(mask, min_length=1, max_gap=0):
 
 
 def _speeds(points, fps):
-    """(F,) speed per second of the slowest of the points (F,P,3) (central differences)."""
+    """(F,) speed per second of the slowest of the points (F,P,3): central differences, and towards whichever
+    neighbouring frame it moves less (a foot coming to rest on that frame, or leaving from it)."""
     if len(points) < 2:
-        return np.zeros(len(points))
-    return norm(np.gradient(points, axis=0)).min(axis=-1) * fps
+        return np.zeros(len(points)), np.zeros(len(points))
+    steps = norm(np.diff(points, axis=0))  # (F-1,P)
+    either = np.minimum(np.concatenate([steps[:1], steps]), np.concatenate([steps, steps[-1:]]))
+    return norm(np.gradient(points, axis=0)).min(axis=-1) * fps, either.min(axis=-1) * fps
 
 
 def box_distance(points, mins, maxs):
@@ -135,17 +138,19 @@ def detect_contacts(effector, points, ground, boxes, leg, settings=RetargetSetti
     frames = len(points)
     foot = effector.startswith("foot")
     rule = settings.detection
-    still = _speeds(points, settings.fps) < rule.plant_speed * leg
+    central, either = _speeds(points, settings.fps)
+    still, arriving = central < rule.plant_speed * leg, either < rule.plant_speed * leg
     lowest = points[..., 2].min(axis=1)
     short = settings.frames(rule.plant_min_duration)
     gap = settings.frames(rule.gap_duration)
     taken = np.zeros(frames, dtype=bool)
     found = []
 
-    def claim(mask, min_length, make):
+    def claim(mask, min_length, make, near=True):
         for a, b in intervals(mask & ~taken, min_length, gap):
             a, b = _trim(taken, a, b)
             if b - a >= min_length:
+                a, b = _edges(a, b, arriving & near & ~taken)
                 taken[a:b] = True
                 found.append(make(a, b))
 
@@ -158,12 +163,19 @@ def detect_contacts(effector, points, ground, boxes, leg, settings=RetargetSetti
             claim(touching & (nearest == k), short, lambda a, b, k=k: Contact(
                 effector, a, b, OBJECT, float(lowest[a:b].mean()) if foot else float("nan"), k))
     if foot and ground is not None:
-        claim(still & (lowest <= ground + rule.plant_height * leg), short,
-              lambda a, b: Contact(effector, a, b, GROUND, float(ground)))
+        low = lowest <= ground + rule.plant_height * leg
+        claim(still & low, short, lambda a, b: Contact(effector, a, b, GROUND, float(ground)), low)
     if foot:
         claim(still, settings.frames(rule.raised_min_duration),
               lambda a, b: Contact(effector, a, b, RAISED, float(lowest[a:b].mean())))
     return sorted(found, key=lambda c: c.start)
+
+
+def _edges(a, b, arriving):
+    """[a, b) with the frame before it and the frame after it where ``arriving`` (F,) holds there: the frame a foot
+    comes to rest on and the one it leaves from (the step on their other side fast, so central differences, the
+    mean of both steps, leave them out) are the contact's, and its plant is held from the first."""
+    return a - int(a > 0 and arriving[a - 1]), b + int(b < len(arriving) and arriving[b])
 
 
 def _trim(taken, a, b):

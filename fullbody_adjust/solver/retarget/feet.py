@@ -1,4 +1,5 @@
-"""How far a target's foot rolls onto its toes (see solver/retarget/motion.py, step 2).
+"""How far a target's foot rolls onto its toes, and how high the body stands over its feet (resting_offsets,
+raised_offsets; refit_step: the feet refitted to the solved pose) (see solver/retarget/motion.py, step 2).
 
 Transferred as rotations, a target's foot pitches as the source's does. As a foot rolls onto its toes (toe-off)
 its ankle rises above the point it stands on by about the foot's length times the sine of the pitch, so a foot
@@ -23,6 +24,9 @@ from .rig import FEET, ankle_above_sole
 from .soles import descendants
 
 _UP = np.array([0.0, 0.0, 1.0])
+# How far above the world's ground plane (in leg lengths) a source's lowest joints may rest for that plane to be
+# its floor: a foot's height at the ankle is about a seventh of a leg.
+UNSEEN_FOOT = 0.15
 _LARGEST_TURN = 0.5 * np.pi
 _STANCE_PERCENTILE = 25  # the source's ankle at its lowest quarter: the foot stands flat on the floor
 _STEPS = 40  # halvings of the bisection (1e-12 of a quarter turn)
@@ -130,3 +134,56 @@ def _turn_below(rig, pose, frames, bone, pivot, axes, angles):
     move[:, :3, 3] = centre - np.einsum("nij,nj->ni", turn, centre)
     bones = descendants(rig.parents, bone)
     pose[np.ix_(frames, bones)] = move[:, None] @ pose[np.ix_(frames, bones)]
+
+
+def resting_offsets(ankles, s_points, soles, floor, leg, settings):
+    """{foot index: how far (world z) its ankle must move so that its sole is on the floor on the frames the
+    source's is lowest (its lower half, the median there)}, of the feet that come down to the floor there (the
+    source's soles within the plant height, and UNSEEN_FOOT, of it). ``ankles`` (F,2): the target's ankle
+    heights; ``soles`` (F,2): its ankles above their soles; ``s_points``: the source's effector points; ``leg``:
+    the source's leg length.
+
+    Scaled with the legs (hip joint to ankle), the target's ankles come down where the source's do, but each rig
+    has its own foot below the ankle: one whose ankle stands higher above its sole than the scaled source's would
+    stand in the floor (KayKit's and Godot's plush characters by a seventh to a quarter of a leg on Kenney's run),
+    and lifting its feet out of it bends its knees far more than the source's, most where the source's leg is
+    nearly straight. The body moves by the feet's mean offset instead, its legs as straight as the source's."""
+    near = floor + (settings.detection.plant_height + UNSEEN_FOOT) * leg
+    out = {}
+    for i, (e, resting) in enumerate(zip(FEET, resting_frames(s_points).T)):
+        if np.median(s_points[e][resting, 1:, 2].min(axis=1)) <= near:
+            out[i] = float(np.median((floor + soles[:, i] - ankles[:, i])[resting]))
+    return out
+
+
+def raised_offsets(ankles, s_points, soles, floor, ratio):
+    """resting_offsets of a clip neither of whose feet comes down to the floor on the frames it is lowest (a
+    climb from bar to bar, a sit): {foot index: how far (world z) its ankle must move so that its sole is where
+    the source's is there, scaled about the floor by the legs' ``ratio``}. A raised support is held at its height
+    scaled so (_at_world_height), the target's own foot below it: Godot's plush, its ankle 0.25 m above its sole
+    on a 0.36 m leg (the scaled CMU foot's 3 cm), stood on the climb's bars with its knees folded to their limit
+    (163 degrees, the transferred 90 to 100) and missed them."""
+    out = {}
+    for i, (e, resting) in enumerate(zip(FEET, resting_frames(s_points).T)):
+        sole = floor + ratio * (s_points[e][resting, 1:, 2].min(axis=1) - floor)
+        out[i] = float(np.median((sole + soles[resting, i] - ankles[resting, i])))
+    return out
+
+
+def resting_frames(s_points):
+    """(F,2) bool: per foot, the frames its sole is lowest in the source (the lower half of its heights)."""
+    low = np.stack([s_points[e][:, 1:, 2].min(axis=1) for e in FEET], axis=1)
+    return low <= np.percentile(low, 50, axis=0)
+
+
+def refit_step(moved, before, tiny):
+    """How far to move targets that a refit moved by ``moved`` after moving them by ``before`` (arrays alike).
+    Where the feet hang on the knee (a heel skinned to the shin: the ankle lowered, the knee bends and the sole
+    sinks further), each refit moves a target by a fraction ``ratio`` of the one before, and alternately up and
+    down (KayKit's crouch: -0.67), so plain refits stop millimetres short. Taken as steady, the series sums to
+    moved / (1 - ratio) (Aitken's step), where the refits shrink: a ratio in [-0.95, 0.5] (at most twice
+    ``moved`` where they creep one way). Elsewhere (a refit moving a target further than the one before: the
+    sole's lowest point changed, not a steady series; or ``before`` under ``tiny``), the plain refit."""
+    ratio = np.where(np.abs(before) > tiny, moved / np.where(np.abs(before) > tiny, before, 1.0), 0.0)
+    steady = (ratio >= -0.95) & (ratio <= 0.5)
+    return moved / (1.0 - np.where(steady, ratio, 0.0))

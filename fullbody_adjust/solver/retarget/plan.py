@@ -10,18 +10,15 @@ import numpy as np
 from ..fullbody.adjust import sub_base_point
 from .contacts import GROUND, RAISED, RetargetSettings, detect_contacts, hold, intervals
 from ..errors import SolverInputError
-from .foot_pivots import held_still, pivot_bone, roll
+from .foot_pivots import held_still, pivot_bone, pivot_held, roll
 from ..maths.geometry import all_set, norm
 from ..body.joint_ends import end_points
-from .feet import limit_toe_roll
+from .feet import UNSEEN_FOOT, limit_toe_roll, raised_offsets, refit_step, resting_offsets
 from .rig import (EFFECTOR_CHAIN, EFFECTORS, FEET, Rig, ankle_above_sole, chain_joints, effector_joint,
                   effector_points, facing_turn, hip_centres, leg_length, rest_points, sole_heights)
 from .transfer import carried_bones, transfer_pose, translate_body
 
 
-# How far above the world's ground plane (in leg lengths) a source's lowest joints may rest for that plane to be
-# its floor: a foot's height at the ankle is about a seventh of a leg.
-_UNSEEN_FOOT = 0.15
 # A foot planted on more than this fraction of the frames stands on the floor by its holds.
 _HELD_STANCE = 0.1
 # Something raised (inferred from the source alone) whose world height lies more than this (target leg lengths)
@@ -153,7 +150,8 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     soles = ankle_above_sole(target, start)  # the transferred feet's own ankle heights above their soles
     if ground:  # the body at the height where the feet stand on the floor as the source's do
         ankles = np.stack([target.to_world(start[:, target.groups[e][0], :3, 3])[:, 2] for e in FEET], axis=1)
-        offsets = _resting_offsets(ankles, s_points, soles, floor, leg_s, settings)
+        offsets = resting_offsets(ankles, s_points, soles, floor, leg_s, settings) \
+            or raised_offsets(ankles, s_points, soles, floor, ratio)
         if offsets:
             translate_body(target, start, np.broadcast_to([0.0, 0.0, np.mean(list(offsets.values()))],
                                                           (len(start), 3)))
@@ -161,19 +159,20 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     frames = len(source_pose)
     blend = settings.frames(settings.blend_duration) if settings.blend_duration else 0
     contacts = np.zeros((frames, len(EFFECTORS)), dtype=bool)
-    found = {}
+    found = {e: detect_contacts(e, s_points[e], floor if ground else None, boxes, leg_s, settings) for e in EFFECTORS}
+    raised_scaled = any(_out_of_scale(c, floor, ratio, leg_t) for cs in found.values() for c in cs)
     for k, e in enumerate(EFFECTORS):
-        found[e] = [c if not np.isfinite(c.surface) or _at_world_height(c, settings, floor, ratio, leg_t) else
+        found[e] = [c if not np.isfinite(c.surface) or _at_world_height(c, settings, raised_scaled) else
                     replace(c, surface=floor + ratio * (c.surface - floor))  # the height its foot is held at
-                    for c in detect_contacts(e, s_points[e], floor if ground else None, boxes, leg_s, settings)]
+                    for c in found[e]]
         for c in found[e]:
             contacts[c.start:c.stop, k] = True
     step = settings.blend_speed * leg_t / settings.fps
     # The joint each foot stands on (ball, or ankle), and the frames the source holds it still near the floor.
     rule = settings.detection
     pivots = {e: pivot_bone(source, target, e) for e in FEET}
-    pinned = {e: held_still(s_heads[:, pivots[e][0]], settings.fps, rule.plant_speed * leg_s,
-                            rule.plant_height * leg_s) for e in FEET}
+    pinned = {e: pivot_held(s_heads[:, pivots[e][0]], s_heads[:, source.groups[e][0]], settings.fps,
+                            rule.plant_speed * leg_s, rule.plant_height * leg_s) for e in FEET}
     ankles_pinned = {e: _ankle_alone(held_still(s_heads[:, source.groups[e][0]], settings.fps,
                                                 rule.plant_speed * leg_s, rule.plant_height * leg_s) & ~pinned[e],
                                      settings.frames(rule.raised_min_duration)) for e in FEET}
@@ -245,11 +244,19 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     heads = start[..., :3, 3]
     tails = end_points(start, target.ends)
 
+    asked = [world_targets, None]  # the targets the pose to refit was solved for, and how far the last refit moved them
+
     def refit_feet(pose):
         """World targets (F,E,3) again, each held foot shaped as in ``pose`` (F,Jt,4,4: the solved pose, every
         bone as Blender poses it), so that its sole, skinned partly to the shin as a mesh's heel often is,
-        rests and rolls on the floor as the knee is finally bent."""
-        return held(free + shift[:, None], pose, ankle_above_sole(target, pose))
+        rests and rolls on the floor as the knee is finally bent. ``pose`` is the one solved for the targets this
+        returned last (the plan's world_targets the first time): from the second call on, each coordinate moves
+        to where the last two refits say the targets and the feet they shape agree (feet.refit_step)."""
+        wanted = held(free + shift[:, None], pose, ankle_above_sole(target, pose))
+        moved = wanted - asked[0]
+        out = asked[0] + (moved if asked[1] is None else refit_step(moved, asked[1], 1e-6 * leg_t))
+        asked[:] = [out, moved]
+        return out
 
     return RetargetPlan(start_pose=start, heads=heads, tails=tails, targets=target.to_armature(world_targets),
                         world_targets=world_targets, contacts=contacts,
@@ -263,9 +270,9 @@ def source_floor(source, pose):
     lowest points, the 2nd percentile over frames (a stumble below the floor is not the floor). A source
     without a mesh has only its joints for soles, and a game character's toe and ankle joints lie inside a
     foot we do not see: where they rest a little above the world's ground plane (above z = 0 by less than
-    ``_UNSEEN_FOOT`` of a leg) the character was made standing on it, and that plane is the floor."""
+    ``UNSEEN_FOOT`` of a leg) the character was made standing on it, and that plane is the floor."""
     lowest = float(np.percentile(sole_heights(source, pose), 2))
-    if not source.skinned_soles and 0.0 < lowest <= _UNSEEN_FOOT * leg_length(source):
+    if not source.skinned_soles and 0.0 < lowest <= UNSEEN_FOOT * leg_length(source):
         return 0.0
     return lowest
 
@@ -281,23 +288,30 @@ def _ankle_alone(held, shortest):
     return out
 
 
-def _at_world_height(contact, settings, floor, ratio, leg):
+def _at_world_height(contact, settings, raised_scaled):
     """Whether a foot's contact rests at its surface's world height (else at that height scaled about the floor
-    by the legs' ``ratio``): the floor always; a contact object's box and something raised with ``exact``. But
-    something raised is only inferred from the source (a foot still above the floor, no object given): where its
-    world height and its scaled height lie more than _OUT_OF_SCALE of a leg apart (``leg``: the target's leg
-    length), it belongs to the source's scale, not to the target's world (a bar the source climbs onto at 1.4 m,
-    out of reach of a character half its size, whose legs would stretch and flip to stand there), and it is
-    scaled with the rest of the motion. A rung a step higher or lower for a target 1.2 times the source's size
-    stays where it is."""
+    by the legs' ratio): the floor always; a contact object's box and something raised with ``exact``. But
+    something raised is only inferred from the source (a foot still above the floor, no object given): where one
+    of the clip's raised supports is out of the target's scale (``raised_scaled``: _out_of_scale), they all
+    belong to the source's scale, not to the target's world, and are scaled with the rest of the motion, as one
+    structure (Godot's robot, its legs 0.75 of the CMU performer's: the climb's bar at 1.22 m kept and the one at
+    1.37 m scaled to 1.02 m put its left foot's bar above its right's, where the source's is below, out of reach)."""
     if contact.kind == GROUND:
         return True
     if not settings.exact:
         return False
+    return contact.kind != RAISED or not raised_scaled
+
+
+def _out_of_scale(contact, floor, ratio, leg):
+    """Whether a raised contact's world height and its height scaled about the floor by the legs' ``ratio`` lie
+    more than _OUT_OF_SCALE of a leg apart (``leg``: the target's leg length): a bar the source climbs onto at
+    1.4 m, out of reach of a character half its size, whose legs would stretch and flip to stand there. A rung a
+    step higher or lower for a target 1.2 times the source's size is not."""
     if contact.kind != RAISED:
-        return True
+        return False
     scaled = floor + ratio * (contact.surface - floor)
-    return abs(scaled - contact.surface) <= _OUT_OF_SCALE * leg
+    return abs(scaled - contact.surface) > _OUT_OF_SCALE * leg
 
 
 def _foot_path(contact, free, target_points, soles, pivot, pinned, ankle_pinned=None):
@@ -317,41 +331,15 @@ def _foot_path(contact, free, target_points, soles, pivot, pinned, ankle_pinned=
     return path
 
 
-def _resting_offsets(ankles, s_points, soles, floor, leg, settings):
-    """{foot index: how far (world z) its ankle must move so that its sole is on the floor on the frames the
-    source's is lowest (its lower half, the median there)}, of the feet that come down to the floor there (the
-    source's soles within the plant height, and _UNSEEN_FOOT, of it). ``ankles`` (F,2): the target's ankle
-    heights; ``soles`` (F,2): its ankles above their soles; ``s_points``: the source's effector points; ``leg``:
-    the source's leg length.
-
-    Scaled with the legs (hip joint to ankle), the target's ankles come down where the source's do, but each rig
-    has its own foot below the ankle: one whose ankle stands higher above its sole than the scaled source's would
-    stand in the floor (KayKit's and Godot's plush characters by a seventh to a quarter of a leg on Kenney's run),
-    and lifting its feet out of it bends its knees far more than the source's, most where the source's leg is
-    nearly straight. The body moves by the feet's mean offset instead, its legs as straight as the source's."""
-    near = floor + (settings.detection.plant_height + _UNSEEN_FOOT) * leg
-    out = {}
-    for i, (e, resting) in enumerate(zip(FEET, _resting(s_points).T)):
-        if np.median(s_points[e][resting, 1:, 2].min(axis=1)) <= near:
-            out[i] = float(np.median((floor + soles[:, i] - ankles[:, i])[resting]))
-    return out
-
-
-def _resting(s_points):
-    """(F,2) bool: per foot, the frames its sole is lowest in the source (the lower half of its heights)."""
-    low = np.stack([s_points[e][:, 1:, 2].min(axis=1) for e in FEET], axis=1)
-    return low <= np.percentile(low, 50, axis=0)
-
-
 def _stand_in_place(free, found, s_points, soles, floor, leg, settings):
     """A foot the source hardly ever holds still on the floor (planted on at most _HELD_STANCE of the frames:
     an in-place clip, whose stance slides under the body) but that comes down to it: its free trajectory in
     ``free`` (F,E,3, changed in place) raised or lowered as a whole, so that its sole is on the floor on the
-    frames the source's is lowest (_resting_offsets). Whatever each rig's ankle height and sole, the stance
+    frames the source's is lowest (feet.resting_offsets). Whatever each rig's ankle height and sole, the stance
     stands on the floor, and one height per foot adds no jerk. ``soles`` (F,2): the target's ankles above
     their soles."""
     ankles = free[:, [EFFECTORS.index(e) for e in FEET], 2]
-    for i, offset in _resting_offsets(ankles, s_points, soles, floor, leg, settings).items():
+    for i, offset in resting_offsets(ankles, s_points, soles, floor, leg, settings).items():
         if sum(c.stop - c.start for c in found[FEET[i]] if c.kind == GROUND) > _HELD_STANCE * len(free):
             continue  # its stances are held on the floor
         free[:, EFFECTORS.index(FEET[i]), 2] += offset
