@@ -25,6 +25,7 @@ from ..bridge import files as batch
 from ..bridge.retarget import clip_import, export, root_motion
 from ..reporting import batch_report
 from ..reporting.progress import ConsoleProgress, NoProgress
+from ..solver.retarget.root_motion import DEFAULT_SMOOTHING
 from .cluster import PYTHON, ClusterError, DaskPool, connect
 from .files import CommandError, check_writable, checked_outputs, input_path, same_file, write_text
 from .parser import COMMAND, EXIT_OK, EXIT_TARGETS_MISSED
@@ -66,7 +67,8 @@ def run(args):
     rows.sort(key=lambda row: order[row["clip"]])
     report = batch_report.batch_report(rows, time.perf_counter() - started, command="retarget",
                                        file=os.path.abspath(blend_in), target=target.name, jobs=jobs,
-                                       blender=bpy.app.version_string)
+                                       blender=bpy.app.version_string,
+                                       options=_report_options(_job(args, blend_in, target.name)))
     if args.report:
         write_text(args.report, batch_report.to_json(report))
         write_text(csv_path, batch_report.to_csv(report))
@@ -255,6 +257,19 @@ def _job(args, input_path, target):
             "frame_end": args.frame_end, "keep_sources": args.keep_sources, "format": args.format,
             "meshes": not args.armature_only, "mirror": args.mirror, "groups": args.groups,
             "root_motion": args.root_motion, "root_bone": args.root_bone, "root_smoothing": args.root_smoothing}
+
+
+# What of a job shapes its clips' results, as the report states it.
+_SHAPING = ("import", "contacts", "floor", "frame_start", "frame_end", "mirror", "groups", "root_motion", "root_bone",
+            "root_smoothing", "format", "meshes")
+
+
+def _report_options(job):
+    """The job's options that shape the results, with the root smoothing the workers use where it is defaulted."""
+    options = {key: job[key] for key in _SHAPING}
+    if options["root_motion"] not in (None, "hips") and options["root_smoothing"] is None:
+        options["root_smoothing"] = DEFAULT_SMOOTHING
+    return options
 
 
 def _floor(floor, contacts):

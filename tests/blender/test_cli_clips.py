@@ -140,6 +140,26 @@ def test_output_dir_writes_one_blend_per_clip_and_skip_existing_resumes(cli, cap
     assert (folder / "walk_c.blend").exists() and "2 skipped" in stdout
 
 
+def test_the_batch_report_states_the_options_that_shaped_the_clips(cli, capsys, tmp_path, clips, character):
+    """One clip in place and mirrored, with the default root smoothing and with 0.5 s: the report's options say so
+    (the default smoothing the solver's own), and the hips run's none."""
+    from fullbody_adjust.solver.retarget.root_motion import DEFAULT_SMOOTHING
+
+    found = {}
+    for label, extra in (("default", ["--root-motion", "in-place", "--mirror"]),
+                         ("half", ["--root-motion", "in-place", "--root-smoothing", 0.5]), ("hips", [])):
+        report = tmp_path / f"{label}.json"
+        code, _, _ = run(cli, capsys, "retarget", character, "--target", "Hero", "--source-file", clips / "walk_a.bvh",
+                         "--jobs", 1, "--output-dir", tmp_path / label, "--quiet", "--report", report, *extra)
+        assert code in (0, 1)
+        found[label] = json.loads(report.read_text())["options"]
+    assert found["default"]["root_motion"] == "in-place" and found["default"]["mirror"] is True
+    assert found["default"]["root_smoothing"] == DEFAULT_SMOOTHING
+    assert found["half"]["root_smoothing"] == 0.5 and found["half"]["mirror"] is False
+    assert found["hips"]["root_motion"] in (None, "hips") and found["hips"]["root_smoothing"] is None
+    assert found["hips"]["contacts"] == [["ground", None]] and found["hips"]["format"] == "blend"
+
+
 def test_an_fbx_clip_through_blenders_fbx_importer_and_kept_sources(cli, capsys, tmp_path, clips, character,
                                                                      extension_module_name):
     # An FBX of a clip, written by Blender's FBX exporter from the imported BVH.
