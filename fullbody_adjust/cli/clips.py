@@ -25,12 +25,11 @@ from ..bridge import files as batch
 from ..bridge.retarget import clip_import, export, root_motion
 from ..reporting import batch_report
 from ..reporting.progress import ConsoleProgress, NoProgress
-from ..solver.retarget.root_motion import DEFAULT_SMOOTHING
 from .cluster import PYTHON, ClusterError, DaskPool, connect
 from .files import CommandError, check_writable, checked_outputs, input_path, same_file, write_text
 from .parser import COMMAND, EXIT_OK, EXIT_TARGETS_MISSED
 from .pool import WorkerPool
-from .retarget import retarget_target
+from .retarget import retarget_target, root_smoothing
 
 WORKER_FLAG = "--clip-worker"
 SAVE_EVERY = 10.0  # seconds: while a batch runs, the merged file is saved as clips end, at most this often
@@ -267,8 +266,7 @@ _SHAPING = ("import", "contacts", "floor", "frame_start", "frame_end", "mirror",
 def _report_options(job):
     """The job's options that shape the results, with the root smoothing the workers use where it is defaulted."""
     options = {key: job[key] for key in _SHAPING}
-    if options["root_motion"] not in (None, "hips") and options["root_smoothing"] is None:
-        options["root_smoothing"] = DEFAULT_SMOOTHING
+    options["root_smoothing"] = root_smoothing(options["root_motion"], options["root_smoothing"])
     return options
 
 

@@ -11,6 +11,7 @@ from ..bridge.reading import start_checks
 from ..bridge.retarget import root_motion
 from ..bridge.retarget.run import retarget as retarget_motion
 from ..reporting import preview
+from ..solver.retarget.root_motion import DEFAULT_SMOOTHING
 from .files import CommandError, WorkResult, progress_line
 
 
@@ -29,6 +30,14 @@ def retarget_target(args, context):
     contacts = [kind if name is None else (kind, batch.object_named(context, name, "--contacts object"))
                 for kind, name in args.contacts or [("ground", None)]]
     return target, contacts
+
+
+def root_smoothing(mode, seconds):
+    """The root smoothing a retarget in root motion ``mode`` uses (seconds; None where the travel stays on the
+    hips): as given, else the default."""
+    if mode in (None, "hips"):
+        return None
+    return DEFAULT_SMOOTHING if seconds is None else float(seconds)
 
 
 def retarget(args, context):
@@ -64,5 +73,7 @@ def retarget(args, context):
     action = getattr(outcome, "action", None)
     details = {"source": source.name, "target": target.name, "armature": target.name,
                "contacts": outcome.contact_report, "floor": args.floor, "root_motion": args.root_motion,
+               "root_smoothing": root_smoothing(args.root_motion, args.root_smoothing), "mirror": bool(args.mirror),
+               "groups": list(args.groups) if args.groups is not None else None,
                "action": action.name if action is not None else batch.action_name(target)}
     return WorkResult(outcome=outcome, seconds=seconds, figure=figure, details=details)

@@ -6,6 +6,7 @@ partner of each metarig bone by its .L/.R name (the code pairs bones without rea
 tests/helpers/rig_measures.py."""
 
 import importlib
+import json
 import shutil
 from math import radians
 from pathlib import Path
@@ -185,8 +186,10 @@ def test_cli_mirror_writes_the_mirrored_motion(extension_module_name, tmp_path, 
     hands = {}
     for mirrored in (False, True):
         out = tmp_path / f"out_{mirrored}.blend"
-        code = cli.main(common + ["--output", str(out)] + (["--mirror"] if mirrored else []))
+        report = tmp_path / f"report_{mirrored}.json"
+        code = cli.main(common + ["--output", str(out), "--report", str(report)] + (["--mirror"] if mirrored else []))
         assert code in (0, 1), capsys.readouterr().err
+        assert json.loads(report.read_text())["mirror"] is mirrored  # the report says how the action was made
         bpy.ops.wm.open_mainfile(filepath=str(out), load_ui=False)
         target = bpy.data.objects["Large"]
         joints = rig_measures.sample(range(20, 41), [(target, ["LeftHand", "RightHand", "LeftUpLeg", "RightUpLeg"])])[0][0]
