@@ -300,7 +300,7 @@ def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *
     try:
         source = rig_of(source_obj, source_bones)
         target = rig_of(target_obj, target_bones)
-        if standing and root_travel.standing_basis(target_obj) is not None:  # an earlier run's root keys moved it
+        if standing:  # where it stood before an earlier run's root motion keys moved it, if they did
             target = with_world(target, root_travel.standing_world(target_obj))
         source_pose, source_world, read_from = read_motion(source_obj, source, frames)
         source = with_world(source, source_world)
