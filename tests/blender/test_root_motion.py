@@ -437,6 +437,54 @@ def test_retargeting_again_after_object_root_motion_gives_what_the_first_run_gav
     assert np.abs(heads(hips, names) - heads(fresh, names)).max() < 0.001 * MM
 
 
+def test_a_partial_retarget_under_an_objects_keys_ends_where_solved(extension_module_name):
+    """--groups trunk onto the sample's Large whose object's keys move it: (1) an earlier 'object' root motion's
+    travel: every bone ends where that run put it (0.001 mm), the object's keys kept (1e-6), and a 'hips' run after
+    both leaves the object where it stood before the first run; (2) keys of the user's own moving it 0.6 m: the
+    carried bones end in the world where a full retarget of the same file puts them (0.001 mm), the travel not
+    added twice (it was, by about 0.57 m, before the carried hips were keyed under the moving object)."""
+    from fullbody_adjust.bridge.retarget import run as retarget
+
+    def opened():
+        bpy.ops.wm.open_mainfile(filepath=str(SAMPLE), load_ui=False)
+        source, target = bpy.data.objects["Source"], bpy.data.objects["Large"]
+        target.location, target.rotation_euler = (0.3, -0.2, 0.0), (0.0, 0.0, 0.5)
+        bpy.context.scene.frame_set(20)
+        return source, target
+
+    def run(source, target, **kwargs):
+        outcome = retarget.retarget(bpy.context, source, target, 1, 30, **kwargs)
+        result = sample_armature(target, "Hips")
+        bpy.context.scene.frame_set(20)
+        return outcome, result
+
+    source, target = opened()
+    stood = np.array(target.matrix_world)
+    _, first = run(source, target, root_motion="object")
+    _, carried = run(source, target, groups=("trunk",))
+    names = first["body"]
+    assert np.abs(carried["object"] - first["object"]).max() < 1e-6
+    assert np.abs(heads(carried, names) - heads(first, names)).max() < 0.001 * MM
+    _, after = run(source, target)
+    assert np.abs(after["object"] - stood).max() < 1e-6
+
+    def keyed():
+        source, target = opened()
+        for frame, shift in ((1, 0.0), (30, 0.6)):
+            target.location = (0.3 + shift, -0.2, 0.0)
+            target.keyframe_insert("location", frame=frame)
+        bpy.context.scene.frame_set(20)
+        return source, target
+
+    _, full = run(*keyed())  # its new action does not key the object: it stays where frame 20 has it
+    outcome, own = run(*keyed(), groups=("trunk",))
+    moved = own["object"][:, 0, 3]
+    assert moved.max() - moved.min() > 0.5  # the object's own keys kept: it moves
+    trunk = [n for n in outcome.keyed_bones if n in names]
+    assert "Hips" in trunk and len(trunk) >= 4
+    assert np.abs(heads(own, trunk) - heads(full, trunk)).max() < 0.001 * MM
+
+
 def test_a_generated_rigify_rig_takes_every_mode(extension_module_name):
     """On a generated control rig the keys go on its controls: 'bone' (its 'root' control, which every control
     hangs from) and 'object' leave the hands and feet where the default puts them (0.1 mm; the other deform bones

@@ -1,15 +1,23 @@
 # SPDX-License-Identifier: GPL-3.0-or-later
 """A partial retarget's action (``retarget --groups``): a copy of the target's own action, assigned to it, with the
 F-Curves of the bones the retarget carries taken out (the retarget keys them afresh); every other bone keeps the
-target's own F-Curves as they were, key for key. The groups' bones are solver.retarget.partial's."""
+target's own F-Curves as they were, key for key. The groups' bones are solver.retarget.partial's.
+
+The object's own keys are kept too (an earlier 'object' root motion's travel, or the user's): where they move it,
+the carried bones are keyed so that they end in the world where the solve put them, the object moving under them
+(``under_moving_object``), not with its travel added to the solve's."""
 
 import re
 
 import bpy
+import numpy as np
 
+from ...solver.retarget.root_motion import residual
 from ..errors import AdjustError
+from ..reading import pose
 from ..rig import control_rig
 from ..writing import keyframes
+from .read import read_motion
 
 _LAYERED = "layers" in bpy.types.Action.bl_rna.properties  # 4.4+: slotted, layered actions
 _BONE_OF_PATH = re.compile(r'^pose\.bones\["((?:[^"\\]|\\.)*)"\]')
@@ -19,6 +27,26 @@ def check_partial(target_obj):
     """AdjustError (one line) when a partial retarget cannot be written onto ``target_obj``."""
     if control_rig.is_generated_rigify(target_obj):
         raise AdjustError(f"'{target_obj.name}' is a generated control rig: retarget all of it (leave out --groups)")
+
+
+def own_motion(obj, rig, frames):
+    """The target's own motion at ``frames``, read before a partial retarget replaces its action: (pose matrices
+    (F,J,4,4) in its armature space, its world matrix on each frame (F,4,4), or None where the object stands still
+    over the frames)."""
+    moved = obj.parent is not None or any(c.enabled for c in obj.constraints) or any(
+        not fc.data_path.startswith("pose.bones[") for fc in keyframes.animating_fcurves(obj))
+    if not moved:
+        return read_motion(obj, rig, frames)[0], None
+    snapshot = pose.read_pose_frames(obj, frames)
+    worlds = np.asarray(snapshot.matrix_world, dtype=np.float64)
+    return snapshot.pose_matrices, (None if np.all(worlds == worlds[:1]) else worlds)
+
+
+def under_moving_object(posed, world, worlds):
+    """A partial retarget's pose ``posed`` (F,J,4,4), solved in the armature space of ``world`` (4,4), as keyed
+    on an object at ``worlds`` (F,4,4) on each frame: the same world matrices. (Only the topmost carried bones'
+    keys change: a common left factor leaves every bone's local transform under its parent as it was.)"""
+    return residual(np.linalg.inv(world) @ worlds, posed)
 
 
 def action_without(obj, name, bone_names):

@@ -125,6 +125,14 @@ def standing_basis(obj):
     return np.array(record["basis"], dtype=np.float64).reshape(4, 4)
 
 
+def record_standing(obj, action, basis):
+    """Record that ``action`` keys ``obj``'s travel from the matrix_basis ``basis`` (4,4; None: nothing to record),
+    for standing_basis: after an 'object' root motion, and after a partial retarget whose new action is a copy of
+    one that did (the object's keys kept)."""
+    if basis is not None:
+        obj[_STANDING] = {"action": action.name, "basis": [float(v) for v in np.reshape(basis, -1)]}
+
+
 def standing_world(obj):
     """(4,4) ``obj``'s world matrix where it stands for a retarget: its current one, or before an earlier
     'object' root motion's keys moved it (standing_basis)."""
@@ -255,5 +263,5 @@ def _key_object(context, target_obj, action, frames, motions, standing=None):
     current = np.array(getattr(target_obj, prop), dtype=np.float64)[None]
     rotation = rt.rotation_channel(mode, rt.unit_columns(basis[:, None, :3, :3]), current)[:, 0]
     keyframes.key_object_frames(target_obj, action, frames, {"location": basis[:, :3, 3], prop: rotation})
-    target_obj[_STANDING] = {"action": action.name, "basis": [float(v) for v in basis0.reshape(-1)]}
+    record_standing(target_obj, action, basis0)
     context.scene.frame_set(context.scene.frame_current)

@@ -129,7 +129,7 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
             raise AdjustError(f"Root motion '{root_motion}' moves every bone, so it cannot go with --groups "
                               f"(a partial retarget keeps the target's own keys elsewhere)")
     prepared = prepare(context, source_obj, target_obj, frame_start, frame_end, contacts=contacts, exact=exact,
-                       floor=floor, mirror=mirror, standing=groups is None)
+                       floor=floor, mirror=mirror)
     target, plan = prepared.target, prepared.plan
     root_request = root_travel.check(target_obj, root_motion, root_bone, target.names[target.groups["root"][0]],
                                      root_smoothing)
@@ -177,14 +177,20 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
     name = new_action or f"{_action_name(source_obj)}_{target_obj.name}"
     posed = posed_of(result)
     only = None if groups is None else partial_groups.bones_in_groups(target, groups, range(len(target.names)))
-    own = None if only is None else read_motion(target_obj, target, prepared.frames)[0]  # before it is replaced
     if only is None:
         action, keyed = root_travel.write(context, root_request, target_obj, target, posed, prepared.frames, name,
                                           plan.carried, plan.ground)
     else:
+        own, worlds = partial.own_motion(target_obj, target, prepared.frames)  # before it is replaced
+        standing = root_travel.standing_basis(target_obj)
+        if worlds is not None:  # its object's own keys move it: the carried bones keyed to end where solved
+            posed = partial.under_moving_object(posed, target.matrix_world, worlds)
         action, keyed = write_pose(context, target_obj, target, posed, prepared.frames, name, plan.carried, only)
+        root_travel.record_standing(target_obj, action, standing)  # the copy keeps the object's keys
         # contacts measured on the motion written: the groups carried on the target's own
         posed = partial_groups.combined_pose(target, posed, own, only)
+        if worlds is not None:
+            posed = (np.linalg.inv(target.matrix_world) @ worlds)[:, None] @ posed
     progress("done", 1.0)
 
     wrists = np.stack([model.limbs[LIMB_OF_EFFECTOR[e]].end_point(result.heads, result.tails) for e in rt.EFFECTORS],
@@ -277,10 +283,10 @@ def contact_specs(context, contacts):
 
 
 def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *, contacts=("ground",),
-            exact=True, floor=None, mirror=False, standing=True):
+            exact=True, floor=None, mirror=False):
     """Check the input, read the source's motion and plan the retarget (see ``retarget``); changes nothing
-    but the target's stored bone map. ``standing``: the target stands where an earlier 'object' root motion's
-    keys found it (root_motion.standing_world; not for a partial retarget, which keeps those keys)."""
+    but the target's stored bone map. The target stands where an earlier 'object' root motion's keys found it
+    (root_motion.standing_world)."""
     check_source(source_obj)
     start_checks.check_armature(target_obj)
     if target_obj.mode == 'EDIT':
@@ -300,8 +306,8 @@ def prepare(context, source_obj, target_obj, frame_start=None, frame_end=None, *
     try:
         source = rig_of(source_obj, source_bones)
         target = rig_of(target_obj, target_bones)
-        if standing:  # where it stood before an earlier run's root motion keys moved it, if they did
-            target = with_world(target, root_travel.standing_world(target_obj))
+        # where it stood before an earlier run's root motion keys moved it, if they did
+        target = with_world(target, root_travel.standing_world(target_obj))
         source_pose, source_world, read_from = read_motion(source_obj, source, frames)
         source = with_world(source, source_world)
         if mirror:  # the clip mirrored in a mirrored scene: its contact objects go with it
