@@ -71,9 +71,11 @@ def reference_solver(rev, into):
     subprocess.run(["tar", "-x", "-C", into], input=archive, check=True)
     Path(into, "fullbody_adjust").rename(Path(into, "fullbody_adjust_ref"))
     sys.path.insert(0, into)
-    adjust = importlib.import_module("fullbody_adjust_ref.solver.fullbody.adjust")
-    body = importlib.import_module("fullbody_adjust_ref.solver.body.model")
-    boxes = importlib.import_module("fullbody_adjust_ref.solver.obstacles.boxes")
+    # Where the modules are: by concept (solver/fullbody/, body/, obstacles/), or the flat solver/ of revisions
+    # before that layout (e.g. 26b640e, the one-solver issue's baseline).
+    layouts = (("fullbody.adjust", "body.model", "obstacles.boxes"), ("adjust", "body", "obstacles"))
+    flat = not Path(into, "fullbody_adjust_ref", "solver", "fullbody").is_dir()
+    adjust, body, boxes = (importlib.import_module(f"fullbody_adjust_ref.solver.{name}") for name in layouts[flat])
     return adjust, body.BodyModel, boxes.Boxes
 
 
