@@ -215,7 +215,9 @@ def obstacle_case(saved):
 
     target, _, _ = adjust(rig, near_target, add_box)
     after = rm.mesh_vertices(rig.meshes)
+    depth = np.minimum(after - lo, hi - after).min(axis=1)  # > 0 inside the box
     return {"joints_inside": rm.vertices_inside(rm.world_heads(rig.armature), lo, hi),
+            "deepest_arm_vertex_m": metres(rig, max(0.0, float(depth[~hand].max()))),
             "mesh_vertices_inside": rm.vertices_inside(after, lo, hi),
             "hand_vertices_inside": rm.vertices_inside(after[hand], lo, hi),
             "mesh_vertices_inside_before": before["inside"],

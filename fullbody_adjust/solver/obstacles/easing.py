@@ -2,7 +2,8 @@
 the target: the retries with less of it (ClearanceEasing, owned by limb_placement.LimbPlacement, whose
 _solve_stacked and _limb_boxes it calls, on the problem's settings, obstacles, limits, chain0 and limb_pole), each first from the limb's
 clearest swivel (obstacle_swivel), then from its own start; and where a limb reached its target with its mesh's
-surface (AdjustSettings.surface) in a box, the swivel round the target that keeps the surface out best."""
+surface (AdjustSettings.surface) in a box, the swivel round the target that keeps the surface out best: out of the
+obstacles themselves first, then out of the Margin round them."""
 
 from dataclasses import replace
 
@@ -55,6 +56,9 @@ class ClearanceEasing:
             boxes = self._margin_boxes(t.rows[rows])
             now = depth_in_boxes(self._surface_points(t, rows, r.positions[rows][:, None]), boxes)[:, 0]
             rows, now = rows[now > 0], now[now > 0]
+            if rows.size:  # how deep in the obstacles themselves, then in the margin round them
+                now = np.stack([depth_in_boxes(self._surface_points(t, rows, r.positions[rows][:, None]),
+                                               self.p.obstacles.select(t.rows[rows]))[:, 0], now], axis=-1)
             if rows.size:
                 every = np.repeat(rows, len(ANGLES))
                 starts = swivel_starts(t.start[rows], t.targets[rows]).reshape(-1, *t.start.shape[1:])
@@ -75,10 +79,13 @@ class ClearanceEasing:
             clear = (redo.status == "reached").reshape(len(rows), k) \
                 & ~points_inside(joints, boxes).any(axis=(2, 3)) \
                 & ~segments_cross(joints[:, :, :-1], joints[:, :, 1:], boxes).any(axis=(2, 3))
-            depth = np.where(clear, depth_in_boxes(self._surface_points(t, rows, joints), boxes), np.inf)
+            points = self._surface_points(t, rows, joints)
+            depth = np.where(clear[..., None], np.stack([depth_in_boxes(points, self.p.obstacles.select(t.rows[rows])),
+                                                         depth_in_boxes(points, boxes)], axis=-1), np.inf)
             moved = norm(joints - r.positions[rows][:, None]).sum(axis=-1)
             best = _first_least(depth, moved)
-            take = np.nonzero(depth[np.arange(len(rows)), best] < now)[0]
+            chosen = depth[np.arange(len(rows)), best]
+            take = np.nonzero((chosen[:, 0] < now[:, 0]) | ((chosen[:, 0] == now[:, 0]) & (chosen[:, 1] < now[:, 1])))[0]
             pick = take * k + best[take]
             r.status, r.reason = r.status.astype(object), r.reason.astype(object)
             for field in ("positions", "iterations", "residual", "reachable", "status"):
@@ -168,6 +175,9 @@ class ClearanceEasing:
 
 
 def _first_least(depth, moved):
-    """(b,): per row of depth and moved (b,k), the index of the least depth, the least moved among equals."""
-    key = np.where(depth == depth.min(axis=1, keepdims=True), moved, np.inf)
+    """(b,): per row of depth (b,k,2: in the obstacles, in their margin) and moved (b,k), the index of the least
+    depth in the obstacles, the least in their margin among equals, then the least moved."""
+    least = depth[..., 0] == depth[..., 0].min(axis=1, keepdims=True)
+    margin = np.where(least, depth[..., 1], np.inf)
+    key = np.where(least & (margin == margin.min(axis=1, keepdims=True)), moved, np.inf)
     return np.argmin(key, axis=1)
