@@ -12,7 +12,11 @@ Cluster: `python -m distributed.cli.dask_scheduler` and N `python -m distributed
 
 Every run's report rows are compared with --jobs 1's (but their times): "same_rows" says whether they match.
 
-Run: .ci/with-bpy python bench/dask_batch.py [--clips 12]   (one JSON object on stdout; needs `distributed`).
+With --long 1 the clips are bench/batch_many.py's cuts of 300-1,000 frames instead: where a clip's solve, not a
+worker's start, is most of its cost.
+
+Run: .ci/with-bpy python bench/dask_batch.py [--clips 12] [--long 0|1]   (one JSON object on stdout; needs
+`distributed`).
 Data credit: mocap.cs.cmu.edu (NSF EIA-0196217), BVH conversion by Bruce Hahne (cgspeed).
 """
 
@@ -29,7 +33,7 @@ sys.path.insert(0, str(REPO))
 
 import bpy  # noqa: E402,F401  (the character is made with it)
 
-from bench.batch_many import make_character  # noqa: E402
+from bench import batch_many  # noqa: E402
 from bench.command_line import print_report, whole_number_options  # noqa: E402
 from fullbody_adjust.bpy_exit import leave  # noqa: E402
 from tests.helpers.bvh import CMU_CLIPS, MOCAP_DIR, cut_bvh  # noqa: E402
@@ -68,9 +72,9 @@ def measure(args):
     with tempfile.TemporaryDirectory(prefix="fba-dask-batch-") as work:
         work = Path(work)
         (work / "clips").mkdir()
-        make_clips(work / "clips", args.clips)
+        (batch_many.make_clips if args.long else make_clips)(work / "clips", args.clips)
         character = work / "hero.blend"
-        make_character(character)
+        batch_many.make_character(character)
         for jobs in (1, 2):
             load = os.getloadavg()[0]
             seconds, report = run_batch(character, work / "clips", work / f"jobs{jobs}", work / f"jobs{jobs}.json",
@@ -109,5 +113,6 @@ def measure(args):
 
 
 if __name__ == "__main__":
-    print_report(measure, whole_number_options(__doc__, ("--clips", 12, "clips in the batch")))
+    print_report(measure, whole_number_options(__doc__, ("--clips", 12, "clips in the batch"),
+                                               ("--long", 0, "1: cuts of 300-1,000 frames instead of 50-300")))
     leave(0)  # the bpy module's own teardown is unreliable (bpy_exit): the report is out
