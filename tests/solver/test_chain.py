@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fullbody_adjust.solver import Boxes, ChainSettings, SolverInputError, penetrations
-from fullbody_adjust.solver.chain.fabrik import solve_chain, solve_chain_batch
+from fullbody_adjust.solver.chain.fabrik import solve_chain_batch
 from fullbody_adjust.solver.limits.joint_limits import JointLimits, carry_axis
 from fullbody_adjust.solver.obstacles.boxes import points_inside
 from fullbody_adjust.solver.maths.geometry import any_perpendicular
@@ -15,6 +15,7 @@ from fullbody_adjust.solver.limits.joint_limits import CONE, HINGE
 
 from .strategies import (boxes_corners, chains, lengths_of, reachable_targets, unit_vectors, unreachable_targets,
                          well_conditioned_targets)
+from .one_chain import solve_chain
 
 # A generous cap: FABRIK converges linearly and slowly for some folded poses; these tests are about where it
 # ends, not how fast.
