@@ -33,8 +33,6 @@ from .model import ChainModel
 from .settings import STATUSES, ChainBatchResult, ChainResult, ChainSettings
 from ..errors import SolverInputError
 from ..maths.geometry import all_set
-from ..limits.joint_limits import JointLimits
-from ..obstacles.boxes import as_boxes
 
 __all__ = ["STATUSES", "ChainBatchResult", "ChainResult", "ChainSettings", "solve_chain_batch"]
 

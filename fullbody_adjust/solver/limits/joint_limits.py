@@ -29,7 +29,7 @@ import numpy as np
 from ..maths import lanes
 from ..maths import vectors as vec
 from ..errors import SolverInputError
-from ..maths.geometry import all_set, any_set, cross, norm, normalize
+from ..maths.geometry import all_set, any_set, norm
 
 FREE, CONE, HINGE = 0, 1, 2
 
