@@ -11,7 +11,7 @@ import time
 import pytest
 
 from fullbody_adjust.cli.pool import WorkerPool
-from fullbody_adjust.reporting import batch_report
+from fullbody_adjust.reporting import batch_report, summary
 
 # A worker: answers each task with a row naming its process, after some chatter and a progress message; the task
 # 'crash' makes it die with exit code 7 after a last word on stderr.
@@ -113,7 +113,7 @@ def test_the_batch_report_counts_its_rows_and_the_csv_holds_them():
     assert report["frames"] == 420 and report["missed_within_reach"] == 2 and report["contacts_not_held"] == 3
     assert report["clips_per_minute"] == pytest.approx(60.0 * 2 / 30.0)
     assert all(set(row) == set(batch_report.COLUMNS) for row in report["rows"])
-    json.loads(batch_report.to_json(report))
+    json.loads(summary.to_json(report))
     listed = list(csv.DictReader(io.StringIO(batch_report.to_csv(report))))
     assert [r["name"] for r in listed] == ["a", "b", "c", "d"]
     assert listed[1]["reason"] == rows[1]["reason"] and listed[1]["frames"] == ""

@@ -26,6 +26,15 @@ from fullbody_adjust.bone_mapping import (
 from fullbody_adjust.solver.vocabulary import GROUPS, REQUIRED_GROUPS
 from tests.helpers.bvh import CMU_GROUPS, DAZ_GROUPS, read_cmu
 
+
+def rig_from_bones(bones, name="Armature"):
+    """A RigDescription from ``[(bone, parent name or None, head, tail), ...]`` in any order."""
+    index = {b[0]: i for i, b in enumerate(bones)}
+    return RigDescription(names=tuple(b[0] for b in bones),
+                          parents=[-1 if b[1] is None else index[b[1]] for b in bones],
+                          heads=[b[2] for b in bones] or np.zeros((0, 3)),
+                          tails=[b[3] for b in bones] or np.zeros((0, 3)), name=name, orientation=np.eye(3))
+
 # BVH files are Y up, facing +Z; Blender's importer turns (x, y, z) into (x, -z, y).
 BVH_TO_BLENDER = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
 
@@ -52,7 +61,7 @@ def build_rig(name, center, left, right_name, prefix=""):
             step = heads[b] - heads[p] if p is not None else np.array([0.0, 0.0, 0.1])
             tail = heads[b] + 0.5 * step if np.linalg.norm(step) > 0 else heads[b] + [0.0, 0.0, 0.05]
         out.append((prefix + b, None if p is None else prefix + p, heads[b], tail))
-    return RigDescription.from_bones(out, name=name)
+    return rig_from_bones(out, name=name)
 
 
 def fingers(names, start, parent, spacing=0.032, count=3):
@@ -406,7 +415,7 @@ def test_a_rig_without_neck_and_head_maps_without_the_head_group():
 # --- rigs that cannot be mapped -----------------------------------------------------------------------------
 
 def tail_chain():
-    return RigDescription.from_bones(
+    return rig_from_bones(
         [(f"tail_{k}", f"tail_{k - 1}" if k else None, (0, 0.2 * k, 1.0), (0, 0.2 * k + 0.2, 1.0)) for k in range(8)],
         name="Tail")
 
@@ -484,7 +493,7 @@ def test_a_named_rig_missing_a_bone_names_where_the_arm_stops():
 
 
 def test_an_empty_armature_cannot_be_mapped():
-    empty = RigDescription.from_bones([], name="Empty")
+    empty = rig_from_bones([], name="Empty")
     with pytest.raises(MappingError, match=r"^Cannot map rig 'Empty': it has no bones$"):
         map_rig(empty)
 
@@ -524,17 +533,12 @@ def test_bone_map_problems_name_what_is_wrong(edit, problem):
     problems = bone_map.problems(desc)
     if problem is None:
         assert problems == []
-        assert bone_map.validate(desc) is bone_map
         return
     assert problem in problems
-    with pytest.raises(MappingError) as caught:
-        bone_map.validate(desc)
-    assert str(caught.value).startswith(f"Bone map does not fit rig 'Mixamo': {problems[0]}")
-    assert "\n" not in str(caught.value)
 
 
 def test_bone_map_rejects_a_zero_length_segment():
-    desc = RigDescription.from_bones([("a", None, (0, 0, 0), (0, 0, 1)), ("b", "a", (0, 0, 0), (0, 0, 1)),
+    desc = rig_from_bones([("a", None, (0, 0, 0), (0, 0, 1)), ("b", "a", (0, 0, 0), (0, 0, 1)),
                                       ("c", "b", (0, 0, 1), (0, 0, 2))], name="Zero")
     assert BoneMap({"trunk": ["a", "b", "c"]}).problems(desc)[-1] == \
         "trunk: 'a' has no length (its head is where 'b' starts)"
@@ -564,8 +568,3 @@ def test_side_markers(name, side):
 def test_rig_description_rejects_malformed_input(kwargs, message):
     with pytest.raises(ValueError, match=re.escape(message)):
         RigDescription(**kwargs)
-
-
-def test_rig_description_from_bones_needs_known_parents():
-    with pytest.raises(ValueError, match="parent 'nope' is not a bone"):
-        RigDescription.from_bones([("a", "nope", (0, 0, 0), (0, 0, 1))])

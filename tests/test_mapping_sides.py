@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from fullbody_adjust.bone_mapping import BoneMap, MappingError, RigDescription, body_sides, detect_map, map_rig
-from tests.test_mapping_rules import NAMED_RIGS, build_rig, rename_map, renamed
+from tests.test_mapping_rules import NAMED_RIGS, build_rig, rename_map, renamed, rig_from_bones
 
 TURNS = {"-Y": 0.0, "+X": 90.0, "+Y": 180.0, "-X": 270.0}  # facing after turning a -Y facing rig about z
 
@@ -248,7 +248,7 @@ def test_ik_style_feet_outside_the_legs_are_named():
     for name, p, head, tail in zip(desc.names, desc.parents, desc.heads, desc.tails):
         parent = "Root" if name.startswith("foot") or p < 0 else desc.names[p]
         bones.append((name, parent, head, tail))
-    loose = RigDescription.from_bones(bones, name="Loose feet")
+    loose = rig_from_bones(bones, name="Loose feet")
     with pytest.raises(MappingError) as caught:
         map_rig(loose)
     message = str(caught.value)

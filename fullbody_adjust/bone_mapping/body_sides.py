@@ -38,14 +38,6 @@ def end_point(sk, limb):
     return sk.heads[limb.end] if limb.end is not None else sk.ends[limb.chain[-1]]
 
 
-@dataclass(frozen=True)
-class Sides:
-    """Which of two limb pairs (pair 0, pair 1) is on the character's left, and why, for messages."""
-
-    left: int
-    why: str
-
-
 def lateral(sk, leg0, leg1):
     """Unit horizontal vector from leg 1 to leg 0 (hip joints, else knees, else ankles), or None."""
     return lateral_across(UP, [(_joint(sk, leg0, k), _joint(sk, leg1, k)) for k in range(3)], sk.tiny)
@@ -74,20 +66,20 @@ def _names(sk, limbs):
 
 def left_pair(sk, legs, arms):
     """Sides of two limb pairs: ``legs`` (leg 0, leg 1) and ``arms`` (arm 0 on leg 0's side, arm 1), each a
-    Limb (``arms`` may be None). Returns Sides: which pair is on the character's left (module docstring)."""
+    Limb (``arms`` may be None). Returns which pair (0 or 1) is on the character's left (module docstring)."""
     lat = lateral(sk, *legs)
     names = [_names(sk, [legs[k]] + ([arms[k]] if arms else [])) for k in (0, 1)]
     named = names[0] is not None and names[1] is not None and names[0] != names[1]
     if lat is None:
-        return Sides(names.index("L") if named else 0, "the legs are not side by side")
+        return names.index("L") if named else 0  # the legs are not side by side
     sign, clear = facing(sk, legs)
     # Facing sign * (up x lat): left = up x forward = -sign * lat, so pair 0 (at +lat) is left when sign < 0.
     geometric = None if sign == 0 else (0 if sign < 0 else 1)
     if named:
         by_name = names.index("L")
         if clear and geometric != by_name:
-            return Sides(geometric, "the skeleton's facing, against mirrored side names")
-        return Sides(by_name, "side names")
+            return geometric  # the skeleton's facing, against mirrored side names
+        return by_name
     if geometric is not None:
-        return Sides(geometric, "the skeleton's facing")
-    return Sides(0 if float(lat @ np.array([1.0, 1e-3, 0.0])) > 0 else 1, "no sign of facing: +X is left")
+        return geometric
+    return 0 if float(lat @ np.array([1.0, 1e-3, 0.0])) > 0 else 1  # no sign of facing: +X is left

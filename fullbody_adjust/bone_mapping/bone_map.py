@@ -133,11 +133,3 @@ class BoneMap:
     def _is_split(desc, b):
         continuation = desc.names[b] + ".001"
         return any(desc.names[c] == continuation for c in desc._skeleton.children[b])
-
-    def validate(self, desc):
-        """Raise MappingError naming the first problem (and how many more) unless the map fits ``desc``."""
-        problems = self.problems(desc)
-        if problems:
-            more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
-            raise MappingError(f"Bone map does not fit rig '{desc.name}': {problems[0]}{more}")
-        return self

@@ -146,7 +146,7 @@ def _detect_from_root(sk, root):
         raise NotFound("trunk", f"from '{names[root]}' to '{names[chest]}' the spine does not rise "
                                  f"({rise:.3g} up from the hip joints, {lean:.3g} across)")
     # The legs say where the body faces: name the arms by the sides they are on.
-    left = body_sides.left_pair(sk, legs, None).left
+    left = body_sides.left_pair(sk, legs, None)
     said = ("L", "R") if left == 0 else ("R", "L")
     arms = [split_arm(sk, arm_paths[k], said[k], _clavicle(sk, arm_paths[k], legs, lat)) for k in (0, 1)]
     knees = np.mean([sk.heads[leg.chain[-1], 2] for leg in legs])
@@ -154,12 +154,12 @@ def _detect_from_root(sk, root):
         if body_sides.end_point(sk, arms[k])[2] <= knees:
             raise NotFound(f"arm.{said[k]}", f"'{names[arm_paths[k][0]]}' hangs down to the knees (a leg?)")
 
-    sides = body_sides.left_pair(sk, legs, arms)
+    left = body_sides.left_pair(sk, legs, arms)
     shoulders = np.mean([sk.heads[arm.chain[-2], 2] for arm in arms])
     head = _find_head(sk, chest, {p[0] for p in arm_paths}, shoulders, bases, lat)
     groups = {"root": [root], "trunk": _with_length(sk, trunk) if trunk else []}
     for k in (0, 1):
-        s = "L" if k == sides.left else "R"
+        s = "L" if k == left else "R"
         groups[f"arm.{s}"] = _with_length(sk, list(arms[k].chain), body_sides.end_point(sk, arms[k]))
         groups[f"hand.{s}"] = [] if arms[k].end is None else [arms[k].end]  # none: the wrist ends the forearm
         groups[f"leg.{s}"], groups[f"foot.{s}"] = list(legs[k].chain), [legs[k].end]

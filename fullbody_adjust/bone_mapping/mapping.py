@@ -85,7 +85,7 @@ def with_body_sides(desc, bone_map):
     wrists = [body_sides.end_point(sk, arm) for arm in arms]
     if float((wrists[0] - wrists[1]) @ lat) <= 0:
         return bone_map
-    if body_sides.left_pair(sk, legs, arms).left == 0:
+    if body_sides.left_pair(sk, legs, arms) == 0:
         return bone_map
     swap = {"L": "R", "R": "L"}
     groups = {(g[:-1] + swap[g[-1]] if g[-2:] in (".L", ".R") else g): bones for g, bones in bone_map.groups.items()}

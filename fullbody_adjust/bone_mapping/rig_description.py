@@ -59,23 +59,6 @@ class RigDescription:
             object.__setattr__(self, attr, value)
         self._skeleton  # reject cycles now rather than at first use
 
-    @classmethod
-    def from_bones(cls, bones, name="Armature", orientation=None):
-        """From ``[(bone, parent name or None, head, tail), ...]`` in any order."""
-        bones = list(bones)
-        index = {b[0]: i for i, b in enumerate(bones)}
-        missing = [b[1] for b in bones if b[1] is not None and b[1] not in index]
-        if missing:
-            raise ValueError(f"rig '{name}': parent '{missing[0]}' is not a bone of the rig")
-        return cls(
-            names=tuple(b[0] for b in bones),
-            parents=[-1 if b[1] is None else index[b[1]] for b in bones],
-            heads=[b[2] for b in bones] or np.zeros((0, 3)),
-            tails=[b[3] for b in bones] or np.zeros((0, 3)),
-            name=name,
-            orientation=np.eye(3) if orientation is None else orientation,
-        )
-
     def __len__(self):
         return len(self.names)
 

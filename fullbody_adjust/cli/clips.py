@@ -23,7 +23,7 @@ import bpy
 
 from ..bridge import files as batch
 from ..bridge.retarget import clip_import, export, root_motion
-from ..reporting import batch_report
+from ..reporting import batch_report, summary
 from ..reporting.progress import ConsoleProgress, NoProgress
 from .cluster import PYTHON, ClusterError, DaskPool, connect
 from .files import CommandError, check_writable, checked_outputs, input_path, same_file, write_text
@@ -69,7 +69,7 @@ def run(args):
                                        blender=bpy.app.version_string,
                                        options=_report_options(_job(args, blend_in, target.name)))
     if args.report:
-        write_text(args.report, batch_report.to_json(report))
+        write_text(args.report, summary.to_json(report))
         write_text(csv_path, batch_report.to_csv(report))
 
     line = f"retarget onto '{target.name}': {batch_report.one_line(report)}"

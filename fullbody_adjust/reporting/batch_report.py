@@ -5,7 +5,6 @@ import_seconds the importer's part and solve_seconds the retarget's (read, plan,
 
 import csv
 import io
-import json
 
 DONE = "done"
 FAILED = "failed"
@@ -36,10 +35,6 @@ def batch_report(rows, seconds, **extra):
         "rows": rows,
     })
     return report
-
-
-def to_json(report):
-    return json.dumps(report, indent=2, allow_nan=False) + "\n"
 
 
 def to_csv(report):

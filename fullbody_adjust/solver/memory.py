@@ -15,5 +15,4 @@ class SolveMemory:
         self.starts = OrderedDict()  # prepared start poses (prepared.prepare), least recently used first
         self.limb_records = OrderedDict()  # a limb's default limits, by everything they are computed from
         self.levels = None  # the model's (levels, leaves): the order the top-down pass places bones in
-        self.group_bones = None  # the model's groups' bones for one reduceat per frame and group
         self.checked_ranges = {}  # validated JointLimits per set of default ranges (human._checked_ranges)

@@ -11,6 +11,8 @@ import addon_utils
 import bpy
 import numpy as np
 
+from fullbody_adjust.bridge.writing.channels import armature_rotations_to_channels
+from fullbody_adjust.solver.maths.geometry import affine_inverse
 from tests.helpers.blender_data import bone_map, bulk, evaluated  # noqa: F401 (bone_map: for the tests)
 from tests.helpers.bvh import CMU_SCALE, MOCAP_DIR
 
@@ -20,6 +22,14 @@ LAYERED_ACTIONS = bpy.app.version >= (4, 4, 0)
 
 # The operator's INFO report, e.g. "3 of 4 targets met, largest residual 1.2e-07; 13 bones keyed".
 REPORT = re.compile(r"(\d+) of (\d+) targets met(?: over \d+ frames)?, largest residual ([-+.e\d]+(?:inf|nan)?)")
+
+
+def world_rotations_to_channels(obj, snapshot, new_world, bones):
+    """armature_rotations_to_channels of world matrices ((k,4,4), (F,k,4,4) for a batched snapshot): the tests
+    ask for world matrices under every object transform, the bridge converts armature-space ones."""
+    to_armature = affine_inverse(snapshot.matrix_world)
+    return armature_rotations_to_channels(
+        obj, snapshot, (to_armature[:, None] if snapshot.batched else to_armature) @ np.asarray(new_world), bones)
 
 
 def add_rig(kind):

@@ -8,9 +8,9 @@ import pytest
 from fullbody_adjust.bridge.errors import AdjustError
 from fullbody_adjust.bridge.writing.keyframes import key_bones_frames
 from fullbody_adjust.bridge.reading.pose import read_pose
-from fullbody_adjust.bridge.writing.channels import apply_channels, world_rotations_to_channels
+from fullbody_adjust.bridge.writing.channels import apply_channels
 
-from .scene_tools import key_bones
+from .scene_tools import key_bones, world_rotations_to_channels
 
 # name, rotation mode: one bone per kind of rotation property.
 BONES = (("a", "QUATERNION"), ("b", "XYZ"), ("c", "AXIS_ANGLE"))

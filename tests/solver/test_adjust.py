@@ -105,6 +105,12 @@ def _descendants(model, roots):
     return out
 
 
+def _moved_groups(model, h, t, res):
+    """The groups any of whose bones' heads or tails moved on frame 0."""
+    return {g for g, bones in model.groups.items()
+            if bones and ((res.heads[0, bones] != h[0, bones]) | (res.tails[0, bones] != t[0, bones])).any()}
+
+
 def _targets(model, heads, tails, **given):
     """(F,4,3) targets for EFFECTORS: the given ones (F,3) or (3,), NaN for the others."""
     f = heads.shape[0]
@@ -219,8 +225,7 @@ def test_near_target_moves_only_that_arm(rig):
     moving = _descendants(model, [model.groups["arm.L"][0]])
     still = [j for j in range(len(model.names)) if j not in moving]
     assert np.array_equal(res.heads[:, still], h[:, still]) and np.array_equal(res.tails[:, still], t[:, still])
-    moved = dict(zip(res.group_names, res.moved[0]))
-    assert {g for g, m in moved.items() if m} == {"arm.L", "hand.L"}
+    assert _moved_groups(model, h, t, res) == {"arm.L", "hand.L"}
     # The hand keeps its world orientation; the finger rides along with it.
     hand = model.groups["hand.L"][0]
     np.testing.assert_array_equal(res.rotations[0, hand], np.eye(3))
@@ -274,8 +279,8 @@ def test_far_target_bends_the_trunk_and_keeps_the_root(rig):
     trunk_base = _joints(model, h, t, "trunk")[0, 0]
     new_sc = _joints(model, res.heads, res.tails, "trunk")[0, -1]
     assert np.linalg.norm(new_sc - trunk_base) <= _reach(model, h, t, "trunk")[0] + 1e-9
-    moved = dict(zip(res.group_names, res.moved[0]))
-    assert moved["trunk"] and not moved["root"] and not moved["leg.L"] and not moved["leg.R"]
+    moved = _moved_groups(model, h, t, res)
+    assert "trunk" in moved and not moved & {"root", "leg.L", "leg.R"}
     _check_rigid_output(model, h, t, res)
 
 
@@ -571,8 +576,7 @@ def test_limbs_already_at_their_targets_are_left_exactly_as_they_were(rig):
         still = sorted(_descendants(model, legs))
         assert np.array_equal(res.heads[:, still], h[:, still]) and np.array_equal(res.tails[:, still], t[:, still])
         assert np.array_equal(res.rotations[:, still], np.broadcast_to(np.eye(3), (1, len(still), 3, 3)))
-        moved = {g for g, m in zip(res.group_names, res.moved[0]) if m}
-        assert moved == {"arm.L", "hand.L"}
+        assert _moved_groups(model, h, t, res) == {"arm.L", "hand.L"}
 
 
 def test_elbow_never_bends_backwards_on_a_target_behind_it(synth):
@@ -649,8 +653,7 @@ def test_head_target_moves_the_neck_only(rig):
     tg = np.concatenate([_targets(model, h, t), target[None, None]], axis=1)
     res = adjust_frames(model, h, t, tg, EFFECTORS + ("head",))
     assert res.residuals[0, 4] <= TOL and res.sc_displacement[0] == 0.0
-    moved = {g for g, m in zip(res.group_names, res.moved[0]) if m}
-    assert moved == {"head"}
+    assert _moved_groups(model, h, t, res) == {"head"}
 
 
 @pytest.mark.parametrize("kwargs, message", [

@@ -9,7 +9,7 @@ from fullbody_adjust.solver.body.model import BodyModel
 from fullbody_adjust.solver.limits.human import HumanLimits, default_limits
 from fullbody_adjust.solver.errors import SolverInputError
 from fullbody_adjust.solver.maths.geometry import swing_rotation
-from fullbody_adjust.solver.limits.joint_limits import CONE, HINGE, JointLimits, hinge_twist_angle
+from fullbody_adjust.solver.limits.joint_limits import CONE, HINGE, JointLimits, hinge_twist
 from tests.helpers.bvh import CMU_CLIPS, CMU_GROUPS, read_bvh, read_cmu
 
 
@@ -191,7 +191,7 @@ def test_captured_poses_satisfy_the_default_limits(clip):
                 np.testing.assert_allclose(np.sum(axis * u, axis=1), 0.0, atol=1e-9)
                 # In the hinge plane turned by no more than the hinge's twist range (a slight bend far off the
                 # body's plane is noise: the axis stays the body's), but for limbs straight to 1e-3 rad.
-                turned = np.abs(hinge_twist_angle(u, v, axis))
+                turned = np.abs(hinge_twist(u, v, axis))
                 bent = np.linalg.norm(np.cross(u, v), axis=1) > math.sin(1e-3)
                 assert np.all(turned[bent] <= ll.limits.hinge_twist[i] + 1e-9), (clip, name)
                 bend = np.arctan2(np.sum(np.cross(u, v) * axis, axis=1), np.sum(u * v, axis=1))

@@ -7,14 +7,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fullbody_adjust.solver import Boxes, ChainSettings, SolverInputError, penetrations
-from fullbody_adjust.solver.chain.fabrik import solve_chain, solve_chain_batch
-from fullbody_adjust.solver.limits.joint_limits import JointLimits, carry_axis, hinge_axis_from_bend
+from fullbody_adjust.solver.chain.fabrik import solve_chain_batch
+from fullbody_adjust.solver.limits.joint_limits import JointLimits, carry_axis
 from fullbody_adjust.solver.obstacles.boxes import points_inside
 from fullbody_adjust.solver.maths.geometry import any_perpendicular
 from fullbody_adjust.solver.limits.joint_limits import CONE, HINGE
 
 from .strategies import (boxes_corners, chains, lengths_of, reachable_targets, unit_vectors, unreachable_targets,
                          well_conditioned_targets)
+from .one_chain import solve_chain
 
 # A generous cap: FABRIK converges linearly and slowly for some folded poses; these tests are about where it
 # ends, not how fast.
@@ -263,7 +264,7 @@ def test_limits_are_never_exceeded(problem):
 def test_elbow_hinge_reaches_on_its_bend_side_and_refuses_the_other():
     # SC -> shoulder -> elbow -> wrist, elbow bent downward: positive bend = downward.
     start = np.array([[0.0, 0.0, 0.0], [0.15, 0.0, 0.0], [0.45, 0.0, 0.0], [0.65, 0.0, -0.18]])
-    axis = hinge_axis_from_bend(start[2] - start[1], start[3] - start[2])
+    axis = _bend_axis(start)
     limits = JointLimits.free(4).with_hinge(2, axis, 0.0, 2.6)
     down = np.array([0.5, 0.0, -0.3])
     result = solve_chain(start, down, limits=limits, parent_direction=[1.0, 0.0, 0.0])
@@ -297,7 +298,7 @@ def _valid_arm_pose(rng, start, axis0, spread, twist=0.0):
 
 def test_hinged_arm_reaches_targets_of_nearby_valid_poses():
     start = np.array([[0.0, 0.0, 0.0], [0.15, 0.0, 0.0], [0.45, 0.0, 0.0], [0.65, 0.0, -0.18]])
-    axis = hinge_axis_from_bend(start[2] - start[1], start[3] - start[2])
+    axis = _bend_axis(start)
     limits = JointLimits.free(4).with_cone(1, 1.5).with_hinge(2, axis, 0.0, 2.6)
     rng = np.random.default_rng(5)
     targets = np.array([_valid_arm_pose(rng, start, axis, 0.1)[-1] for _ in range(40)])
@@ -310,9 +311,15 @@ def test_hinged_arm_reaches_targets_of_nearby_valid_poses():
                 assert value[0] <= 1e-9 and -1e-9 <= value[1] <= 2.6 + 1e-9
 
 
+def _bend_axis(start):
+    """The elbow's hinge axis that makes the start's bend positive: cross(upper arm, forearm), normalised."""
+    axis = np.cross(start[2] - start[1], start[3] - start[2])
+    return axis / np.linalg.norm(axis)
+
+
 def _arm():
     start = np.array([[0.0, 0.0, 0.0], [0.15, 0.0, 0.0], [0.45, 0.0, 0.0], [0.65, 0.0, -0.18]])
-    return start, hinge_axis_from_bend(start[2] - start[1], start[3] - start[2]), np.array([1.0, 0.0, 0.0])
+    return start, _bend_axis(start), np.array([1.0, 0.0, 0.0])
 
 
 def _assert_hinges_hold(positions, start, limits, parent_direction):
@@ -407,7 +414,7 @@ def test_two_segment_finish_meets_targets_near_full_stretch_at_once(elbow):
 
 def test_unreachable_target_with_a_hinge_still_stretches_toward_it():
     start = np.array([[0.0, 0.0, 0.0], [0.15, 0.0, 0.0], [0.45, 0.0, 0.0], [0.65, 0.0, -0.18]])
-    axis = hinge_axis_from_bend(start[2] - start[1], start[3] - start[2])
+    axis = _bend_axis(start)
     limits = JointLimits.free(4).with_hinge(2, axis, 0.0, 2.6)
     target = np.array([3.0, 1.0, 0.5])
     result = solve_chain(start, target, limits=limits, parent_direction=[1.0, 0.0, 0.0])

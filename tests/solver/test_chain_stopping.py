@@ -12,10 +12,11 @@ import pytest
 
 from fullbody_adjust.solver import Boxes, ChainSettings
 from fullbody_adjust.solver.chain import iteration
-from fullbody_adjust.solver.chain.fabrik import solve_chain, solve_chain_batch
+from fullbody_adjust.solver.chain.fabrik import solve_chain_batch
 from fullbody_adjust.solver.chain.settings import _PROGRESS
 from fullbody_adjust.solver.limits.joint_limits import JointLimits
 from fullbody_adjust.solver.maths import lanes
+from .one_chain import solve_chain
 
 START = np.array([[38.63869699335494, 3.4648431005482125, 2.5877773547321246],
                   [55.18217088616812, 2.7605199189401683, 11.035677368765075],

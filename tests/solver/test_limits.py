@@ -6,8 +6,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from fullbody_adjust.solver import SolverInputError
-from fullbody_adjust.solver.limits.joint_limits import CONE, FREE, HINGE, JointLimits, carry_axis, hinge_axis_from_bend
-from fullbody_adjust.solver.limits.joint_limits import apply_cone, apply_hinge, hinge_twist_angle
+from fullbody_adjust.solver.limits.joint_limits import CONE, FREE, HINGE, JointLimits, carry_axis, cone, hinge, hinge_twist
 
 from .strategies import unit_vectors
 
@@ -53,7 +52,7 @@ def test_bad_limits_are_rejected(make, message):
 @settings(deadline=None, max_examples=300)
 @given(unit_vectors(), unit_vectors(), unit_vectors(), st.floats(0.0, math.pi))
 def test_cone_clamps_to_the_cone_in_the_common_plane(parent, v, fallback, angle):
-    out, binding = apply_cone(parent, v, angle, fallback)
+    out, binding = cone(parent, v, angle, fallback)
     assert np.linalg.norm(out) == pytest.approx(1.0, abs=1e-12)
     assert _angle(parent, out) <= angle + 1e-9
     if _angle(parent, v) <= angle - 1e-7:  # cos resolves small angles to ~1e-8 only
@@ -71,7 +70,7 @@ def test_cone_clamps_to_the_cone_in_the_common_plane(parent, v, fallback, angle)
        st.floats(-math.pi, math.pi), st.floats(-math.pi, math.pi))
 def test_hinge_puts_the_direction_in_the_plane_with_the_bend_in_range(parent, v, axis, fallback, a, b):
     lo, hi = min(a, b), max(a, b)
-    out, _ = apply_hinge(parent, v, axis, lo, hi, fallback)
+    out, _ = hinge(parent, v, axis, lo, hi, fallback)
     assert np.all(np.isfinite(out))
     assert np.linalg.norm(out) == pytest.approx(1.0, abs=1e-12)
     # The axis the hinge uses: the given one made perpendicular to the parent.
@@ -88,17 +87,8 @@ def test_hinge_puts_the_direction_in_the_plane_with_the_bend_in_range(parent, v,
 def test_hinge_direction_along_the_axis_falls_back_to_the_previous_direction():
     parent, axis = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
     previous = np.array([0.0, 1.0, 0.0])
-    out, _ = apply_hinge(parent, axis.copy(), axis, 0.0, 2.0, previous)
+    out, _ = hinge(parent, axis.copy(), axis, 0.0, 2.0, previous)
     np.testing.assert_allclose(out, previous, atol=1e-15)
-
-
-def test_hinge_axis_from_bend_makes_the_start_bend_positive():
-    u, v = np.array([1.0, 0.0, 0.0]), np.array([0.6, 0.0, -0.8])
-    k = hinge_axis_from_bend(u, v)
-    bend = math.atan2(np.dot(np.cross(u, v), k), np.dot(u, v))
-    assert bend == pytest.approx(_angle(u, v))
-    with pytest.raises(SolverInputError, match="straight"):
-        hinge_axis_from_bend(u, 2 * u)
 
 
 @settings(deadline=None, max_examples=200)
@@ -130,11 +120,11 @@ def test_twisted_hinge_gives_the_nearest_allowed_direction(parent, v, axis, a, b
     lo, hi = min(a, b), max(a, b)
     if np.linalg.norm(np.cross(axis, parent)) < 1e-3:
         return
-    out, binding = apply_hinge(parent, v, axis, lo, hi, v, twist)
+    out, binding = hinge(parent, v, axis, lo, hi, v, twist)
     assert np.linalg.norm(out) == pytest.approx(1.0, abs=1e-12)
     # In the plane turned by the measured twist clamped to the range (the twist of a direction near the parent
     # is ill-conditioned; its distance from the plane is not).
-    tau = float(np.clip(hinge_twist_angle(parent, out, axis), -twist, twist))
+    tau = float(np.clip(hinge_twist(parent, out, axis), -twist, twist))
     k = axis - np.dot(axis, parent) * parent
     k /= np.linalg.norm(k)
     k_tau = math.cos(tau) * k - math.sin(tau) * np.cross(k, parent)
@@ -155,23 +145,23 @@ def test_twisted_hinge_gives_the_nearest_allowed_direction(parent, v, axis, a, b
 @settings(deadline=None, max_examples=150)
 @given(unit_vectors(), unit_vectors(), st.floats(0.05, 3.0), st.floats(-1.5, 1.5), st.booleans())
 def test_twist_angle_recovers_the_plane_turn(parent, axis, bend, tau, negative):
-    """A child bent in the plane turned by tau: hinge_twist_angle gives tau back, whichever side it bends to;
+    """A child bent in the plane turned by tau: hinge_twist gives tau back, whichever side it bends to;
     a twisted hinge with a range covering it leaves the child where it is."""
     if np.linalg.norm(np.cross(axis, parent)) < 1e-3:
         return
     child = _hinge_direction(parent, axis, -bend if negative else bend, tau)
-    assert hinge_twist_angle(parent, child, axis) == pytest.approx(tau, abs=1e-9)
-    out, binding = apply_hinge(parent, child, axis, -3.0, 3.0, child, abs(tau) + 0.01)
+    assert hinge_twist(parent, child, axis) == pytest.approx(tau, abs=1e-9)
+    out, binding = hinge(parent, child, axis, -3.0, 3.0, child, abs(tau) + 0.01)
     np.testing.assert_allclose(out, child, atol=1e-12)
     assert not binding
-    assert hinge_twist_angle(parent, parent, axis) == 0.0  # straight: every plane holds it
+    assert hinge_twist(parent, parent, axis) == 0.0  # straight: every plane holds it
 
 
 def test_zero_twist_is_the_plain_hinge():
     parent, axis = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
     v = np.array([0.3, 0.5, 0.81])
     v /= np.linalg.norm(v)
-    plain = apply_hinge(parent, v, axis, 0.0, 2.0, v)
+    plain = hinge(parent, v, axis, 0.0, 2.0, v)
     for zero in (0.0, np.zeros(1)):
-        twisted = apply_hinge(parent, v, axis, 0.0, 2.0, v, zero)
+        twisted = hinge(parent, v, axis, 0.0, 2.0, v, zero)
         np.testing.assert_array_equal(twisted[0], plain[0])

@@ -80,7 +80,7 @@ def test_metarig_frames_together_and_alone(rig, per_frame_boxes, with_turns):
     result = _same_as_alone((model, heads, tails, targets, metarig.EFFECTORS, metarig.PRIORITIES),
                             dict(obstacles=boxes, bone_x_axes=x, poles=poles, end_turns=turns))
     statuses = set(result.status.ravel().tolist())
-    assert {"reached", "unreachable"} <= statuses and result.moved.any()
+    assert {"reached", "unreachable"} <= statuses and (result.heads != heads).any()
 
 
 @pytest.mark.parametrize("seed", range(8))

@@ -9,8 +9,8 @@ from hypothesis.extra.numpy import arrays
 
 from fullbody_adjust.solver import Boxes, SolverInputError, penetrations
 from fullbody_adjust.solver.obstacles.boxes import points_inside, segments_cross
-from fullbody_adjust.solver.chain.fabrik import solve_chain
 from tests.helpers.rotations import about_axis
+from .one_chain import solve_chain
 
 # Corner i of Blender's bound_box: x from bit 2, y from (i in 2,3,6,7), z from (i in 1,2,5,6).
 _BOUND_BOX_SIGNS = np.array([[-1, -1, -1], [-1, -1, 1], [-1, 1, 1], [-1, 1, -1],

@@ -56,15 +56,6 @@ class PoseSnapshot:
         """(k,) int indices for bone names or indices."""
         return np.array([b if isinstance(b, (int, np.integer)) else self.index(b) for b in bones], dtype=int)
 
-    def at_frame(self, i):
-        """The single-frame snapshot of frame row ``i`` of a batched snapshot."""
-        if not self.batched:
-            raise ValueError("at_frame needs a snapshot from read_pose_frames")
-        return replace(self, frame=float(self.frame[i]), matrix_world=self.matrix_world[i],
-                       pose_matrices=self.pose_matrices[i], matrices=self.matrices[i], heads=self.heads[i],
-                       tails=self.tails[i], lengths=self.lengths[i],
-                       channels={key: value[i] for key, value in self.channels.items()})
-
     def derived(self, key, make, of=None):
         """``make()``, computed once for this snapshot and ``key`` and then kept with it: for what a solve
         derives from its start pose alone, which Live solves from again and again. ``of``: an object the value

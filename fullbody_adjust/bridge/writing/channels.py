@@ -1,20 +1,14 @@
-"""Rotations out: solved world matrices turned back into each pose bone's own channels (location, rotation in
-its rotation mode), and written.
+"""Rotations out: solved armature-space matrices turned back into each pose bone's own channels (location,
+rotation in its rotation mode), and written.
 
-The caller gives, for the bones it moved, new world matrices (rotation + translation; the bone's scale
-unchanged), e.g. the minimal swing of each segment applied to the bone's old
+The caller gives, for the bones it moved, new matrices in armature space (as PoseBone.matrix: rotation +
+translation; the bone's scale unchanged), e.g. the minimal swing of each segment applied to the bone's old
 rotation, so twist/roll is kept.
-``world_rotations_to_channels`` converts them top-down with ``Bone.convert_local_to_pose``, never
+``armature_rotations_to_channels`` converts them top-down with ``Bone.convert_local_to_pose``, never
 touching the scene; ``apply_channels`` writes the result. Bones not passed keep their local channels.
-
-Object transform: the object may be moved, rotated and scaled, uniformly or not (negative scale is for
-the caller to reject). Under uniform scale every requested world matrix is reproduced (to float32
-rounding) as long as the rig allows it: a connected bone's head stays on its parent's tail. Under
-non-uniform scale a rigid bone turning in world space changes its world length, so not every world
-matrix is reachable: the conversion then honours each bone's world head and world direction (its Y
-axis) exactly, takes its roll from the requested Z axis, and keeps the rig's bone lengths (fixed in
-armature space). A swing computed in armature space is always reachable. A caller that needs exact world
-lengths under non-uniform scale solves in armature space (``snapshot.matrix_world`` maps between the two).
+A matrix a rigid bone cannot take is reduced to what it can: its head and its direction (Y axis) exactly,
+its roll from the requested Z axis, the rig's bone lengths kept. Callers working in world space (the object
+moved, rotated or scaled) bring their matrices into armature space first (``snapshot.matrix_world``).
 
 Bone constraints are not evaluated by the conversion: channels are computed as if the moved bones had
 none (their evaluated pose is read, but a constraint still acts on the written channels).
@@ -26,7 +20,7 @@ import numpy as np
 from mathutils import Euler, Matrix, Vector
 
 from ...solver.maths import vectors as gp
-from ...solver.maths.geometry import affine_inverse, cross, dot, norm
+from ...solver.maths.geometry import cross, dot, norm
 from ...solver.vocabulary import ROTATION_PROPERTY
 from ..errors import AdjustError
 from ..reading.pose import CHANNEL_SIZES, as_batch
@@ -36,10 +30,10 @@ from ..reading.pose import CHANNEL_SIZES, as_batch
 _HEAD_MOVED_TOLERANCE = 1e-5
 
 
-def world_rotations_to_channels(obj, snapshot, new_world, bones):
-    """Local channels that put ``bones`` (k names or indices) at the world matrices ``new_world`` ((k,4,4),
-    or (F,k,4,4) for a batched snapshot): translation = the bone's new head; of the linear part only the
-    orientation counts (each bone keeps its scale; under non-uniform object scale see the module notes).
+def armature_rotations_to_channels(obj, snapshot, new_pose, bones):
+    """Local channels that put ``bones`` (k names or indices) at the armature-space matrices ``new_pose``
+    ((k,4,4), or (F,k,4,4) for a batched snapshot): translation = the bone's new head; of the linear part only
+    the orientation counts (each bone keeps its scale).
 
     Works top-down from the snapshot alone (no scene update in between): parents' solved matrices feed
     their children's conversion; bones between moved ones that are not listed keep their local channels
@@ -52,15 +46,6 @@ def world_rotations_to_channels(obj, snapshot, new_world, bones):
         the pelvis moves). Connected bones ignore location; scale is never written.
     """
     idx = _listed_once(snapshot, bones)
-    new_world = _array(new_world, snapshot.pose_matrices.shape[:-3] + (len(idx), 4, 4), "new_world")
-    to_armature = affine_inverse(snapshot.matrix_world)
-    return _channels(obj, snapshot, (to_armature[:, None] if snapshot.batched else to_armature) @ new_world, idx)
-
-
-def armature_rotations_to_channels(obj, snapshot, new_pose, bones):
-    """world_rotations_to_channels for matrices in armature space (``new_pose``, as PoseBone.matrix): a solve
-    in armature space has them, and needs no round trip through the object's transform."""
-    idx = _listed_once(snapshot, bones)
     return _channels(obj, snapshot, _array(new_pose, snapshot.pose_matrices.shape[:-3] + (len(idx), 4, 4),
                                            "new_pose"), idx)
 
@@ -68,7 +53,7 @@ def armature_rotations_to_channels(obj, snapshot, new_pose, bones):
 def _listed_once(snapshot, bones):
     idx = snapshot.indices(bones)
     if len(set(idx.tolist())) != len(idx):
-        raise ValueError("world_rotations_to_channels: a bone is listed twice")
+        raise ValueError("armature_rotations_to_channels: a bone is listed twice")
     return idx
 
 
@@ -81,7 +66,7 @@ def _channels(obj, snapshot, armature, idx):
 
 def apply_channels(obj, channels):
     """Write single-frame ``channels`` ({bone name: {property: (k,) values}}, as returned by
-    world_rotations_to_channels) into obj's pose bones. Rotations are kept continuous with each bone's
+    armature_rotations_to_channels) into obj's pose bones. Rotations are kept continuous with each bone's
     current value (quaternion hemisphere, compatible Euler, nearest axis-angle); a rotation property that
     does not match the bone's rotation mode is an error. Plain floats per value: numpy's per-call cost on a few
     values per bone was most of a Live update's writing."""
@@ -128,7 +113,7 @@ def continuous_rotation(prop, mode, value, reference):
 
 
 def _channels_per_frame(obj, snapshot, armature, idx):
-    """The batched core of world_rotations_to_channels: snapshot batched (F,...), ``armature`` the requested
+    """The batched core of armature_rotations_to_channels: snapshot batched (F,...), ``armature`` the requested
     matrices in armature space (F,k,4,4)."""
     frames = armature.shape[0]
     parents = snapshot.parents

@@ -39,7 +39,7 @@ _ENSURE_TAKES_GROUP = bpy.app.version >= (5, 0, 0)
 
 def key_bones_frames(obj, bone_names, frames, values_by_channel, *, action_name=None):
     """Key many frames at once: ``values_by_channel`` maps each bone name to {property: (F,k) array}
-    (as world_rotations_to_channels returns for a batched snapshot), properties among location,
+    (as armature_rotations_to_channels returns for a batched snapshot), properties among location,
     rotation_quaternion, rotation_euler, rotation_axis_angle, scale; ``frames`` (F,) scene frames.
     ``bone_names`` (None: every bone in values_by_channel) selects which bones to key. One foreach_set
     per F-Curve and array; keys on other frames are kept, keys on these frames replaced. Everything is

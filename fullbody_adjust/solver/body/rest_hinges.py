@@ -21,8 +21,6 @@ caller passes the carried axes where the solver takes bone X axes (adjust_frames
 forearms and shins).
 """
 
-import math
-
 import numpy as np
 
 from ..limits.human import HumanLimits

@@ -33,46 +33,21 @@ from .model import ChainModel
 from .settings import STATUSES, ChainBatchResult, ChainResult, ChainSettings
 from ..errors import SolverInputError
 from ..maths.geometry import all_set
-from ..limits.joint_limits import JointLimits
-from ..obstacles.boxes import as_boxes
 
-__all__ = ["STATUSES", "ChainBatchResult", "ChainResult", "ChainSettings", "solve_chain", "solve_chain_batch"]
+__all__ = ["STATUSES", "ChainBatchResult", "ChainResult", "ChainSettings", "solve_chain_batch"]
 
 # ----------------------------------------------------------------------------------------------------------
 # Public entry points
-
-
-def solve_chain(positions, target, *, settings=ChainSettings(), limits=None, obstacles=None,
-                parent_direction=None):
-    """Solve one chain; joint 0 is the fixed base, joint n-1 the end effector. obstacles: Boxes or an array
-    of box corners. See ChainResult."""
-    if not isinstance(settings, ChainSettings):
-        raise SolverInputError("settings must be a ChainSettings")
-    obstacles = as_boxes(obstacles)
-    if limits is not None and not isinstance(limits, JointLimits):
-        raise SolverInputError("limits must be a JointLimits")
-    p = _as_chains(positions, batched=False)
-    t = _as_vector(target, "target")
-    pd = None if parent_direction is None else _as_vector(parent_direction, "parent_direction")[None]
-    if obstacles is not None and obstacles.batched and obstacles.mins.shape[0] != 1:
-        raise SolverInputError("per-problem boxes for a single chain need a batch axis of 1")
-    if limits is not None and limits.hinge_axis.ndim == 3 and limits.hinge_axis.shape[0] != 1:
-        raise SolverInputError("per-problem hinge axes for a single chain need a batch axis of 1")
-    if limits is not None and limits.hinge_reference is not None and limits.hinge_reference.ndim == 3 \
-            and limits.hinge_reference.shape[0] != 1:
-        raise SolverInputError("per-problem hinge references for a single chain need a batch axis of 1")
-    return solve_chain_batch(p[None], t[None], settings=settings, limits=limits, obstacles=obstacles,
-                             parent_directions=pd)[0]
 
 
 def solve_chain_batch(positions, targets, *, settings=ChainSettings(), limits=None, obstacles=None,
                       parent_directions=None):
     """Solve B independent chains of n joints: positions (B,n,3), targets (B,3); limits shared (hinge axes may
     be per problem), obstacles shared (K,3) or per problem (B,K,3), parent_directions (B,3) for joint 0's
-    limit. Each problem stops iterating when it converges, so row i equals solve_chain on problem i."""
+    limit. Each problem stops iterating when it converges, so row i equals problem i solved alone."""
     if not isinstance(settings, ChainSettings):
         raise SolverInputError("settings must be a ChainSettings")
-    p = _as_chains(positions, batched=True)
+    p = _as_chains(positions)
     t = np.asarray(targets, dtype=np.float64)
     if t.shape != (p.shape[0], 3):
         raise SolverInputError(f"targets must have shape ({p.shape[0]},3), got {t.shape}")
@@ -86,24 +61,14 @@ def solve_chain_batch(positions, targets, *, settings=ChainSettings(), limits=No
 # Input conversion
 
 
-def _as_chains(positions, batched):
-    """``positions`` as floats: one chain (n,3), or with ``batched`` a batch of them (B,n,3), of at least 2
-    finite joints each."""
+def _as_chains(positions):
+    """``positions`` as floats: a batch of chains (B,n,3) of at least 2 finite joints each."""
     p = np.asarray(positions, dtype=np.float64)
-    if p.ndim != 2 + batched or p.shape[-1] != 3:
-        raise SolverInputError(f"positions must have shape {'(B,n,3)' if batched else '(n,3)'}, got {p.shape}")
+    if p.ndim != 3 or p.shape[-1] != 3:
+        raise SolverInputError(f"positions must have shape (B,n,3), got {p.shape}")
     if p.shape[-2] < 2:
         raise SolverInputError("a chain needs at least 2 joints")
     if not all_set(np.isfinite(p)):
         raise SolverInputError("positions have NaN/inf")
     return p
-
-
-def _as_vector(v, name):
-    v = np.asarray(v, dtype=np.float64)
-    if v.shape != (3,):
-        raise SolverInputError(f"{name} must have shape (3,), got {v.shape}")
-    if not all_set(np.isfinite(v)):
-        raise SolverInputError(f"{name} has NaN/inf")
-    return v
 

@@ -93,15 +93,14 @@ class ChainModel:
         else:
             P[:, i] = point
 
-    def forward(self, P, rows, prev, ref, tip=None):
-        """Forward pass in place on P of problems `rows`: effector to the target (or to `tip`), joints toward the
-        base. prev: positions at the start of the iteration (fallback directions); ref: obstacle-response reference.
-        Many problems: rows an index array, P, prev, ref (b,n,3), tip (b,3); one: rows an int, P, prev, ref lists of
-        n joints, tip a joint. Returns (obstacles responded, failed), per problem."""
+    def forward(self, P, rows, prev, ref):
+        """Forward pass in place on P of problems `rows`: effector to the target, joints toward the base. prev:
+        positions at the start of the iteration (fallback directions); ref: obstacle-response reference. Many
+        problems: rows an index array, P, prev, ref (b,n,3); one: rows an int, P, prev, ref lists of n joints.
+        Returns (obstacles responded, failed), per problem."""
         lengths, joints, prev, ref = self._columns(rows, P, prev, ref)
         one = joints is P
-        target = (self._problem(rows)[1] if one else self.targets[rows]) if tip is None else tip
-        self._place(P, joints, self.n - 1, target)
+        self._place(P, joints, self.n - 1, self._problem(rows)[1] if one else self.targets[rows])
         responded = failed = False if one else np.zeros(len(rows), dtype=bool)
         kind = None if self.limits is None else self.limiting.kind
         for i in range(self.n - 2, -1, -1):
@@ -128,14 +127,14 @@ class ChainModel:
             self._place(P, joints, i, cand)
         return responded, failed
 
-    def backward(self, P, rows, aims, prev, ref, root=None, stretch=False):
-        """Backward pass in place on P (as forward takes it): base pinned (to `root` if given), joint i+1 placed
+    def backward(self, P, rows, aims, prev, ref, stretch=False):
+        """Backward pass in place on P (as forward takes it): base pinned, joint i+1 placed
         toward aims[i+1] (the forward-pass positions, or with `stretch` the target for every joint), limits then
         obstacles applied. Returns (limit binding, obstacle responded, obstacle failed), per problem."""
-        finish_on = None if stretch or root is not None or not self._finishes else (P, aims)
+        finish_on = None if stretch or not self._finishes else (P, aims)
         lengths, joints, aims, prev, ref = self._columns(rows, P, aims, prev, ref)
         one = joints is P
-        self._place(P, joints, 0, (self._problem(rows)[2] if one else self.base[rows]) if root is None else root)
+        self._place(P, joints, 0, self._problem(rows)[2] if one else self.base[rows])
         binding = responded = failed = False if one else np.zeros(len(rows), dtype=bool)
         kind = None if self.limits is None else self.limiting.kind
         pivot = self.n - 3 if finish_on is not None else -1

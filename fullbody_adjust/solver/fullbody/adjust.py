@@ -215,7 +215,7 @@ class _Problem:
             better = (met_new > met_old) | ((met_new == met_old) & smaller)
             take = rows[better]
             rejected[rows[~better]] = True
-            for f in ("heads", "tails", "rotations", "residuals", "status", "reasons", "moved",
+            for f in ("heads", "tails", "rotations", "residuals", "status", "reasons",
                       "sc_displacement", "root_displacement"):
                 getattr(result, f)[take] = getattr(again, f)[better]
         result.iterations = self.iterations.copy()

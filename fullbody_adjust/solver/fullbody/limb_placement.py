@@ -50,7 +50,6 @@ class LimbPlacement:
         mean joint angle error of bench/fullbody.py rises from 0.118 to 0.144 rad); FABRIK and the chain's
         two-segment finish then settle the twist, the cones, obstacles and the clavicle. A pole (set_end_goals)
         sets that plane instead, on every frame that has one."""
-        rows = stack_rows([t.rows for t in tasks])
         start = stack_rows([t.start for t in tasks])
         targets = stack_rows([t.targets for t in tasks])
         pole = stack_rows([self.p.limb_pole[t.name][t.rows] if t.name in self.p.limb_pole

@@ -1,5 +1,5 @@
 """What a solve reports: each effector's residual, status and reason, and the AdjustBatchResult they are part of
-(the bones, their rotations, which groups moved, how far the sub-bases went)."""
+(the bones, their rotations, how far the sub-bases went)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,6 @@ from ..body.model import LIMB_OF_EFFECTOR
 from ..maths import lanes
 from ..maths import vectors as vec
 from ..maths.geometry import norm
-from ..vocabulary import GROUPS
-from .prepared import group_bones
 from .settings import UNCONSTRAINED, AdjustBatchResult
 
 
@@ -18,17 +16,10 @@ def batch_result(model, start_heads, start_tails, effectors, iterations, heads, 
     """The AdjustBatchResult of F frames solved from ``start_heads``/``start_tails`` (F,J,3) to ``heads``/``tails``
     with ``rotations``; ``outcome``: effector_outcome's (residuals, status, reasons)."""
     residuals, status, reasons = outcome
-    F = heads.shape[0]
-    moved = np.zeros((F, len(GROUPS)), dtype=bool)
-    bone_moved = ((heads != start_heads) | (tails != start_tails)).any(axis=2)  # (F,J)
-    columns, bones, starts = group_bones(model)
-    if columns.size:
-        moved[:, columns] = np.logical_or.reduceat(bone_moved[:, bones], starts, axis=1)
     chest = model.groups["trunk"][-1]
     sc_disp = norm(tails[:, chest] - start_tails[:, chest])
     root_disp = norm(heads[:, model.root] - start_heads[:, model.root])
-    return AdjustBatchResult(heads, tails, rotations, effectors, residuals, status, reasons, moved, GROUPS,
-                             iterations, sc_disp, root_disp)
+    return AdjustBatchResult(heads, tails, rotations, effectors, residuals, status, reasons, iterations, sc_disp, root_disp)
 
 
 def effector_outcome(model, effectors, targets, active, tol, heads, tails, solves):

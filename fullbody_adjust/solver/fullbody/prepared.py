@@ -7,8 +7,7 @@ is a different key.
 
   - the limbs' start chains and their reach;
   - the default human limits of every limb (human.default_limits);
-  - the model's hierarchy levels (the order the top-down pass visits the bones in) and its groups' bones (which
-    groups a result moved), once per model.
+  - the model's hierarchy levels (the order the top-down pass visits the bones in), once per model.
 
 The model holds what is kept (BodyModel.memory, memory.SolveMemory), so it lives as long as the caller keeps the
 model: the last few start poses of up to _MAX_CACHED_FRAMES frames (a bounded, least recently used dict); a
@@ -29,7 +28,6 @@ from ..chain.settings import _reach_bounds
 from ..errors import SolverInputError
 from ..maths.geometry import any_set, norm
 from ..obstacles.reach import skeleton_reach
-from ..vocabulary import GROUPS
 
 _CAPACITY = 4
 _MAX_CACHED_FRAMES = 16
@@ -143,23 +141,6 @@ def levels_of(model):
     if memory.levels is None:
         memory.levels = _levels(model)
     return memory.levels
-
-
-def group_bones(model):
-    """(columns, bones, starts) of the model's GROUPS that have bones: their columns in GROUPS, their bones
-    concatenated in that order and where each group's run starts, for one np.logical_or.reduceat over a (F,J)
-    mask per frame and group; computed once per model."""
-    memory = model.memory
-    if memory.group_bones is None:
-        memory.group_bones = _group_bones(model)
-    return memory.group_bones
-
-
-def _group_bones(model):
-    columns = [g for g, name in enumerate(GROUPS) if model.groups.get(name)]
-    runs = [model.groups[GROUPS[g]] for g in columns]
-    starts = np.cumsum([0] + [len(run) for run in runs[:-1]])
-    return np.array(columns, dtype=np.int64), np.array([b for run in runs for b in run], dtype=np.int64), starts
 
 
 def _levels(model):

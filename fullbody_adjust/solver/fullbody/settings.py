@@ -134,7 +134,6 @@ class AdjustResult:
     residuals: np.ndarray  # (E,) NaN where unconstrained
     status: np.ndarray  # (E,) 'reached' | 'unreachable' | 'blocked' | 'limited' | 'max_iterations' | 'unconstrained'
     reasons: np.ndarray  # (E,) human-readable
-    moved_groups: dict  # group name -> bool
     iterations: int
     sc_displacement: float
     root_displacement: float
@@ -149,8 +148,6 @@ class AdjustBatchResult:
     residuals: np.ndarray  # (F,E)
     status: np.ndarray  # (F,E) str
     reasons: np.ndarray  # (F,E) str
-    moved: np.ndarray  # (F,G) bool, columns = group_names
-    group_names: tuple
     iterations: np.ndarray  # (F,) chain iterations spent on the frame
     sc_displacement: np.ndarray  # (F,)
     root_displacement: np.ndarray  # (F,)
@@ -161,6 +158,5 @@ class AdjustBatchResult:
     def __getitem__(self, i) -> AdjustResult:
         return AdjustResult(self.heads[i].copy(), self.tails[i].copy(), self.rotations[i].copy(), self.effectors,
                             self.residuals[i].copy(), self.status[i].copy(), self.reasons[i].copy(),
-                            {g: bool(self.moved[i, k]) for k, g in enumerate(self.group_names)},
                             int(self.iterations[i]), float(self.sc_displacement[i]),
                             float(self.root_displacement[i]))

@@ -4,7 +4,6 @@ settings)."""
 
 import numpy as np
 
-from ..maths import vectors as vec
 from ..maths.geometry import all_set, any_set, norm
 from ..obstacles.boxes import penetrations
 from .reach_balls import nearest_in_balls, nearest_on_sphere_in_balls, sub_base_point, sub_base_point_in_plane
@@ -51,11 +50,6 @@ class SubBasePlacement:
         the tolerance that counts a target as met: a straight limb whose end is on its target is in reach, however
         its lengths' sum rounds)."""
         tol = self.p.settings.chain.tolerance
-        if len(rows) == 1:  # one frame (Adjust Pose, Live): the same distances in plain floats
-            r = int(rows[0])
-            return np.array([all(not self.p.limb_active[n][r]
-                                 or vec.norm(vec.sub(self.p.limb_target[n][r].tolist(), bases[n][0].tolist()))
-                                 <= self.p.reach_eff[n][r] + tol for n in names)])
         ok = np.ones(len(rows), dtype=bool)
         for n in names:
             d = norm(self.p.limb_target[n][rows] - bases[n])

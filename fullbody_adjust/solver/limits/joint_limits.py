@@ -15,9 +15,9 @@ shoulder or hip turns the upper arm or thigh about its own length (humeral/femor
 a hinged limb reaches only the targets its parent's swing can face. `hinge_twist` (radians, in [0, pi/2))
 lets the bend plane turn about the parent direction by up to +-hinge_twist from the carried axis. The set of
 allowed child directions is then two wedges around the parent: positive bends at azimuths within
-+-hinge_twist of the carried bend side, negative bends (if the range has any) opposite; apply_hinge returns
++-hinge_twist of the carried bend side, negative bends (if the range has any) opposite; hinge returns
 the nearest allowed direction. As |twist| < pi/2 the two wedges never meet: the bend side never flips.
-A caller that writes bone rotations turns the parent bone by the same twist (hinge_twist_angle), so the
+A caller that writes bone rotations turns the parent bone by the same twist (hinge_twist), so the
 child's rotation relative to its parent stays a pure hinge.
 """
 
@@ -29,7 +29,7 @@ import numpy as np
 from ..maths import lanes
 from ..maths import vectors as vec
 from ..errors import SolverInputError
-from ..maths.geometry import all_set, any_set, cross, norm, normalize
+from ..maths.geometry import all_set, any_set, norm
 
 FREE, CONE, HINGE = 0, 1, 2
 
@@ -168,17 +168,6 @@ class JointLimits:
                                 hinge_reference=np.concatenate([p.hinge_reference for p in parts]))
 
 
-def hinge_axis_from_bend(parent_dir, child_dir):
-    """Hinge axis normalize(cross(parent, child)) of a bent start pose, so that the start pose's bend side is
-    the positive one. Raises SolverInputError for a straight (or zero) joint, whose bend side is undefined."""
-    u = normalize(parent_dir)
-    v = normalize(child_dir)
-    c = cross(u, v)
-    if any_set(norm(c) <= 1e-9):
-        raise SolverInputError("joint is straight: cannot derive a hinge axis from it")
-    return normalize(c)
-
-
 def carry_axis(axis_at_start, start_parent_dir, parent_dir):
     """The hinge axis moved with its parent segment: the minimal swing from the start parent direction to the
     current one, applied to the start axis. Arrays (...,3) (carry on the arrays)."""
@@ -207,15 +196,6 @@ def carry(axis, ref, parent):
     turned = vec.add(vec.scaled(a, along_a), vec.scaled(e, along_e))
     side = vec.sub(vec.scaled(e, along_a), vec.scaled(a, along_e))
     return vec.add(vec.add(axis, vec.scaled(turned, cos_less_1)), vec.scaled(side, sin_t))
-
-
-def apply_cone(parent, v, angle, fallback):
-    """Clamp unit directions v (...,3) into the cone of half-angle `angle` about unit `parent` (cone on the
-    arrays). Returns (limited directions, binding mask)."""
-    parent, v, fallback = (np.asarray(a, dtype=np.float64) for a in (parent, v, fallback))
-    shape = np.broadcast_shapes(parent.shape, v.shape, fallback.shape)
-    u, over = cone(parent, v, np.asarray(angle, dtype=np.float64), fallback)
-    return np.broadcast_to(u, shape), np.broadcast_to(over, shape[:-1])
 
 
 def cone(parent, v, angle, fallback):
@@ -251,15 +231,6 @@ def _clamp_angle(theta, lo, hi):
     to_lo = abs(lanes.remainder(theta - lo + math.pi, 2 * math.pi) - math.pi)
     to_hi = abs(lanes.remainder(theta - hi + math.pi, 2 * math.pi) - math.pi)
     return lanes.where(inside, theta, lanes.where(to_lo <= to_hi, lo, hi))
-
-
-def apply_hinge(parent, v, axis, lo, hi, fallback, twist=None):
-    """Put unit directions v (...,3) on the hinge (hinge on the arrays). Returns (limited directions, binding
-    mask: the direction had to change)."""
-    parent, v, axis, fallback = (np.asarray(a, dtype=np.float64) for a in (parent, v, axis, fallback))
-    shape = np.broadcast_shapes(parent.shape, v.shape, axis.shape, fallback.shape)
-    u, binding = hinge(parent, v, axis, lo, hi, fallback, twist)
-    return np.broadcast_to(u, shape), np.broadcast_to(binding, shape[:-1])
 
 
 def hinge(parent, v, axis, lo, hi, fallback, twist=None):
@@ -325,16 +296,11 @@ def limit(limits, i, parent, v, fallback, axis, reverse=False):
     return hinge(parent, v, axis, lo, hi, fallback, float(limits.hinge_twist[i]))
 
 
-def hinge_twist_angle(parent, child, axis):
+def hinge_twist(parent, child, axis):
     """The twist (radians, in (-pi/2, pi/2]) by which the bend plane of unit `child` about unit `parent` is
     turned from the plane perpendicular to `axis` (the carried axis, made perpendicular to the parent), about
-    the parent direction; 0 where the child lies along the parent (every plane holds it). Arrays (...,3)."""
-    parts = [np.asarray(v, dtype=np.float64) for v in (parent, child, axis)]
-    return np.asarray(hinge_twist(*[(v[..., 0], v[..., 1], v[..., 2]) for v in parts]))
-
-
-def hinge_twist(parent, child, axis):
-    """hinge_twist_angle on components (maths/lanes.py)."""
+    the parent direction; 0 where the child lies along the parent (every plane holds it). On components
+    (maths/lanes.py) or arrays (...,3)."""
     a, side = hinge_frame(parent, axis)
     y, z = vec.dot(child, side), vec.dot(child, a)
     phi = lanes.arctan2(z, y)

@@ -42,7 +42,7 @@ def widened_ranges(kind, cone, lo, hi, axes, parent_direction, segments):
     u = parents / np.maximum(norm(parents), TINY)[..., None]
     v = segments[:, joints] / np.maximum(norm(segments[:, joints]), TINY)[..., None]
     c = dot(u, v)
-    angle = np.arctan2(norm(v - c[..., None] * u), c)  # (F,k), as limits.apply_cone measures it
+    angle = np.arctan2(norm(v - c[..., None] * u), c)  # (F,k), as limits.cone measures it
     widest = np.minimum(angle.max(axis=0) + MARGIN, math.pi)
     kinds = kind[joints]
     wider = (kinds == CONE) & (widest > cone[joints])
