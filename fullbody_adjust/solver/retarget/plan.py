@@ -16,6 +16,7 @@ from ..body.joint_ends import end_points
 from .feet import UNSEEN_FOOT, limit_toe_roll, raised_offsets, refit_step, resting_offsets
 from .rig import (EFFECTOR_CHAIN, EFFECTORS, FEET, Rig, ankle_above_sole, chain_joints, effector_joint,
                   effector_points, facing_turn, hip_centres, leg_length, rest_points, sole_heights)
+from .rise import airborne_raise, fold_room, folded, let_go
 from .transfer import carried_bones, transfer_pose, translate_body
 
 
@@ -210,25 +211,26 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
             out[:, k] = hold(paths[:, k], holds, blend)
             if e in FEET and ground:  # never below the floor: the lowest point of the foot at least on it
                 lift = np.maximum(floor + soles[:, FEET.index(e)] - out[:, k, 2], 0.0)
-                out[:, k, 2] += np.where(contacts[:, k], lift, _let_go(lift, step))  # a planted foot stays down
+                out[:, k, 2] += np.where(contacts[:, k], lift, let_go(lift, step))  # a planted foot stays down
         return out
 
     # Every target within its limb's reach (see reach_margin): shift the whole body, smoothly, where needed;
     # the free trajectories move with it, and the feet's holds (centred on them); hands stay on their objects.
-    bases, reach = [], []
+    bases, reach, inner = [], [], []
     rest_heads, rest_tails = rest_points(target)
     for e in EFFECTORS:
         chain = EFFECTOR_CHAIN[e]
         bases.append(target.to_world(start[:, target.groups[chain][-2], :3, 3]))  # shoulder, hip joint
-        last_two = chain_joints(target, chain, rest_heads, rest_tails)[-3:]  # upper arm + forearm, thigh + shin
-        reach.append(float(norm(np.diff(last_two, axis=0)).sum()))
+        last_two = norm(np.diff(chain_joints(target, chain, rest_heads, rest_tails)[-3:], axis=0))
+        reach.append(float(last_two.sum()))  # upper arm + forearm, thigh + shin
+        inner.append(folded(*last_two))  # nearer than this, a leg cannot fold
     bases = np.stack(bases, axis=1)
     feet_first = [2.0 if e.startswith("hand") else 3.0 for e in EFFECTORS]
     # The body first moves as its held hands and feet moved. The free trajectories ride on the shift and the
     # holds blend in on top of it, so the shift changes by at most half the blend speed a frame: together
     # they stay within what metrics counts as a pop (POP_SPEED).
     if ground:
-        rise = _airborne_raise(free, soles, floor, contacts, step)
+        rise = airborne_raise(free, soles, floor, contacts, step)
         lifted = np.zeros((len(rise), 3))
         lifted[:, 2] = rise
         translate_body(target, start, lifted)
@@ -236,10 +238,14 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
         own += lifted[:, None]
         bases += lifted[:, None]
     targets = held(free)
+    riding = np.all(targets == own, axis=-1)  # the limb's own: it rides on the shift
     shift = body_shift(bases, targets, reach, feet_first, settings.reach_margin, settings.settle_margin, blend,
-                       max_step=0.5 * step, preferred=_held_offset(targets, free, contacts, blend),
-                       riding=np.all(targets == own, axis=-1))  # the limb's own: it rides on the shift
+                       max_step=0.5 * step, preferred=_held_offset(targets, free, contacts, blend), riding=riding)
     world_targets = held(free + shift[:, None])
+    if ground:  # a held foot nearer its hip than the leg folds: the body rises (rise.fold_room)
+        shift = fold_room(held, free, bases, shift, ~riding, np.add(inner, settings.reach_margin * np.asarray(reach)),
+                           0.5 * step)
+        world_targets = held(free + shift[:, None])
     translate_body(target, start, shift)
     heads = start[..., :3, 3]
     tails = end_points(start, target.ends)
@@ -343,26 +349,6 @@ def _stand_in_place(free, found, s_points, soles, floor, leg, settings):
         if sum(c.stop - c.start for c in found[FEET[i]] if c.kind == GROUND) > _HELD_STANCE * len(free):
             continue  # its stances are held on the floor
         free[:, EFFECTORS.index(FEET[i]), 2] += offset
-
-
-def _airborne_raise(free, soles, floor, contacts, step):
-    """(F,) how far the whole body rises on the frames no foot holds a contact (a run's flight, an in-place
-    clip's sliding stance) where the floor would lift a foot (``free`` (F,E,3) its ankle, ``soles`` (F,2) the
-    ankles above their soles): the legs keep the source's angles, where lifting the ankle alone bends the knee
-    for a few frames. It rises and falls at the blend speed (``step`` a frame) around those frames."""
-    feet = [EFFECTORS.index(e) for e in FEET]
-    need = np.maximum(floor + soles - free[:, feet, 2], 0.0).max(axis=1)
-    need[contacts[:, feet].any(axis=1)] = 0.0
-    return np.maximum(_let_go(need, step), _let_go(need[::-1], step)[::-1])
-
-
-def _let_go(lift, step):
-    """The least lift (F,) at least ``lift`` on every frame that falls by at most ``step`` a frame: a foot raised
-    over the floor (a long foot pitched at toe-off: KayKit's ankle up to 122 mm above its free path) is let
-    down at the blend's speed, not the moment its sole clears the floor (a shin turning 30.9 degrees in one
-    frame). It rises as ``lift`` does."""
-    frames = np.arange(len(lift)) * step
-    return np.maximum.accumulate(lift + frames) - frames
 
 
 def _held_offset(targets, free, contacts, half_width):
