@@ -1,11 +1,13 @@
-"""How high the body stands. rise.fold_room: a held foot nearer its hip than the leg can fold (a long shin on a short
-thigh, the knee at its limit) raises the whole body, smoothly, until every held or blending foot lies at least the
-folded distance from its hip; a foot blending into its hold rises partly with the body, and the rise takes that
-into account."""
+"""How high the body and its free feet stand. rise.fold_room: a held foot nearer its hip than the leg can fold (a long
+shin on a short thigh, the knee at its limit) raises the whole body, smoothly, until every held or blending foot
+lies at least the folded distance from its hip; a foot blending into its hold rises partly with the body, and the
+rise takes that into account. plan._stand_in_place: feet the source never holds on the floor move up or down
+together, each apart from the other by no more than a rig's asymmetry, so the legs keep the source's angles to each
+other."""
 
 import numpy as np
 
-from fullbody_adjust.solver.retarget import rise
+from fullbody_adjust.solver.retarget import motion as rt, plan, rise
 
 FRAMES, STEP, INNER = 40, 0.02, 0.3
 
@@ -56,3 +58,36 @@ def test_nothing_moves_where_every_held_foot_is_far_enough():
     out = rise.fold_room(held, free, bases, shift, fixed, np.full(4, 0.05), STEP)
     np.testing.assert_array_equal(out, shift)
 
+
+def _in_place(frames=20):
+    """A source whose soles rest on the floor (z = 0) on half the frames, the left at 0, the right 2 cm up; a target
+    whose free ankles are 5 cm up, 8 cm (left) and 12 cm (right, pitched) above their soles."""
+    s_points = {e: np.zeros((frames, 3, 3)) for e in rt.EFFECTORS}
+    rise_and_fall = 0.1 * np.abs(np.sin(np.linspace(0.0, 2.0 * np.pi, frames)))
+    for e, up in zip(rt.FEET, (0.0, 0.02)):
+        s_points[e][:, :, 2] = (up + rise_and_fall)[:, None] + [0.07, 0.0, 0.01]  # ankle, then its sole
+    free = np.zeros((frames, len(rt.EFFECTORS), 3))
+    free[..., 2] = 0.05
+    soles = np.tile([0.08, 0.12], (frames, 1))
+    return free, s_points, soles
+
+
+def test_feet_standing_in_place_move_together_apart_from_a_rigs_asymmetry():
+    feet = [rt.EFFECTORS.index(e) for e in rt.FEET]
+    for spread, expected in ((0.01, (0.04, 0.06)), (0.1, (0.03, 0.07)), (0.0, (0.05, 0.05))):
+        free, s_points, soles = _in_place()
+        plan._stand_in_place(free, {e: [] for e in rt.EFFECTORS}, s_points, soles, 0.0, 0.9, rt.RetargetSettings(),
+                             spread)
+        # on its own each sole on the floor: the left moves 0.03 and the right 0.07, their mean 0.05
+        np.testing.assert_allclose(free[:, feet, 2], np.broadcast_to(0.05 + np.array(expected), (len(free), 2)),
+                                   atol=1e-12)
+        np.testing.assert_array_equal(free[:, [0, 1], 2], 0.05)  # the hands ride as they were
+
+
+def test_a_foot_held_on_the_floor_stands_by_its_holds_and_the_other_by_its_own_sole():
+    free, s_points, soles = _in_place()
+    found = {e: [] for e in rt.EFFECTORS}
+    found["foot.R"] = [rt.Contact("foot.R", 0, 10, rt.GROUND, 0.0)]  # half the frames: its stances are held
+    plan._stand_in_place(free, found, s_points, soles, 0.0, 0.9, rt.RetargetSettings(), 0.0)
+    np.testing.assert_allclose(free[:, rt.EFFECTORS.index("foot.L"), 2], 0.05 + 0.03, atol=1e-12)
+    np.testing.assert_array_equal(free[:, rt.EFFECTORS.index("foot.R"), 2], 0.05)

@@ -22,6 +22,9 @@ from .transfer import carried_bones, transfer_pose, translate_body
 
 # A foot planted on more than this fraction of the frames stands on the floor by its holds.
 _HELD_STANCE = 0.1
+# How far (target leg lengths) a foot standing in place is moved on its own, apart from the other: a rig's or a
+# capture's asymmetry (a few centimetres); more is the pose's (a foot raised or pitched), which the legs keep.
+_OWN_FOOT = 0.05
 # Something raised (inferred from the source alone) whose world height lies more than this (target leg lengths)
 # from its height scaled with the motion is out of the target's scale: it is scaled (_at_world_height).
 _OUT_OF_SCALE = 0.5
@@ -183,7 +186,7 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     free = np.stack([effector_joint(target, t_heads, t_ends, e) for e in EFFECTORS], axis=1)
     own = free.copy()  # where the transferred limbs put each wrist and ankle: within reach, moving with the body
     if ground:
-        _stand_in_place(free, found, s_points, soles, floor, leg_s, settings)
+        _stand_in_place(free, found, s_points, soles, floor, leg_s, settings, _OWN_FOOT * leg_t)
         # Each foot rolls onto its toes no further than lifts its ankle as the source's does, nor than takes its
         # sole below the floor where it is not held (feet): the leg, not the floor, moves the ankle.
         feet = [EFFECTORS.index(e) for e in FEET]
@@ -337,18 +340,21 @@ def _foot_path(contact, free, target_points, soles, pivot, pinned, ankle_pinned=
     return path
 
 
-def _stand_in_place(free, found, s_points, soles, floor, leg, settings):
-    """A foot the source hardly ever holds still on the floor (planted on at most _HELD_STANCE of the frames:
-    an in-place clip, whose stance slides under the body) but that comes down to it: its free trajectory in
-    ``free`` (F,E,3, changed in place) raised or lowered as a whole, so that its sole is on the floor on the
-    frames the source's is lowest (feet.resting_offsets). Whatever each rig's ankle height and sole, the stance
-    stands on the floor, and one height per foot adds no jerk. ``soles`` (F,2): the target's ankles above
-    their soles."""
+def _stand_in_place(free, found, s_points, soles, floor, leg, settings, spread):
+    """Feet the source hardly ever holds still on the floor (planted on at most _HELD_STANCE of the frames: an
+    in-place clip, whose stance slides under the body) but that come down to it: their free trajectories in
+    ``free`` (F,E,3, changed in place) raised or lowered as a whole, so that their soles are on the floor on the
+    frames the source's are lowest (feet.resting_offsets), each by its own height within ``spread`` (world) of
+    their mean: whatever each rig's ankle height and sole, the stance stands on the floor, one height per foot
+    adds no jerk, and the legs keep the source's angles to each other where the feet differ by more than a rig's
+    asymmetry (a dodge whose feet pitch differently, each sole put on the floor on its own, turned Godot's robot's
+    thighs 7 degrees off the source's). ``soles`` (F,2): the target's ankles above their soles."""
     ankles = free[:, [EFFECTORS.index(e) for e in FEET], 2]
-    for i, offset in resting_offsets(ankles, s_points, soles, floor, leg, settings).items():
-        if sum(c.stop - c.start for c in found[FEET[i]] if c.kind == GROUND) > _HELD_STANCE * len(free):
-            continue  # its stances are held on the floor
-        free[:, EFFECTORS.index(FEET[i]), 2] += offset
+    offsets = {i: offset for i, offset in resting_offsets(ankles, s_points, soles, floor, leg, settings).items()
+               if sum(c.stop - c.start for c in found[FEET[i]] if c.kind == GROUND) <= _HELD_STANCE * len(free)}
+    mean = np.mean(list(offsets.values())) if offsets else 0.0
+    for i, offset in offsets.items():  # (feet whose stances are held on the floor stand on it by their holds)
+        free[:, EFFECTORS.index(FEET[i]), 2] += mean + np.clip(offset - mean, -spread, spread)
 
 
 def _held_offset(targets, free, contacts, half_width):
