@@ -107,7 +107,8 @@ def test_a_frame_the_joint_comes_to_rest_on_is_held():
 
 def test_a_ball_is_held_as_the_foot_pitches_onto_its_toes_but_not_on_a_heel_stand():
     """The ball held still while it rises a little over a plant's height: held where the heel lifts more (toes
-    down), not where the toes are raised about a still ankle (a heel stand: the ankle is what stays)."""
+    down), not where the toes are raised about a still ankle (a heel stand: the ankle is what stays), nor, within
+    a plant's height, where the ball has risen over half of it more than the ankle (the toes coming up)."""
     fps, height = 24.0, 0.04
     lift = np.concatenate([np.zeros(8), np.linspace(0.0, 0.05, 8), np.full(8, 0.05)])  # 5 cm: over 4, under 6
     still = np.zeros(24)
@@ -120,4 +121,5 @@ def test_a_ball_is_held_as_the_foot_pitches_onto_its_toes_but_not_on_a_heel_stan
     plain = fp.held_still(ball, fps, speed=0.2, height=height)
     assert toes_down.all()
     assert not plain[16:].any()  # 5 cm up: over the plant's height
-    np.testing.assert_array_equal(heel_stand, plain)
+    np.testing.assert_array_equal(heel_stand, plain & (lift <= fp._HEEL_STAND * height))
+    assert heel_stand[:11].all() and not heel_stand[11:].any()  # the toes 2.1 cm up from frame 11
