@@ -93,6 +93,20 @@ def test_the_ball_is_the_farthest_bone_below_the_ankle():
     assert fp.ball_bone(rig, "foot.L") is None
 
 
+def test_a_target_without_toes_holds_its_ankle_where_the_sources_ball_is_held():
+    heads = np.array([[0, 0, 1.0], [0, 0, 0.5], [0, 0, 0.08], [0, -0.12, 0.02]])  # root, shin, ankle, toes
+    rest = np.tile(np.eye(4), (len(heads), 1, 1))
+    rest[:, :3, 3] = heads
+
+    def rig(parents):
+        return SimpleNamespace(groups={"foot.L": (2,)}, parents=np.array(parents), rest=rest)
+
+    toes, no_toes = rig([-1, 0, 1, 2]), rig([-1, 0, 1, -1])
+    assert fp.pivot_bone(toes, toes, "foot.L") == (3, 3)  # ball and ball
+    assert fp.pivot_bone(toes, no_toes, "foot.L") == (3, 2)  # the source's ball, the target's ankle
+    assert fp.pivot_bone(no_toes, toes, "foot.L") == (2, 2)  # the source's ankle says when: the ankles
+
+
 def test_a_frame_the_joint_comes_to_rest_on_is_held():
     """The frame a ball arrives on (fast before, still after) and the one it leaves from are still as a viewer sees
     them: the mean of both steps (0.3 m/s here) would leave them out, and the foot would turn about its sole there."""

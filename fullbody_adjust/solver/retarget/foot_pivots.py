@@ -38,12 +38,14 @@ def ball_bone(rig, foot):
 
 
 def pivot_bone(source, target, foot):
-    """(source bone, target bone) of the joint a planted foot pivots about: the ball where both rigs have one,
-    else the ankle."""
+    """(source bone, target bone) of the joint a planted foot pivots about, the target's held where the source's
+    is still: the ball where both rigs have one; the target's ankle where it has no ball, held where the source's
+    ball is (a foot without toes comes down as the source's does about its ball: rolled about its sole instead,
+    Godot's robot's ankle slid 46 mm as it landed from the climb); else the ankles."""
     balls = ball_bone(source, foot), ball_bone(target, foot)
-    if None in balls:
+    if balls[0] is None:
         return source.groups[foot][0], target.groups[foot][0]
-    return balls
+    return balls[0], target.groups[foot][0] if balls[1] is None else balls[1]
 
 
 def held_still(points, fps, speed, height):
