@@ -42,10 +42,6 @@ CASES = (
 # (goal, rig, clip[:take]) -> the figure measured on the code this file was written against (bpy 5.0.1).
 KNOWN = {
     ("pops", "godot_plush", "cmu_dance"): "18 pop frames (the clip itself 16)",
-    ("slide", "godot_plush", "cmu_dance"): "slide p95 14.0 mm, 31.9 mm at the clip's size (the clip's own 16.6)",
-    ("exit", "godot_robot", "cmu_climb_sit"): "exit 1: foot.R missed (limited, 1.6 mm) beside a bar out of reach",
-    ("pops", "godot_robot", "cmu_climb_sit"): "5 pop frames (the clip itself 2)",
-    ("slide", "godot_robot", "cmu_climb_sit"): "slide p95 46.1 mm, 61.8 mm at the clip's size (the clip's own 16.2)",
 }
 
 

@@ -93,6 +93,20 @@ def test_the_ball_is_the_farthest_bone_below_the_ankle():
     assert fp.ball_bone(rig, "foot.L") is None
 
 
+def test_a_target_without_toes_holds_its_ankle_where_the_sources_ball_is_held():
+    heads = np.array([[0, 0, 1.0], [0, 0, 0.5], [0, 0, 0.08], [0, -0.12, 0.02]])  # root, shin, ankle, toes
+    rest = np.tile(np.eye(4), (len(heads), 1, 1))
+    rest[:, :3, 3] = heads
+
+    def rig(parents):
+        return SimpleNamespace(groups={"foot.L": (2,)}, parents=np.array(parents), rest=rest)
+
+    toes, no_toes = rig([-1, 0, 1, 2]), rig([-1, 0, 1, -1])
+    assert fp.pivot_bone(toes, toes, "foot.L") == (3, 3)  # ball and ball
+    assert fp.pivot_bone(toes, no_toes, "foot.L") == (3, 2)  # the source's ball, the target's ankle
+    assert fp.pivot_bone(no_toes, toes, "foot.L") == (2, 2)  # the source's ankle says when: the ankles
+
+
 def test_a_frame_the_joint_comes_to_rest_on_is_held():
     """The frame a ball arrives on (fast before, still after) and the one it leaves from are still as a viewer sees
     them: the mean of both steps (0.3 m/s here) would leave them out, and the foot would turn about its sole there."""
@@ -107,7 +121,8 @@ def test_a_frame_the_joint_comes_to_rest_on_is_held():
 
 def test_a_ball_is_held_as_the_foot_pitches_onto_its_toes_but_not_on_a_heel_stand():
     """The ball held still while it rises a little over a plant's height: held where the heel lifts more (toes
-    down), not where the toes are raised about a still ankle (a heel stand: the ankle is what stays)."""
+    down), not where the toes are raised about a still ankle (a heel stand: the ankle is what stays), nor, within
+    a plant's height, where the ball has risen over half of it more than the ankle (the toes coming up)."""
     fps, height = 24.0, 0.04
     lift = np.concatenate([np.zeros(8), np.linspace(0.0, 0.05, 8), np.full(8, 0.05)])  # 5 cm: over 4, under 6
     still = np.zeros(24)
@@ -120,4 +135,5 @@ def test_a_ball_is_held_as_the_foot_pitches_onto_its_toes_but_not_on_a_heel_stan
     plain = fp.held_still(ball, fps, speed=0.2, height=height)
     assert toes_down.all()
     assert not plain[16:].any()  # 5 cm up: over the plant's height
-    np.testing.assert_array_equal(heel_stand, plain)
+    np.testing.assert_array_equal(heel_stand, plain & (lift <= fp._HEEL_STAND * height))
+    assert heel_stand[:11].all() and not heel_stand[11:].any()  # the toes 2.1 cm up from frame 11

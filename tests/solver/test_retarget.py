@@ -594,10 +594,10 @@ def test_body_shift_is_held_back_by_fixed_targets_but_not_by_those_that_ride_on_
 @given(arrays(np.float64, st.integers(1, 40), elements=st.floats(0.0, 0.3)), st.floats(0.001, 0.05))
 @settings(max_examples=60, deadline=None)
 def test_a_raised_foot_is_let_down_no_faster_than_the_blend(lift, step):
-    """The foot's lift over the floor after _let_go: at least what the floor asks on every frame, falling by at
+    """The foot's lift over the floor after rise.let_go: at least what the floor asks on every frame, falling by at
     most ``step`` a frame, and the least such lift (on each frame some earlier frame's lift, less ``step`` per
     frame since, is exactly it)."""
-    from fullbody_adjust.solver.retarget.plan import _let_go
+    from fullbody_adjust.solver.retarget.rise import let_go as _let_go
 
     out = _let_go(lift, step)
     assert np.all(out >= lift - 1e-12)

@@ -69,7 +69,8 @@ Distances in settings are in source leg lengths (so they hold for any unit and s
 
 Where things live: rotation_channels (Blender's rotation channels), rig (Rig, kinematics, measures),
 transfer (step 1), contacts (detection and holding), plan (step 2), feet (the feet's
-toe roll), foot_pivots (what a planted foot turns about), metrics
+toe roll), foot_pivots (what a planted foot turns about), rise (how far the body rises: in flight, and where a
+held foot is nearer its hip than the leg folds), metrics
 (measures of the result); this module holds the solve's side (body model, solved pose, motion limits) and
 names the whole API in one place.
 """

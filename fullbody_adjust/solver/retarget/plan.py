@@ -16,11 +16,15 @@ from ..body.joint_ends import end_points
 from .feet import UNSEEN_FOOT, limit_toe_roll, raised_offsets, refit_step, resting_offsets
 from .rig import (EFFECTOR_CHAIN, EFFECTORS, FEET, Rig, ankle_above_sole, chain_joints, effector_joint,
                   effector_points, facing_turn, hip_centres, leg_length, rest_points, sole_heights)
+from .rise import airborne_raise, fold_room, folded, let_go
 from .transfer import carried_bones, transfer_pose, translate_body
 
 
 # A foot planted on more than this fraction of the frames stands on the floor by its holds.
 _HELD_STANCE = 0.1
+# How far (target leg lengths) a foot standing in place is moved on its own, apart from the other: a rig's or a
+# capture's asymmetry (a few centimetres); more is the pose's (a foot raised or pitched), which the legs keep.
+_OWN_FOOT = 0.05
 # Something raised (inferred from the source alone) whose world height lies more than this (target leg lengths)
 # from its height scaled with the motion is out of the target's scale: it is scaled (_at_world_height).
 _OUT_OF_SCALE = 0.5
@@ -182,7 +186,7 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     free = np.stack([effector_joint(target, t_heads, t_ends, e) for e in EFFECTORS], axis=1)
     own = free.copy()  # where the transferred limbs put each wrist and ankle: within reach, moving with the body
     if ground:
-        _stand_in_place(free, found, s_points, soles, floor, leg_s, settings)
+        _stand_in_place(free, found, s_points, soles, floor, leg_s, settings, _OWN_FOOT * leg_t)
         # Each foot rolls onto its toes no further than lifts its ankle as the source's does, nor than takes its
         # sole below the floor where it is not held (feet): the leg, not the floor, moves the ankle.
         feet = [EFFECTORS.index(e) for e in FEET]
@@ -210,25 +214,26 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
             out[:, k] = hold(paths[:, k], holds, blend)
             if e in FEET and ground:  # never below the floor: the lowest point of the foot at least on it
                 lift = np.maximum(floor + soles[:, FEET.index(e)] - out[:, k, 2], 0.0)
-                out[:, k, 2] += np.where(contacts[:, k], lift, _let_go(lift, step))  # a planted foot stays down
+                out[:, k, 2] += np.where(contacts[:, k], lift, let_go(lift, step))  # a planted foot stays down
         return out
 
     # Every target within its limb's reach (see reach_margin): shift the whole body, smoothly, where needed;
     # the free trajectories move with it, and the feet's holds (centred on them); hands stay on their objects.
-    bases, reach = [], []
+    bases, reach, inner = [], [], []
     rest_heads, rest_tails = rest_points(target)
     for e in EFFECTORS:
         chain = EFFECTOR_CHAIN[e]
         bases.append(target.to_world(start[:, target.groups[chain][-2], :3, 3]))  # shoulder, hip joint
-        last_two = chain_joints(target, chain, rest_heads, rest_tails)[-3:]  # upper arm + forearm, thigh + shin
-        reach.append(float(norm(np.diff(last_two, axis=0)).sum()))
+        last_two = norm(np.diff(chain_joints(target, chain, rest_heads, rest_tails)[-3:], axis=0))
+        reach.append(float(last_two.sum()))  # upper arm + forearm, thigh + shin
+        inner.append(folded(*last_two))  # nearer than this, a leg cannot fold
     bases = np.stack(bases, axis=1)
     feet_first = [2.0 if e.startswith("hand") else 3.0 for e in EFFECTORS]
     # The body first moves as its held hands and feet moved. The free trajectories ride on the shift and the
     # holds blend in on top of it, so the shift changes by at most half the blend speed a frame: together
     # they stay within what metrics counts as a pop (POP_SPEED).
     if ground:
-        rise = _airborne_raise(free, soles, floor, contacts, step)
+        rise = airborne_raise(free, soles, floor, contacts, step)
         lifted = np.zeros((len(rise), 3))
         lifted[:, 2] = rise
         translate_body(target, start, lifted)
@@ -236,10 +241,14 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
         own += lifted[:, None]
         bases += lifted[:, None]
     targets = held(free)
+    riding = np.all(targets == own, axis=-1)  # the limb's own: it rides on the shift
     shift = body_shift(bases, targets, reach, feet_first, settings.reach_margin, settings.settle_margin, blend,
-                       max_step=0.5 * step, preferred=_held_offset(targets, free, contacts, blend),
-                       riding=np.all(targets == own, axis=-1))  # the limb's own: it rides on the shift
+                       max_step=0.5 * step, preferred=_held_offset(targets, free, contacts, blend), riding=riding)
     world_targets = held(free + shift[:, None])
+    if ground:  # a held foot nearer its hip than the leg folds: the body rises (rise.fold_room)
+        shift = fold_room(held, free, bases, shift, ~riding, np.add(inner, settings.reach_margin * np.asarray(reach)),
+                           0.5 * step)
+        world_targets = held(free + shift[:, None])
     translate_body(target, start, shift)
     heads = start[..., :3, 3]
     tails = end_points(start, target.ends)
@@ -331,38 +340,21 @@ def _foot_path(contact, free, target_points, soles, pivot, pinned, ankle_pinned=
     return path
 
 
-def _stand_in_place(free, found, s_points, soles, floor, leg, settings):
-    """A foot the source hardly ever holds still on the floor (planted on at most _HELD_STANCE of the frames:
-    an in-place clip, whose stance slides under the body) but that comes down to it: its free trajectory in
-    ``free`` (F,E,3, changed in place) raised or lowered as a whole, so that its sole is on the floor on the
-    frames the source's is lowest (feet.resting_offsets). Whatever each rig's ankle height and sole, the stance
-    stands on the floor, and one height per foot adds no jerk. ``soles`` (F,2): the target's ankles above
-    their soles."""
+def _stand_in_place(free, found, s_points, soles, floor, leg, settings, spread):
+    """Feet the source hardly ever holds still on the floor (planted on at most _HELD_STANCE of the frames: an
+    in-place clip, whose stance slides under the body) but that come down to it: their free trajectories in
+    ``free`` (F,E,3, changed in place) raised or lowered as a whole, so that their soles are on the floor on the
+    frames the source's are lowest (feet.resting_offsets), each by its own height within ``spread`` (world) of
+    their mean: whatever each rig's ankle height and sole, the stance stands on the floor, one height per foot
+    adds no jerk, and the legs keep the source's angles to each other where the feet differ by more than a rig's
+    asymmetry (a dodge whose feet pitch differently, each sole put on the floor on its own, turned Godot's robot's
+    thighs 7 degrees off the source's). ``soles`` (F,2): the target's ankles above their soles."""
     ankles = free[:, [EFFECTORS.index(e) for e in FEET], 2]
-    for i, offset in resting_offsets(ankles, s_points, soles, floor, leg, settings).items():
-        if sum(c.stop - c.start for c in found[FEET[i]] if c.kind == GROUND) > _HELD_STANCE * len(free):
-            continue  # its stances are held on the floor
-        free[:, EFFECTORS.index(FEET[i]), 2] += offset
-
-
-def _airborne_raise(free, soles, floor, contacts, step):
-    """(F,) how far the whole body rises on the frames no foot holds a contact (a run's flight, an in-place
-    clip's sliding stance) where the floor would lift a foot (``free`` (F,E,3) its ankle, ``soles`` (F,2) the
-    ankles above their soles): the legs keep the source's angles, where lifting the ankle alone bends the knee
-    for a few frames. It rises and falls at the blend speed (``step`` a frame) around those frames."""
-    feet = [EFFECTORS.index(e) for e in FEET]
-    need = np.maximum(floor + soles - free[:, feet, 2], 0.0).max(axis=1)
-    need[contacts[:, feet].any(axis=1)] = 0.0
-    return np.maximum(_let_go(need, step), _let_go(need[::-1], step)[::-1])
-
-
-def _let_go(lift, step):
-    """The least lift (F,) at least ``lift`` on every frame that falls by at most ``step`` a frame: a foot raised
-    over the floor (a long foot pitched at toe-off: KayKit's ankle up to 122 mm above its free path) is let
-    down at the blend's speed, not the moment its sole clears the floor (a shin turning 30.9 degrees in one
-    frame). It rises as ``lift`` does."""
-    frames = np.arange(len(lift)) * step
-    return np.maximum.accumulate(lift + frames) - frames
+    offsets = {i: offset for i, offset in resting_offsets(ankles, s_points, soles, floor, leg, settings).items()
+               if sum(c.stop - c.start for c in found[FEET[i]] if c.kind == GROUND) <= _HELD_STANCE * len(free)}
+    mean = np.mean(list(offsets.values())) if offsets else 0.0
+    for i, offset in offsets.items():  # (feet whose stances are held on the floor stand on it by their holds)
+        free[:, EFFECTORS.index(FEET[i]), 2] += mean + np.clip(offset - mean, -spread, spread)
 
 
 def _held_offset(targets, free, contacts, half_width):
