@@ -1,4 +1,4 @@
-"""Clips the retargeting was not tuned on, retargeted onto the corpus rigs (issue 27 item 6): per clip and rig,
+"""Clips the retargeting was not tuned on, retargeted onto the corpus rigs: per clip and rig,
 pop frames (result / clip), slide p95 over the clip's plants (result / clip, mm; and the result's at the clip's
 size: divided by the legs' ratio), the mesh soles on planted
 frames (p95 of |height|, lowest, mm), limb directions against the clip (median degrees) and the exit code,
