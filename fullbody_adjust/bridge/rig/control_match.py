@@ -55,6 +55,7 @@ from ...solver.maths import vectors as g
 from ...solver.maths.geometry import affine_inverse
 from ...solver.vocabulary import ROTATION_PROPERTY
 from ..writing.channels import continuous_rotation
+from . import chain_prediction
 
 
 # A control counts as moved when an entry of its local matrix changed by more than this: its channels are
@@ -101,6 +102,9 @@ class ControlPair:
     follows_control: bool = False
     # The groups besides its own whose bones a move of the control moves (a TRUNK_GROUP pair's: every group).
     carries: tuple = ()
+    # Bend and scale pairs: the bone whose damped track at the chain's end carries the chain's IK solution (Rigify's
+    # IK swing), for chain_prediction; None: the least turn from the old end to the new one.
+    swing: str = None
 
     @property
     def bends(self):
@@ -123,18 +127,31 @@ def _tail(m, length):
 
 
 def _pair_error(pose_bones, pair, desired, lengths):
-    return _error(_matrix(pose_bones[pair.bone]), pair, pose_bones, desired, lengths)
+    return _error(_matrix(pose_bones[pair.bone]), pair, _chain(pose_bones, pair, lengths), desired, lengths)
 
 
-def _bend_plane(pose_bones, pair, desired, lengths):
+def _chain(pose_bones, pair, lengths, predicted=None):
+    """(first bone's matrix, end bone's head, chain length) of a bend or scale pair's chain as nested lists: as
+    evaluated, or as ``predicted`` (chain_prediction.predicted_chain: its length is the evaluated one, the chain
+    bending to reach). None for a rigid pair."""
+    if pair.kind == "rigid":
+        return None
+    bone, end = _matrix(pose_bones[pair.bone]).tolist(), _head(_matrix(pose_bones[pair.end]).tolist())
+    length = _chain_length(bone, end, lengths[pair.bone])
+    if predicted is not None:
+        bone, end = predicted[1].tolist(), tuple(predicted[2].tolist())
+    return bone, end, length
+
+
+def _bend_plane(chain, pair, desired, lengths):
     """(base, axis, now, want) of a bend pair: the chain's first joint, its unit axis (to the end bone's head)
-    and the evaluated and desired middle joints' offsets from that axis, or None when the axis or either offset
-    is degenerate (a straight chain has no bend plane to turn). Plain floats (numpy's per-call cost on
-    3-vectors made a bend step cost 0.15 ms)."""
+    and the evaluated (or predicted: ``chain``, _chain) and desired middle joints' offsets from that axis, or None
+    when the axis or either offset is degenerate (a straight chain has no bend plane to turn). Plain floats
+    (numpy's per-call cost on 3-vectors made a bend step cost 0.15 ms)."""
     length = lengths[pair.bone]
-    bone = _matrix(pose_bones[pair.bone]).tolist()
+    bone, end, _length = chain
     base = _head(bone)
-    axis = g.sub(_head(_matrix(pose_bones[pair.end]).tolist()), base)
+    axis = g.sub(end, base)
     size = g.norm(axis)
     if size <= 1e-9 * length:
         return None
@@ -153,19 +170,19 @@ def _bend_angle(plane):
     return math.atan2(g.dot(g.cross(now, want), axis), g.dot(now, want))
 
 
-def _bend_error(pose_bones, pair, desired, lengths):
+def _bend_error(chain, pair, desired, lengths):
     """How far a bend pair's middle joint is turned from the desired one about the chain's axis: the arc at the
     desired joint's distance from the axis (what a bend step removes). Its distance from the axis and along
     it are not the bend's: a stretchy IK (Rigify's) shares its stretch between its two bones as its solver
     finds, and no control sets that share (the first bone's scale is the scale pair's)."""
-    plane = _bend_plane(pose_bones, pair, desired, lengths)
+    plane = _bend_plane(chain, pair, desired, lengths)
     return 0.0 if plane is None else abs(_bend_angle(plane)) * g.norm(plane[3])
 
 
-def _bend_step(pose_bones, pair, desired, lengths):
-    """The rotation (4x4, about the chain's axis through its first joint) taking the evaluated middle joint
-    towards the desired one, or None when the axis is degenerate."""
-    plane = _bend_plane(pose_bones, pair, desired, lengths)
+def _bend_step(chain, pair, desired, lengths):
+    """The rotation (4x4, about the chain's axis through its first joint) taking the evaluated (or predicted)
+    middle joint towards the desired one, or None when the axis is degenerate."""
+    plane = _bend_plane(chain, pair, desired, lengths)
     if plane is None:
         return None
     base, axis = plane[0], plane[1]
@@ -197,26 +214,33 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
         for level_pairs in by_level:
             carries = [_carried_or_apart(pair, pending, above, corrections) if pending else None
                        for pair in level_pairs]
+            predictions = {}
+            if pending:
+                carries = [carry if carry is not None or pair.kind == "rigid"
+                           else _predicted(pair, pending, above, corrections, pose_bones, lengths, predictions)
+                           for pair, carry in zip(level_pairs, carries)]
             if pending and any(carry is None for carry in carries):
                 view_layer.update()
                 pending = []
                 corrections.clear()
+                predictions.clear()
                 carries = [None] * len(level_pairs)
             moves, scales = [], []
             for pair, carry in zip(level_pairs, carries):
                 bone = _matrix(pose_bones[pair.bone])
                 if carry is not None:
                     bone = carry @ bone
-                if _error(bone, pair, pose_bones, desired, lengths) <= _tolerance(pair, tolerance):
+                chain = _chain(pose_bones, pair, lengths, predictions.get(pair))
+                if _error(bone, pair, chain, desired, lengths) <= _tolerance(pair, tolerance):
                     continue
                 control = pose_bones[pair.control]
                 if pair.kind == "scale":
-                    scale = _scale_step(pair, control, pose_bones, desired, lengths, scaled)
+                    scale = _scale_step(pair, control, chain, desired, lengths, scaled, pair in predictions)
                     if scale is not None:
                         scales.append((control, scale))
                     continue
                 if pair.bends:
-                    step = _bend_step(pose_bones, pair, desired, lengths)
+                    step = _bend_step(chain, pair, desired, lengths)
                     if step is None:
                         continue
                 else:
@@ -265,33 +289,33 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
 
 def _chain_length(bone, end, length):
     """A two-bone chain's length from its first bone's matrix ``bone`` (its head, and its tail: the middle joint)
-    and its end bone's ``end`` (its head), as nested lists."""
+    and its end bone's head ``end``, as nested lists."""
     middle = _tail(bone, length)
-    return math.dist(_head(bone), middle) + math.dist(middle, _head(end))
+    return math.dist(_head(bone), middle) + math.dist(middle, end)
 
 
-def _scale_lengths(pose_bones, pair, desired, lengths):
-    """A scale pair's chain length (_chain_length) as evaluated and as desired."""
-    length = lengths[pair.bone]
-    now = _chain_length(_matrix(pose_bones[pair.bone]).tolist(), _matrix(pose_bones[pair.end]).tolist(), length)
-    return now, _chain_length(desired[pair.bone].tolist(), desired[pair.end].tolist(), length)
+def _scale_lengths(chain, pair, desired, lengths):
+    """A scale pair's chain length (_chain_length) as evaluated (or predicted: ``chain``, _chain) and as desired."""
+    return chain[2], _chain_length(desired[pair.bone].tolist(), _head(desired[pair.end].tolist()), lengths[pair.bone])
 
 
-def _scale_step(pair, control, pose_bones, desired, lengths, scaled):
+def _scale_step(pair, control, chain, desired, lengths, scaled, predicted=False):
     """A scale pair's new control scale (3,): its current one times the chain's desired over its evaluated length,
     that ratio raised to 1 / the slope the last step measured (how much of a control's scaling reached the chain,
     in logs: a stretchy IK undoes part of it, on Rigify's limbs about two thirds, which left 0.65 of the error
     after each step), at most 1. None once a step measured a slope under _SLOPE_MIN: near full stretch the IK
     stretches the chain to its end whatever its base's scale (a straight arm's length stayed 0.1 mm long over
     six sweeps, the control's scaling reaching it less each time), and the control is left as it is.
-    ``scaled`` keeps each pair's last step (None: left)."""
+    ``scaled`` keeps each pair's last step (None: left); a step from a ``predicted`` chain is not kept: its length
+    is not one the control's scale was measured to give."""
     last = scaled.get(pair, ())
     if last is None:
         return None
-    now, want = _scale_lengths(pose_bones, pair, desired, lengths)
+    now, want = _scale_lengths(chain, pair, desired, lengths)
     current = np.array(control.scale, dtype=np.float64)
     ratio = math.log(want / now)
-    scaled[pair] = (current[1], now)
+    if not predicted:
+        scaled[pair] = (current[1], now)
     if last:
         moved = math.log(current[1] / last[0])
         if abs(moved) > _SLOPE_STEP:
@@ -342,21 +366,53 @@ def _carried_or_apart(pair, pending, above, corrections=()):
     return carry
 
 
+def _predicted(pair, pending, above, corrections, pose_bones, lengths, predictions):
+    """The carry of a bend or scale pair's control after the moves ``pending`` when its chain can be predicted
+    (chain_prediction: the moves of its limb are its end control's and those of what its base hangs below), the
+    prediction kept in ``predictions``; else None (the rig is evaluated first)."""
+    carry, end_step = np.eye(4), None
+    for moved, step in pending:
+        groups = (moved.group, pair.group)
+        if None in groups:
+            return None
+        if moved.group not in (pair.group, TRUNK_GROUP) and pair.group not in moved.carries:
+            continue
+        if moved.group == pair.group and moved.follows_control and moved.bone == pair.end:
+            end_step = step  # its whole motion since the evaluation
+        elif {moved.control, moved.bone} & above[pair.control]:
+            carry = step
+        elif moved not in corrections or moved.group != pair.group:
+            return None
+    if end_step is None:  # its end control stays, and the chain's end with it (a limb in IK: ControlPair.follows_control)
+        end_step = np.eye(4)
+    swing = pose_bones.get(pair.swing) if pair.swing else None
+    if swing is not None:
+        parent = swing.parent  # its matrix before its constraints: from its parent's and its rest relation
+        relation = parent.bone.matrix_local.inverted() @ swing.bone.matrix_local @ swing.matrix_basis
+        swing = (_matrix(swing), _matrix(parent) @ np.array(relation, dtype=np.float64))
+    chain = chain_prediction.predicted_chain(_matrix(pose_bones[pair.bone]), _matrix(pose_bones[pair.end])[:3, 3],
+                                             carry, end_step, lengths[pair.bone], swing)
+    if chain is None:
+        return None
+    predictions[pair] = chain
+    return chain[0]
+
+
 def _moved_by(step, pose_bone):
     """How far the armature-space motion ``step`` (4x4) moves ``pose_bone``'s evaluated head."""
     head = _matrix(pose_bone)[:3, 3]
     return float(np.linalg.norm(step[:3, :3] @ head + step[:3, 3] - head))
 
 
-def _error(bone, pair, pose_bones, desired, lengths):
+def _error(bone, pair, chain, desired, lengths):
     """_pair_error from the bone's (possibly carried) matrix ``bone``: a scale pair's chain length error, a bend
-    pair's turn as _bend_error measures it (both from the evaluated rig: they are never carried), else the larger
-    of the head's and the tail's distances."""
+    pair's turn as _bend_error measures it (both from ``chain``, _chain: evaluated or predicted, never carried),
+    else the larger of the head's and the tail's distances."""
     if pair.bends:
-        return _bend_error(pose_bones, pair, desired, lengths)
+        return _bend_error(chain, pair, desired, lengths)
     b, d, length = bone.tolist(), desired[pair.bone].tolist(), lengths[pair.bone]
     if pair.kind == "scale":
-        now, want = _scale_lengths(pose_bones, pair, desired, lengths)
+        now, want = _scale_lengths(chain, pair, desired, lengths)
         return abs(now - want)
     return max(math.dist(_head(b), _head(d)), math.dist(_tail(b, length), _tail(d, length)))
 

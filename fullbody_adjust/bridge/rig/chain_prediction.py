@@ -1,0 +1,83 @@
+"""Where a two-bone IK chain goes when its end control moves, predicted without evaluating the rig
+(control_match): so that a chain's bend and scale are stepped in the same sweep as its end control, and one
+evaluation shows all three.
+
+A chain whose end control moved (and whatever carries its base: the trunk, a clavicle) is predicted from the last
+evaluation: its base carried with the control it hangs below, then turned about its first joint from the old end
+to the new one (Rigify's IK swing bone damped-tracks the IK target: the chain's IK solution rides in that frame),
+its bones keeping their evaluated lengths (the chain bends to reach; its length is unchanged). Where that is wrong,
+the sweep's closing evaluation finds the error and the next sweep steps the chain from that evaluation:
+- a target beyond the chain's reach (the IK stretches: the prediction is not used, the rig is evaluated first);
+- the stretch a stretchy IK shares between its bones changes with the target's distance (Rigify's ik_stretch 0.1),
+  so the chain's length after the move differs from the evaluated one by a fraction of the move;
+- the swing's damped track turns from its own rest direction, not from the old one: a move sideways of the chain's
+  axis also twists the bend plane a little about the new axis;
+- an IK without a pole starts from its base control's channels each evaluation, and the plane it ends in follows
+  the target's distance a little.
+"""
+
+import math
+
+import numpy as np
+
+from ...solver.maths import vectors as g
+from ...solver.maths.geometry import affine_inverse
+
+# A predicted chain reaching farther than this fraction of its bones' evaluated lengths is left to an evaluation:
+# the IK stretches there (or stops short), which no rigid turn predicts.
+_REACH = 0.999
+
+
+def turn_about(point, a, b):
+    """4x4 rotation about ``point`` taking direction ``a`` to direction ``b`` by the least turn (a damped track),
+    or None when either is degenerate or they are opposite."""
+    na, nb = g.norm(a), g.norm(b)
+    if min(na, nb) <= 1e-12:
+        return None
+    a, b = g.divided(a, na), g.divided(b, nb)
+    axis = g.cross(a, b)
+    sine, cosine = g.norm(axis), g.dot(a, b)
+    if cosine <= -1.0 + 1e-9:
+        return None
+    turn = np.eye(4)
+    if sine > 1e-15:
+        turn[:3, :3] = g.rotation_about(g.divided(axis, sine), math.atan2(sine, cosine))
+    p = np.asarray(point, dtype=np.float64)
+    turn[:3, 3] = p - turn[:3, :3] @ p
+    return turn
+
+
+def _tracked(frame, target):
+    """``frame`` (4x4) turned about its head by the least turn that points its Y axis at ``target``: Blender's
+    damped track."""
+    turn = turn_about(frame[:3, 3].tolist(), frame[:3, 1].tolist(), (target - frame[:3, 3]).tolist())
+    return None if turn is None else turn @ frame
+
+
+def predicted_chain(bone, end_head, carry, end_step, length, swing=None):
+    """(carry, base matrix, end head) of a chain predicted after moves (module notes): ``bone`` its first bone's
+    evaluated 4x4 matrix, ``end_head`` its end bone's evaluated head, ``carry`` the motion of what its base hangs
+    below, ``end_step`` the end control's whole motion since the evaluation; the returned carry is the motion of
+    the chain's base control (the carry, then the swing's turn). ``swing``: (evaluated, unconstrained) 4x4 matrices
+    of the bone whose damped track carries the chain (Rigify's IK swing), so the turn is its own: from its
+    unconstrained frame, not from the old direction (the two differ by a twist about the new axis, which turned
+    the bend plane by up to 2 cm at the elbow in a drag); None: the least turn from the old end to the new one.
+    None where the IK would not just bend (the target beyond reach, a degenerate turn): the rig is evaluated
+    first."""
+    base = carry @ bone
+    head = base[:3, 3]
+    old_end = carry[:3, :3] @ end_head + carry[:3, 3]
+    new_end = end_step[:3, :3] @ end_head + end_step[:3, 3]
+    middle = base[:3, 3] + length * base[:3, 1]
+    reach = float(np.linalg.norm(middle - head) + np.linalg.norm(old_end - middle))
+    if np.linalg.norm(new_end - head) > _REACH * reach:
+        return None
+    if swing is None:
+        turn = turn_about(head.tolist(), (old_end - head).tolist(), (new_end - head).tolist())
+        motion = None if turn is None else turn @ carry
+    else:
+        tracked = _tracked(carry @ swing[1], new_end)
+        motion = None if tracked is None else tracked @ affine_inverse(swing[0])
+    if motion is None:
+        return None
+    return motion, motion @ bone, new_end
