@@ -101,3 +101,51 @@ def test_live_places_controls_as_exactly_with_fewer_evaluations(extension_module
         assert sum(totals[True]) < sum(totals[False]), totals
     else:  # FK arms: placed in one go, the one evaluation showing the result (a Live update has just evaluated)
         assert totals[True] == [1] * len(totals[True]), totals
+
+
+def test_an_ik_chain_predicted_after_its_end_moves_saves_evaluations(extension_module_name, monkeypatch):
+    """Live on a generated rig with IK arms, the left hand's target dragged: the arm's bend and scale stepped from
+    the chain predicted after its hand control's move (chain_prediction) place every ORG- bone as exactly, with
+    fewer evaluations of the rig in all than when the chain is evaluated before those steps."""
+    control_match = importlib.import_module(f"{extension_module_name}.bridge.rig.control_match")
+    match, predicted = control_match.match_controls, control_match._predicted
+    counts = []
+
+    class CountingViewLayer:
+        def __init__(self, view_layer):
+            self.view_layer = view_layer
+
+        def update(self):
+            counts[-1] += 1
+            self.view_layer.update()
+
+    def counted(obj, view_layer, pairs, desired, tolerance, **options):
+        counts.append(0)
+        error = match(obj, CountingViewLayer(view_layer), pairs, desired, tolerance, **options)
+        for bone in {p.bone for p in pairs} | {p.end for p in pairs if p.end}:
+            assert np.linalg.norm(np.array(obj.pose.bones[bone].matrix)[:3, 3] - desired[bone][:3, 3]) <= ELBOW
+        return error
+
+    monkeypatch.setattr(control_match, "match_controls", counted)
+    totals, used = {}, []
+
+    def recorded(*args):
+        carry = predicted(*args)
+        used.append(carry is not None)
+        return carry
+
+    for predicting in (True, False):
+        monkeypatch.setattr(control_match, "_predicted", recorded if predicting else (lambda *args: None))
+        bpy.ops.wm.read_homefile(use_empty=True)
+        rig = generated_rig("basic", "IK")
+        before = Pose(rig)
+        rig.fullbody_adjust.live = True
+        counts.clear()
+        for goal in _drag(rig, before, steps=8):
+            place(slot(rig, "hand.L").target, goal)
+            after = Pose(rig)  # evaluates the scene: the live handler solves
+            assert np.linalg.norm(world_head(after, "DEF-hand.L") - goal) <= REACH * before.height(), goal
+        rig.fullbody_adjust.live = False
+        totals[predicting] = list(counts)
+    assert any(used), "no chain was predicted"
+    assert sum(totals[True]) < sum(totals[False]), totals

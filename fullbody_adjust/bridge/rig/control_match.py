@@ -35,14 +35,17 @@ limb between IK and FK) is evaluated first. Nothing here knows a rig's names: th
 which control drives which bone.
 
 Where a prediction is wrong, so that the rig is evaluated more than once: an IK chain whose end or base moved.
-Blender's IK is iterative and path dependent: Rigify's stretch (ik_stretch 0.1 on both bones) shares a stretch
-between the bones that changes with the target's distance and the base's scale (the chain length's slope against
-that scale measured from 0.02 to 1.8 over one drag), and the chain's end stops off its target (0.1 mm after a 3 cm
-move of the basic rig's hand). A chain's bend and scale are stepped from an evaluation that shows its end where it
-goes, and each further sweep (one evaluation) steps its scale again and corrects its end control by the chain's miss.
-An FK rig, and the trunk, clavicles and IK end controls of any rig, are placed from the rest relations and carried
-matrices in one go, shown by the sweep's closing evaluation. A caller that has just had the rig evaluated (a click, a
-Live update) says so, and the matching does not evaluate it first.
+Its bend plane and its length after the move are predicted (chain_prediction, whose notes say where that is
+wrong), and its bend and scale are stepped from the prediction in the sweep that moves its end. Blender's IK is
+iterative and path dependent: Rigify's stretch (ik_stretch 0.1 on both bones) shares a stretch between the bones
+that changes with the target's distance and the base's scale (the chain length's slope against that scale measured
+from 0.02 to 1.8 over one drag), and the chain's end stops off its target (0.1 mm after a 3 cm move of the basic
+rig's hand). A chain that cannot be predicted (beyond reach, a limb between IK and FK) has its bend and scale stepped
+from an evaluation that shows its end where it goes; each further sweep (one evaluation) steps its scale again and
+corrects its end control by the chain's miss. An FK rig, and the trunk, clavicles and IK end controls of any rig,
+are placed from the rest relations and carried matrices in one go, shown by the sweep's closing evaluation. A
+caller that has just had the rig evaluated (a click, a Live update) says so, and the matching does not evaluate it
+first.
 """
 
 import math
@@ -51,11 +54,11 @@ from dataclasses import dataclass
 import numpy as np
 from mathutils import Matrix
 
-from ...solver.maths import vectors as g
 from ...solver.maths.geometry import affine_inverse
 from ...solver.vocabulary import ROTATION_PROPERTY
 from ..writing.channels import continuous_rotation
-from . import chain_prediction
+from . import chain_prediction, chain_steps
+from .chain_steps import head as _head, matrix as _matrix, tail as _tail
 
 
 # A control counts as moved when an entry of its local matrix changed by more than this: its channels are
@@ -65,11 +68,6 @@ _CONTROL_MOVED = 1e-7
 # A sweep that leaves the largest error above this fraction of the previous sweep's is the last one.
 _STALLED = 0.7
 
-
-# A scale step is taken against the slope its last step measured when that step moved the control's scale by
-# more than this (in logs; float32 channels); under _SLOPE_MIN the control no longer sets the chain's length.
-_SLOPE_STEP = 1e-5
-_SLOPE_MIN = 0.2
 
 # After a sweep's closing evaluation, an IK chain's end control moved by at most this fraction of its bone's length
 # only corrects the chain's miss: its bend and scale are stepped from that evaluation, not from one more.
@@ -111,84 +109,9 @@ class ControlPair:
         return self.kind == "bend"
 
 
-def _matrix(pose_bone):
-    return np.array(pose_bone.matrix, dtype=np.float64)
-
-
-def _head(m):
-    """A bone's head from its 4x4 matrix ``m`` as nested lists. Plain floats: with numpy's per-call cost on each
-    4x4 matrix, these errors took half the matching's time outside Blender's evaluations."""
-    return (m[0][3], m[1][3], m[2][3])
-
-
-def _tail(m, length):
-    """A bone's tail (the chain's middle joint for a chain's first bone): head + length * its Y axis."""
-    return (m[0][1] * length + m[0][3], m[1][1] * length + m[1][3], m[2][1] * length + m[2][3])
-
-
 def _pair_error(pose_bones, pair, desired, lengths):
-    return _error(_matrix(pose_bones[pair.bone]), pair, _chain(pose_bones, pair, lengths), desired, lengths)
-
-
-def _chain(pose_bones, pair, lengths, predicted=None):
-    """(first bone's matrix, end bone's head, chain length) of a bend or scale pair's chain as nested lists: as
-    evaluated, or as ``predicted`` (chain_prediction.predicted_chain: its length is the evaluated one, the chain
-    bending to reach). None for a rigid pair."""
-    if pair.kind == "rigid":
-        return None
-    bone, end = _matrix(pose_bones[pair.bone]).tolist(), _head(_matrix(pose_bones[pair.end]).tolist())
-    length = _chain_length(bone, end, lengths[pair.bone])
-    if predicted is not None:
-        bone, end = predicted[1].tolist(), tuple(predicted[2].tolist())
-    return bone, end, length
-
-
-def _bend_plane(chain, pair, desired, lengths):
-    """(base, axis, now, want) of a bend pair: the chain's first joint, its unit axis (to the end bone's head)
-    and the evaluated (or predicted: ``chain``, _chain) and desired middle joints' offsets from that axis, or None
-    when the axis or either offset is degenerate (a straight chain has no bend plane to turn). Plain floats
-    (numpy's per-call cost on 3-vectors made a bend step cost 0.15 ms)."""
-    length = lengths[pair.bone]
-    bone, end, _length = chain
-    base = _head(bone)
-    axis = g.sub(end, base)
-    size = g.norm(axis)
-    if size <= 1e-9 * length:
-        return None
-    axis = g.divided(axis, size)
-    now = g.sub(_tail(bone, length), base)
-    want = g.sub(_tail(desired[pair.bone].tolist(), length), base)
-    now = g.sub(now, g.scaled(axis, g.dot(now, axis)))
-    want = g.sub(want, g.scaled(axis, g.dot(want, axis)))
-    if min(g.norm(now), g.norm(want)) <= 1e-9 * length:
-        return None
-    return base, axis, now, want
-
-
-def _bend_angle(plane):
-    _base, axis, now, want = plane
-    return math.atan2(g.dot(g.cross(now, want), axis), g.dot(now, want))
-
-
-def _bend_error(chain, pair, desired, lengths):
-    """How far a bend pair's middle joint is turned from the desired one about the chain's axis: the arc at the
-    desired joint's distance from the axis (what a bend step removes). Its distance from the axis and along
-    it are not the bend's: a stretchy IK (Rigify's) shares its stretch between its two bones as its solver
-    finds, and no control sets that share (the first bone's scale is the scale pair's)."""
-    plane = _bend_plane(chain, pair, desired, lengths)
-    return 0.0 if plane is None else abs(_bend_angle(plane)) * g.norm(plane[3])
-
-
-def _bend_step(chain, pair, desired, lengths):
-    """The rotation (4x4, about the chain's axis through its first joint) taking the evaluated (or predicted)
-    middle joint towards the desired one, or None when the axis is degenerate."""
-    plane = _bend_plane(chain, pair, desired, lengths)
-    if plane is None:
-        return None
-    base, axis = plane[0], plane[1]
-    turn = g.rotation_about(axis, _bend_angle(plane))  # about the base: x -> R (x - base) + base
-    shift = [b - g.dot(row, base) for row, b in zip(turn, base)]
-    return np.array([[*turn[0], shift[0]], [*turn[1], shift[1]], [*turn[2], shift[2]], [0.0, 0.0, 0.0, 1.0]])
+    chain = chain_steps.chain_of(pose_bones, pair, lengths)
+    return _error(_matrix(pose_bones[pair.bone]), pair, chain, desired, lengths)
 
 
 def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, evaluated=False):
@@ -230,17 +153,17 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
                 bone = _matrix(pose_bones[pair.bone])
                 if carry is not None:
                     bone = carry @ bone
-                chain = _chain(pose_bones, pair, lengths, predictions.get(pair))
+                chain = chain_steps.chain_of(pose_bones, pair, lengths, predictions.get(pair))
                 if _error(bone, pair, chain, desired, lengths) <= _tolerance(pair, tolerance):
                     continue
                 control = pose_bones[pair.control]
                 if pair.kind == "scale":
-                    scale = _scale_step(pair, control, chain, desired, lengths, scaled, pair in predictions)
+                    scale = chain_steps.scale_step(pair, control, chain, desired, lengths, scaled, pair in predictions)
                     if scale is not None:
                         scales.append((control, scale))
                     continue
                 if pair.bends:
-                    step = _bend_step(chain, pair, desired, lengths)
+                    step = chain_steps.bend_step(chain, pair, desired, lengths)
                     if step is None:
                         continue
                 else:
@@ -285,46 +208,6 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
         # the controls go back to the best one.
         _set_channels(obj, best)
     return best_error
-
-
-def _chain_length(bone, end, length):
-    """A two-bone chain's length from its first bone's matrix ``bone`` (its head, and its tail: the middle joint)
-    and its end bone's head ``end``, as nested lists."""
-    middle = _tail(bone, length)
-    return math.dist(_head(bone), middle) + math.dist(middle, end)
-
-
-def _scale_lengths(chain, pair, desired, lengths):
-    """A scale pair's chain length (_chain_length) as evaluated (or predicted: ``chain``, _chain) and as desired."""
-    return chain[2], _chain_length(desired[pair.bone].tolist(), _head(desired[pair.end].tolist()), lengths[pair.bone])
-
-
-def _scale_step(pair, control, chain, desired, lengths, scaled, predicted=False):
-    """A scale pair's new control scale (3,): its current one times the chain's desired over its evaluated length,
-    that ratio raised to 1 / the slope the last step measured (how much of a control's scaling reached the chain,
-    in logs: a stretchy IK undoes part of it, on Rigify's limbs about two thirds, which left 0.65 of the error
-    after each step), at most 1. None once a step measured a slope under _SLOPE_MIN: near full stretch the IK
-    stretches the chain to its end whatever its base's scale (a straight arm's length stayed 0.1 mm long over
-    six sweeps, the control's scaling reaching it less each time), and the control is left as it is.
-    ``scaled`` keeps each pair's last step (None: left); a step from a ``predicted`` chain is not kept: its length
-    is not one the control's scale was measured to give."""
-    last = scaled.get(pair, ())
-    if last is None:
-        return None
-    now, want = _scale_lengths(chain, pair, desired, lengths)
-    current = np.array(control.scale, dtype=np.float64)
-    ratio = math.log(want / now)
-    if not predicted:
-        scaled[pair] = (current[1], now)
-    if last:
-        moved = math.log(current[1] / last[0])
-        if abs(moved) > _SLOPE_STEP:
-            slope = math.log(now / last[1]) / moved
-            if slope < _SLOPE_MIN:
-                scaled[pair] = None
-                return None
-            ratio /= min(slope, 1.0)
-    return current * math.exp(ratio)
 
 
 def _set_channels(obj, channels):
@@ -383,14 +266,15 @@ def _predicted(pair, pending, above, corrections, pose_bones, lengths, predictio
             carry = step
         elif moved not in corrections or moved.group != pair.group:
             return None
-    if end_step is None:  # its end control stays, and the chain's end with it (a limb in IK: ControlPair.follows_control)
+    if end_step is None:  # its end control stays, and the chain's end with it (a limb in IK: follows_control)
         end_step = np.eye(4)
     swing = pose_bones.get(pair.swing) if pair.swing else None
     if swing is not None:
         parent = swing.parent  # its matrix before its constraints: from its parent's and its rest relation
         relation = parent.bone.matrix_local.inverted() @ swing.bone.matrix_local @ swing.matrix_basis
         swing = (_matrix(swing), _matrix(parent) @ np.array(relation, dtype=np.float64))
-    chain = chain_prediction.predicted_chain(_matrix(pose_bones[pair.bone]), _matrix(pose_bones[pair.end])[:3, 3],
+    end = _matrix(pose_bones[pair.end])[:3, 3]
+    chain = chain_prediction.predicted_chain(_matrix(pose_bones[pair.bone]), end,
                                              carry, end_step, lengths[pair.bone], swing)
     if chain is None:
         return None
@@ -405,15 +289,12 @@ def _moved_by(step, pose_bone):
 
 
 def _error(bone, pair, chain, desired, lengths):
-    """_pair_error from the bone's (possibly carried) matrix ``bone``: a scale pair's chain length error, a bend
-    pair's turn as _bend_error measures it (both from ``chain``, _chain: evaluated or predicted, never carried),
-    else the larger of the head's and the tail's distances."""
-    if pair.bends:
-        return _bend_error(chain, pair, desired, lengths)
+    """_pair_error from the bone's (possibly carried) matrix ``bone``; a bend or scale pair's from ``chain``
+    (chain_steps.chain_of: evaluated or predicted, never carried). A rigid pair's: the larger of its head's and
+    its tail's distances."""
+    if pair.kind != "rigid":
+        return chain_steps.chain_error(chain, pair, desired, lengths)
     b, d, length = bone.tolist(), desired[pair.bone].tolist(), lengths[pair.bone]
-    if pair.kind == "scale":
-        now, want = _scale_lengths(chain, pair, desired, lengths)
-        return abs(now - want)
     return max(math.dist(_head(b), _head(d)), math.dist(_tail(b, length), _tail(d, length)))
 
 
