@@ -78,6 +78,12 @@ _CORRECTION = 1e-3
 # evaluation of the rig) on about every update: Rigify's stretchy IK answers a scaling by a share that keeps changing.
 _MIDDLE_JOINT = 10.0
 
+# Each rig's IK chains' stretch samples (chain_steps.record_stretch), {(rig's session_uid, chain's first bone): the
+# last two}, kept across calls: a Live drag's updates stand close to each other. Only which scale is tried first
+# depends on them (every sweep's closing evaluation checks); _STRETCH_RIGS bounds how many rigs are kept.
+_STRETCH = {}
+_STRETCH_RIGS = 16
+
 # The group of the trunk's pairs that carry the whole body: a move of one carries every limb.
 TRUNK_GROUP = "trunk"
 
@@ -131,6 +137,9 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
     error = best_error = np.inf
     best = None
     scaled = {}  # scale pairs: (control's Y scale, chain length) at their last step (None: left as they are)
+    if len(_STRETCH) > 4 * _STRETCH_RIGS:
+        _STRETCH.clear()
+    samples = {p: _STRETCH.setdefault((obj.session_uid, p.bone), []) for p in pairs if p.kind == "scale"}
     for sweep in range(max_sweeps):
         pending = []  # (pair, armature-space step) of the controls moved since the last evaluation
         corrections = set()  # pairs of ``pending`` that only corrected a chain's end (_carried_or_apart)
@@ -154,11 +163,14 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
                 if carry is not None:
                     bone = carry @ bone
                 chain = chain_steps.chain_of(pose_bones, pair, lengths, predictions.get(pair))
+                if pair in samples and pair not in predictions:
+                    _record(pose_bones, pair, chain, lengths, samples)
                 if _error(bone, pair, chain, desired, lengths) <= _tolerance(pair, tolerance):
                     continue
                 control = pose_bones[pair.control]
                 if pair.kind == "scale":
-                    scale = chain_steps.scale_step(pair, control, chain, desired, lengths, scaled, pair in predictions)
+                    scale = chain_steps.scale_step(pair, control, chain, desired, lengths, scaled, pair in predictions,
+                                                   samples[pair])
                     if scale is not None:
                         scales.append((control, scale))
                     continue
@@ -197,6 +209,8 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
         if pending:
             view_layer.update()
         errors = [_pair_error(pose_bones, p, desired, lengths) for p in pairs]
+        for pair in samples:
+            _record(pose_bones, pair, chain_steps.chain_of(pose_bones, pair, lengths), lengths, samples)
         previous, error = error, max(errors)
         if error < best_error:
             best_error, best = error, read_channels(obj, controls)
@@ -216,6 +230,10 @@ def _set_channels(obj, channels):
         pose_bone = obj.pose.bones[name]
         for prop, value in props.items():
             setattr(pose_bone, prop, value.tolist())
+
+
+def _record(pose_bones, pair, chain, lengths, samples):
+    chain_steps.record_stretch(samples[pair], chain, pose_bones[pair.control].scale[1], lengths[pair.bone])
 
 
 def _tolerance(pair, tolerance):
