@@ -7,11 +7,11 @@ evaluation: its base carried with the control it hangs below, then turned about 
 to the new one (Rigify's IK swing bone damped-tracks the IK target: the chain's IK solution rides in that frame),
 its bones keeping their evaluated lengths (the chain bends to reach; its length is unchanged). Where that is wrong,
 the sweep's closing evaluation finds the error and the next sweep steps the chain from that evaluation:
-- a target beyond the chain's reach (the IK stretches: the prediction is not used, the rig is evaluated first);
-- the stretch a stretchy IK shares between its bones changes with the target's distance (Rigify's ik_stretch 0.1),
-  so the chain's length after the move differs from the evaluated one by a fraction of the move;
-- the swing's damped track turns from its own rest direction, not from the old one: a move sideways of the chain's
-  axis also twists the bend plane a little about the new axis;
+- the chain's length after the move: a stretchy IK (Rigify's ik_stretch 0.1) sets it by the target's distance
+  (chain_steps.scale_step models it from the chain's last samples, which a move far from them leaves wrong);
+- the swing's frame before its damped track is taken to keep its rotation and scale, its head carried with what
+  the chain hangs below (Rigify's limb parent copies the root's rotation and scale): a rig whose limb parent turns
+  with the trunk;
 - an IK without a pole starts from its base control's channels each evaluation, and the plane it ends in follows
   the target's distance a little.
 """
@@ -22,11 +22,6 @@ import numpy as np
 
 from ...solver.maths import vectors as g
 from ...solver.maths.geometry import affine_inverse
-
-# A predicted chain reaching farther than this fraction of its bones' evaluated lengths is left to an evaluation:
-# the IK stretches there (or stops short), which no rigid turn predicts.
-_REACH = 0.999
-
 
 def turn_about(point, a, b):
     """4x4 rotation about ``point`` taking direction ``a`` to direction ``b`` by the least turn (a damped track),
@@ -64,19 +59,16 @@ def predicted_chain(bone, end_head, carry, end_step, length, swing=None):
     the bend plane by up to 2 cm at the elbow in a drag); None: the least turn from the old end to the new one.
     None where the IK would not just bend (the target beyond reach, a degenerate turn): the rig is evaluated
     first."""
-    base = carry @ bone
-    head = base[:3, 3]
+    head = carry[:3, :3] @ bone[:3, 3] + carry[:3, 3]
     old_end = carry[:3, :3] @ end_head + carry[:3, 3]
     new_end = end_step[:3, :3] @ end_head + end_step[:3, 3]
-    middle = base[:3, 3] + length * base[:3, 1]
-    reach = float(np.linalg.norm(middle - head) + np.linalg.norm(old_end - middle))
-    if np.linalg.norm(new_end - head) > _REACH * reach:
-        return None
     if swing is None:
         turn = turn_about(head.tolist(), (old_end - head).tolist(), (new_end - head).tolist())
         motion = None if turn is None else turn @ carry
     else:
-        tracked = _tracked(carry @ swing[1], new_end)
+        frame = swing[1].copy()  # Rigify's limb parent copies the root's rotation and scale: only its head is carried
+        frame[:3, 3] = carry[:3, :3] @ frame[:3, 3] + carry[:3, 3]
+        tracked = _tracked(frame, new_end)
         motion = None if tracked is None else tracked @ affine_inverse(swing[0])
     if motion is None:
         return None
