@@ -9,9 +9,8 @@ its bones keeping their evaluated lengths (the chain bends to reach; its length 
 the sweep's closing evaluation finds the error and the next sweep steps the chain from that evaluation:
 - the chain's length after the move: a stretchy IK (Rigify's ik_stretch 0.1) sets it by the target's distance
   (chain_steps.scale_step models it from the chain's last samples, which a move far from them leaves wrong);
-- the swing's frame before its damped track is taken to keep its rotation and scale, its head carried with what
-  the chain hangs below (Rigify's limb parent copies the root's rotation and scale): a rig whose limb parent turns
-  with the trunk;
+- the swing's frame before its damped track is carried with what the chain hangs below: a limb parent that copies
+  another bone's rotation (Rigify's FK Limb Follow above 0: a Copy Rotation of the root) turns less;
 - an IK without a pole starts from its base control's channels each evaluation, and the plane it ends in follows
   the target's distance a little.
 """
@@ -66,9 +65,7 @@ def predicted_chain(bone, end_head, carry, end_step, length, swing=None):
         turn = turn_about(head.tolist(), (old_end - head).tolist(), (new_end - head).tolist())
         motion = None if turn is None else turn @ carry
     else:
-        frame = swing[1].copy()  # Rigify's limb parent copies the root's rotation and scale: only its head is carried
-        frame[:3, 3] = carry[:3, :3] @ frame[:3, 3] + carry[:3, 3]
-        tracked = _tracked(frame, new_end)
+        tracked = _tracked(carry @ swing[1], new_end)
         motion = None if tracked is None else tracked @ affine_inverse(swing[0])
     if motion is None:
         return None
