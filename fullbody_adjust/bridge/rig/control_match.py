@@ -78,9 +78,11 @@ _CORRECTION = 1e-3
 # evaluation of the rig) on about every update: Rigify's stretchy IK answers a scaling by a share that keeps changing.
 _MIDDLE_JOINT = 10.0
 
-# Each rig's IK chains' stretch samples (chain_steps.record_stretch), {(rig's session_uid, chain's first bone): the
-# last two}, kept across calls: a Live drag's updates stand close to each other. Only which scale is tried first
-# depends on them (every sweep's closing evaluation checks); _STRETCH_RIGS bounds how many rigs are kept.
+# Each rig's IK chains' stretch samples (chain_steps.record_stretch), {rig's session_uid: {chain's first bone: the
+# last two}}, kept across the current frame's placements (a Live update's, a click's: control_channels): a Live
+# drag's updates stand close to each other. Only which scale is tried first depends on them (every sweep's closing
+# evaluation checks), but where it lands within the tolerances does: frames keyed in a row (a retarget, Adjust
+# Frames) start from none, so their keys do not depend on what ran before. _STRETCH_RIGS bounds how many rigs.
 _STRETCH = {}
 _STRETCH_RIGS = 16
 
@@ -120,12 +122,13 @@ def _pair_error(pose_bones, pair, desired, lengths):
     return _error(_matrix(pose_bones[pair.bone]), pair, chain, desired, lengths)
 
 
-def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, evaluated=False):
+def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, evaluated=False, stretch=None):
     """Place the controls of ``pairs`` so each pair's bone reaches ``desired[bone]`` (4x4 armature-space
     matrices). Evaluates the rig (``view_layer.update()``) first unless ``evaluated`` (the caller has just had it
     evaluated and changed nothing since), where the moves since the last evaluation leave a level's matrices
     unknown (module notes), and after each sweep. Returns the largest remaining bone error (armature units) of the
-    best sweep, whose channels the controls are left holding."""
+    best sweep, whose channels the controls are left holding. ``stretch``: the IK chains' stretch samples to step
+    their scales from and add to ({first bone: samples}; None: none kept)."""
     pose_bones = obj.pose.bones
     levels = sorted({p.level for p in pairs})
     by_level = [[p for p in pairs if p.level == level] for level in levels]
@@ -137,9 +140,8 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
     error = best_error = np.inf
     best = None
     scaled = {}  # scale pairs: (control's Y scale, chain length) at their last step (None: left as they are)
-    if len(_STRETCH) > 4 * _STRETCH_RIGS:
-        _STRETCH.clear()
-    samples = {p: _STRETCH.setdefault((obj.session_uid, p.bone), []) for p in pairs if p.kind == "scale"}
+    stretch = {} if stretch is None else stretch
+    samples = {p: stretch.setdefault(p.bone, []) for p in pairs if p.kind == "scale"}
     for sweep in range(max_sweeps):
         pending = []  # (pair, armature-space step) of the controls moved since the last evaluation
         corrections = set()  # pairs of ``pending`` that only corrected a chain's end (_carried_or_apart)
@@ -326,12 +328,15 @@ def control_channels(obj, view_layer, pairs, bones, desired, tolerance, rows, st
     further move is still part of the pose it shows. ``evaluated``: the rig is evaluated as it stands for the first
     row (match_controls)."""
     controls = list(dict.fromkeys(pair.control for pair in pairs))
+    if len(_STRETCH) > _STRETCH_RIGS:
+        _STRETCH.clear()
+    stretch = _STRETCH.setdefault(obj.session_uid, {}) if evaluated else {}  # module notes at _STRETCH
     out, moved = [], np.zeros(len(controls), dtype=bool)
     start_bases = None if start is None else start.channels["matrix_basis"][:, start.indices(controls)]
     for row in rows:
         before = _bases(obj, controls) if start_bases is None else start_bases[row]
         match_controls(obj, view_layer, pairs, dict(zip(bones, desired[row])), tolerance,
-                       evaluated=evaluated and not out)
+                       evaluated=evaluated and not out, stretch=stretch)
         moved |= np.abs(_bases(obj, controls) - before).max(axis=(1, 2)) > _CONTROL_MOVED
         out.append(read_channels(obj, controls, previous=out[-1] if out else None))
     return {c: {prop: np.stack([row[c][prop] for row in out]) for prop in out[0][c]}
