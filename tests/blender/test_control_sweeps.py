@@ -149,3 +149,30 @@ def test_an_ik_chain_predicted_after_its_end_moves_saves_evaluations(extension_m
         totals[predicting] = list(counts)
     assert any(used), "no chain was predicted"
     assert sum(totals[True]) < sum(totals[False]), totals
+
+
+def test_a_chain_scale_solves_its_stretch_samples(extension_module_name):
+    # chain_steps: samples (x, l) of a chain whose length over its base's scale follows a line in x give the scale
+    # at which the modelled chain has the wanted length with its end where it is; where the chain's length no
+    # longer follows the scale (a slope in logs under _SLOPE_MIN: near full stretch) there is none.
+    steps = importlib.import_module(f"{extension_module_name}.bridge.rig.chain_steps")
+    length, slope, at = 0.3, 0.12, (1.5, 1.9)  # first bone's length; l(x) = at[1] + slope (x - at[0])
+
+    def stretch(x):
+        return at[1] + slope * (x - at[0])
+
+    bone = np.eye(4)
+    end = (0.0, 0.0, 0.47)
+    d = 0.47 / length
+    samples = []
+    for x, scale in ((1.45, 1.0), (1.55, 0.98)):
+        # a chain standing at x with that scale: its end at x s c, its length s c l(x)
+        chain = (bone.tolist(), (0.0, 0.0, x * scale * length), scale * length * stretch(x))
+        steps.record_stretch(samples, chain, scale, length)
+    assert np.allclose(samples, [(1.45, stretch(1.45)), (1.55, stretch(1.55))])
+    want = 0.5651
+    scale = steps._modelled_scale(samples, (bone.tolist(), end, 0.0), want, length)
+    assert scale is not None
+    assert abs(scale * length * stretch(d / scale) - want) < 1e-9
+    steep = [(1.45, 1.0), (1.55, 1.1)]  # l' = 1 from l = 1: l - x l' < 0, the length falls as the scale grows
+    assert steps._modelled_scale(steep, (bone.tolist(), end, 0.0), want, length) is None
