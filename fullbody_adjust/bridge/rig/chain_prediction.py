@@ -3,10 +3,11 @@
 evaluation shows all three.
 
 A chain whose end control moved (and whatever carries its base: the trunk, a clavicle) is predicted from the last
-evaluation: its base carried with the control it hangs below, then turned about its first joint from the old end
-to the new one (Rigify's IK swing bone damped-tracks the IK target: the chain's IK solution rides in that frame),
-its bones keeping their evaluated lengths (the chain bends to reach; its length is unchanged). Where that is wrong,
-the sweep's closing evaluation finds the error and the next sweep steps the chain from that evaluation:
+evaluation: its base carried with the control it hangs below, then turned about its first joint as its IK swing
+turns to the new end (Rigify's swing bone damped-tracks the IK target, and the IK base hangs below it: the chain's
+IK solution rides in that frame); its length is stepped from its stretch samples (chain_steps.scale_step). A
+chain with a pole (which sets its bend plane) is not predicted. Where that is wrong, the sweep's closing
+evaluation finds the error and the next sweep steps the chain from that evaluation:
 - the chain's length after the move: a stretchy IK (Rigify's ik_stretch 0.1) sets it by the target's distance
   (chain_steps.scale_step models it from the chain's last samples, which a move far from them leaves wrong);
 - the swing's frame before its damped track is carried with what the chain hangs below: a limb parent that copies
@@ -48,25 +49,18 @@ def _tracked(frame, target):
     return None if turn is None else turn @ frame
 
 
-def predicted_chain(bone, end_head, carry, end_step, length, swing=None):
+def predicted_chain(bone, end_head, carry, end_step, swing):
     """(carry, base matrix, end head) of a chain predicted after moves (module notes): ``bone`` its first bone's
     evaluated 4x4 matrix, ``end_head`` its end bone's evaluated head, ``carry`` the motion of what its base hangs
-    below, ``end_step`` the end control's whole motion since the evaluation; the returned carry is the motion of
-    the chain's base control (the carry, then the swing's turn). ``swing``: (evaluated, unconstrained) 4x4 matrices
-    of the bone whose damped track carries the chain (Rigify's IK swing), so the turn is its own: from its
-    unconstrained frame, not from the old direction (the two differ by a twist about the new axis, which turned
-    the bend plane by up to 2 cm at the elbow in a drag); None: the least turn from the old end to the new one.
-    None where the IK would not just bend (the target beyond reach, a degenerate turn): the rig is evaluated
-    first."""
-    head = carry[:3, :3] @ bone[:3, 3] + carry[:3, 3]
-    old_end = carry[:3, :3] @ end_head + carry[:3, 3]
+    below, ``end_step`` the end control's whole motion since the evaluation, ``swing`` the (evaluated,
+    unconstrained) 4x4 matrices of the bone whose damped track carries the chain (Rigify's IK swing); the returned
+    carry is the motion of the chain's base control: the swing's, turned from its unconstrained frame carried with
+    the base (not the least turn from the old end to the new one: the two differ by a twist about the new axis,
+    which turned the bend plane by up to 2 cm at the elbow in a drag). None where the turn is degenerate (the
+    target on the swing's head, or straight behind it): the rig is evaluated first."""
     new_end = end_step[:3, :3] @ end_head + end_step[:3, 3]
-    if swing is None:
-        turn = turn_about(head.tolist(), (old_end - head).tolist(), (new_end - head).tolist())
-        motion = None if turn is None else turn @ carry
-    else:
-        tracked = _tracked(carry @ swing[1], new_end)
-        motion = None if tracked is None else tracked @ affine_inverse(swing[0])
-    if motion is None:
+    tracked = _tracked(carry @ swing[1], new_end)
+    if tracked is None:
         return None
+    motion = tracked @ affine_inverse(swing[0])
     return motion, motion @ bone, new_end

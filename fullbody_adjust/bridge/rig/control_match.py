@@ -109,7 +109,7 @@ class ControlPair:
     # The groups besides its own whose bones a move of the control moves (a TRUNK_GROUP pair's: every group).
     carries: tuple = ()
     # Bend and scale pairs: the bone whose damped track at the chain's end carries the chain's IK solution (Rigify's
-    # IK swing), for chain_prediction; None: the least turn from the old end to the new one.
+    # IK swing), for chain_prediction; None: the chain is not predicted (a pole sets its bend plane).
     swing: str = None
 
     @property
@@ -289,13 +289,14 @@ def _predicted(pair, pending, above, corrections, pose_bones, lengths, predictio
     if end_step is None:  # its end control stays, and the chain's end with it (a limb in IK: follows_control)
         end_step = np.eye(4)
     swing = pose_bones.get(pair.swing) if pair.swing else None
-    if swing is not None:
-        parent = swing.parent  # its matrix before its constraints: from its parent's and its rest relation
-        relation = parent.bone.matrix_local.inverted() @ swing.bone.matrix_local @ swing.matrix_basis
-        swing = (_matrix(swing), _matrix(parent) @ np.array(relation, dtype=np.float64))
+    if swing is None:
+        return None
+    parent = swing.parent  # its matrix before its constraints: from its parent's and its rest relation
+    relation = parent.bone.matrix_local.inverted() @ swing.bone.matrix_local @ swing.matrix_basis
+    swing = (_matrix(swing), _matrix(parent) @ np.array(relation, dtype=np.float64))
     end = _matrix(pose_bones[pair.end])[:3, 3]
     chain = chain_prediction.predicted_chain(_matrix(pose_bones[pair.bone]), end,
-                                             carry, end_step, lengths[pair.bone], swing)
+                                             carry, end_step, swing)
     if chain is None:
         return None
     predictions[pair] = chain

@@ -171,7 +171,9 @@ def control_pairs(obj, bone_map):
             # In IK alone, the end bone is where its control is, whatever the clavicle or the trunk do.
             add(f"{ik_end}.{side}", org[2], _CLAVICLE_LEVEL + 1, group=group, follows_control=mode.ik_fk == 0.0)
             bend_control = f"{pole}.{side}" if mode.pole else f"{ik_base}.{side}"
-            swing = f"MCH-{chain[0]}_ik_swing.{side}"  # damped-tracks the IK target; the IK base hangs below it
+            # The IK swing damped-tracks the IK target and the IK base hangs below it: the chain's IK solution rides in
+            # its frame (chain_prediction), but for a pole's, which sets the bend plane itself (not predicted).
+            swing = None if mode.pole else f"MCH-{chain[0]}_ik_swing.{side}"
             add(bend_control, org[0], _CLAVICLE_LEVEL + 2, end=org[2], kind="bend", group=group, swing=swing)
             # Scaled from the same evaluation as the bend: turning the chain about its axis leaves its scale.
             add(f"{ik_base}.{side}", org[0], _CLAVICLE_LEVEL + 2, end=org[2], kind="scale", group=group,
