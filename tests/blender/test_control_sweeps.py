@@ -101,3 +101,107 @@ def test_live_places_controls_as_exactly_with_fewer_evaluations(extension_module
         assert sum(totals[True]) < sum(totals[False]), totals
     else:  # FK arms: placed in one go, the one evaluation showing the result (a Live update has just evaluated)
         assert totals[True] == [1] * len(totals[True]), totals
+
+
+def test_an_ik_chain_predicted_after_its_end_moves_saves_evaluations(extension_module_name, monkeypatch):
+    """Live on a generated rig with IK arms, the left hand's target dragged: the arm's bend and scale stepped from
+    the chain predicted after its hand control's move (chain_prediction) place every ORG- bone as exactly, with
+    fewer evaluations of the rig in all than when the chain is evaluated before those steps."""
+    control_match = importlib.import_module(f"{extension_module_name}.bridge.rig.control_match")
+    match, predicted = control_match.match_controls, control_match._predicted
+    counts = []
+
+    class CountingViewLayer:
+        def __init__(self, view_layer):
+            self.view_layer = view_layer
+
+        def update(self):
+            counts[-1] += 1
+            self.view_layer.update()
+
+    def counted(obj, view_layer, pairs, desired, tolerance, **options):
+        counts.append(0)
+        error = match(obj, CountingViewLayer(view_layer), pairs, desired, tolerance, **options)
+        for bone in {p.bone for p in pairs} | {p.end for p in pairs if p.end}:
+            assert np.linalg.norm(np.array(obj.pose.bones[bone].matrix)[:3, 3] - desired[bone][:3, 3]) <= ELBOW
+        return error
+
+    monkeypatch.setattr(control_match, "match_controls", counted)
+    totals, used = {}, []
+
+    def recorded(*args):
+        carry = predicted(*args)
+        used.append(carry is not None)
+        return carry
+
+    for predicting in (True, False):
+        monkeypatch.setattr(control_match, "_predicted", recorded if predicting else (lambda *args: None))
+        bpy.ops.wm.read_homefile(use_empty=True)
+        rig = generated_rig("basic", "IK")
+        before = Pose(rig)
+        rig.fullbody_adjust.live = True
+        counts.clear()
+        for goal in _drag(rig, before, steps=8):
+            place(slot(rig, "hand.L").target, goal)
+            after = Pose(rig)  # evaluates the scene: the live handler solves
+            assert np.linalg.norm(world_head(after, "DEF-hand.L") - goal) <= REACH * before.height(), goal
+        rig.fullbody_adjust.live = False
+        totals[predicting] = list(counts)
+    assert any(used), "no chain was predicted"
+    assert sum(totals[True]) < sum(totals[False]), totals
+
+
+def test_a_chain_scale_solves_its_stretch_samples(extension_module_name):
+    # chain_steps: samples (x, l) of a chain whose length over its base's scale follows a line in x give the scale
+    # at which the modelled chain has the wanted length with its end where it is; where the chain's length no
+    # longer follows the scale (a slope in logs under _SLOPE_MIN: near full stretch) there is none.
+    steps = importlib.import_module(f"{extension_module_name}.bridge.rig.chain_steps")
+    length, slope, at = 0.3, 0.12, (1.5, 1.9)  # first bone's length; l(x) = at[1] + slope (x - at[0])
+
+    def stretch(x):
+        return at[1] + slope * (x - at[0])
+
+    bone = np.eye(4)
+    end = (0.0, 0.0, 0.47)
+    d = 0.47 / length
+    samples = []
+    for x, scale in ((1.45, 1.0), (1.55, 0.98)):
+        # a chain standing at x with that scale: its end at x s c, its length s c l(x)
+        chain = (bone.tolist(), (0.0, 0.0, x * scale * length), scale * length * stretch(x))
+        steps.record_stretch(samples, chain, scale, length)
+    assert np.allclose(samples, [(1.45, stretch(1.45)), (1.55, stretch(1.55))])
+    want = 0.5651
+    scale = steps._modelled_scale(samples, (bone.tolist(), end, 0.0), want, length)
+    assert scale is not None
+    assert abs(scale * length * stretch(d / scale) - want) < 1e-9
+    steep = [(1.45, 1.0), (1.55, 1.1)]  # l' = 1 from l = 1: l - x l' < 0, the length falls as the scale grows
+    assert steps._modelled_scale(steep, (bone.tolist(), end, 0.0), want, length) is None
+
+
+def test_pole_arms_are_placed_from_evaluations_as_exactly(extension_module_name, monkeypatch):
+    """Live on a generated rig whose arms use their pole controls, the left hand's target dragged: a chain with a
+    pole is not predicted (the pole sets its bend plane), and every ORG- bone is placed within 0.1 mm as without."""
+    control_match = importlib.import_module(f"{extension_module_name}.bridge.rig.control_match")
+    match, placed = control_match.match_controls, []
+
+    def checked(obj, view_layer, pairs, desired, tolerance, **options):
+        error = match(obj, view_layer, pairs, desired, tolerance, **options)
+        placed.append({p.control for p in pairs if p.kind == "bend"})
+        for bone in {p.bone for p in pairs} | {p.end for p in pairs if p.end}:
+            assert np.linalg.norm(np.array(obj.pose.bones[bone].matrix)[:3, 3] - desired[bone][:3, 3]) <= ELBOW
+        return error
+
+    monkeypatch.setattr(control_match, "match_controls", checked)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    rig = generated_rig("basic", "IK")
+    for side in "LR":
+        rig.pose.bones[f"upper_arm_parent.{side}"]["pole_vector"] = True
+    bpy.context.view_layer.update()
+    before = Pose(rig)
+    rig.fullbody_adjust.live = True
+    for goal in _drag(rig, before, steps=4):
+        place(slot(rig, "hand.L").target, goal)
+        after = Pose(rig)  # evaluates the scene: the live handler solves
+        assert np.linalg.norm(world_head(after, "DEF-hand.L") - goal) <= REACH * before.height(), goal
+    rig.fullbody_adjust.live = False
+    assert placed and all({"upper_arm_ik_target.L", "upper_arm_ik_target.R"} <= bends for bends in placed), placed

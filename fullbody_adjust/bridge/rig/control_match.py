@@ -35,14 +35,17 @@ limb between IK and FK) is evaluated first. Nothing here knows a rig's names: th
 which control drives which bone.
 
 Where a prediction is wrong, so that the rig is evaluated more than once: an IK chain whose end or base moved.
-Blender's IK is iterative and path dependent: Rigify's stretch (ik_stretch 0.1 on both bones) shares a stretch
-between the bones that changes with the target's distance and the base's scale (the chain length's slope against
-that scale measured from 0.02 to 1.8 over one drag), and the chain's end stops off its target (0.1 mm after a 3 cm
-move of the basic rig's hand). A chain's bend and scale are stepped from an evaluation that shows its end where it
-goes, and each further sweep (one evaluation) steps its scale again and corrects its end control by the chain's miss.
-An FK rig, and the trunk, clavicles and IK end controls of any rig, are placed from the rest relations and carried
-matrices in one go, shown by the sweep's closing evaluation. A caller that has just had the rig evaluated (a click, a
-Live update) says so, and the matching does not evaluate it first.
+Its bend plane and its length after the move are predicted (chain_prediction, whose notes say where that is
+wrong), and its bend and scale are stepped from the prediction in the sweep that moves its end. Blender's IK is
+iterative and path dependent: Rigify's stretch (ik_stretch 0.1 on both bones) shares a stretch between the bones
+that changes with the target's distance and the base's scale (the chain length's slope against that scale measured
+from 0.02 to 1.8 over one drag), and the chain's end stops off its target (0.1 mm after a 3 cm move of the basic
+rig's hand). A chain that cannot be predicted (beyond reach, a limb between IK and FK) has its bend and scale stepped
+from an evaluation that shows its end where it goes; each further sweep (one evaluation) steps its scale again and
+corrects its end control by the chain's miss. An FK rig, and the trunk, clavicles and IK end controls of any rig,
+are placed from the rest relations and carried matrices in one go, shown by the sweep's closing evaluation. A
+caller that has just had the rig evaluated (a click, a Live update) says so, and the matching does not evaluate it
+first.
 """
 
 import math
@@ -51,10 +54,11 @@ from dataclasses import dataclass
 import numpy as np
 from mathutils import Matrix
 
-from ...solver.maths import vectors as g
 from ...solver.maths.geometry import affine_inverse
 from ...solver.vocabulary import ROTATION_PROPERTY
 from ..writing.channels import continuous_rotation
+from . import chain_prediction, chain_steps
+from .chain_steps import head as _head, matrix as _matrix, tail as _tail
 
 
 # A control counts as moved when an entry of its local matrix changed by more than this: its channels are
@@ -65,11 +69,6 @@ _CONTROL_MOVED = 1e-7
 _STALLED = 0.7
 
 
-# A scale step is taken against the slope its last step measured when that step moved the control's scale by
-# more than this (in logs; float32 channels); under _SLOPE_MIN the control no longer sets the chain's length.
-_SLOPE_STEP = 1e-5
-_SLOPE_MIN = 0.2
-
 # After a sweep's closing evaluation, an IK chain's end control moved by at most this fraction of its bone's length
 # only corrects the chain's miss: its bend and scale are stepped from that evaluation, not from one more.
 _CORRECTION = 1e-3
@@ -78,6 +77,14 @@ _CORRECTION = 1e-3
 # solve's tolerance: 0.1 mm at the default 1e-5 m, what the deform bones are held to. Its last tenth cost a sweep (an
 # evaluation of the rig) on about every update: Rigify's stretchy IK answers a scaling by a share that keeps changing.
 _MIDDLE_JOINT = 10.0
+
+# Each rig's IK chains' stretch samples (chain_steps.record_stretch), {rig's session_uid: {chain's first bone: the
+# last two}}, kept across the current frame's placements (a Live update's, a click's: control_channels): a Live
+# drag's updates stand close to each other. Only which scale is tried first depends on them (every sweep's closing
+# evaluation checks), but where it lands within the tolerances does: frames keyed in a row (a retarget, Adjust
+# Frames) start from none, so their keys do not depend on what ran before. _STRETCH_RIGS bounds how many rigs.
+_STRETCH = {}
+_STRETCH_RIGS = 16
 
 # The group of the trunk's pairs that carry the whole body: a move of one carries every limb.
 TRUNK_GROUP = "trunk"
@@ -101,85 +108,27 @@ class ControlPair:
     follows_control: bool = False
     # The groups besides its own whose bones a move of the control moves (a TRUNK_GROUP pair's: every group).
     carries: tuple = ()
+    # Bend and scale pairs: the bone whose damped track at the chain's end carries the chain's IK solution (Rigify's
+    # IK swing), for chain_prediction; None: the chain is not predicted (a pole sets its bend plane).
+    swing: str = None
 
     @property
     def bends(self):
         return self.kind == "bend"
 
 
-def _matrix(pose_bone):
-    return np.array(pose_bone.matrix, dtype=np.float64)
-
-
-def _head(m):
-    """A bone's head from its 4x4 matrix ``m`` as nested lists. Plain floats: with numpy's per-call cost on each
-    4x4 matrix, these errors took half the matching's time outside Blender's evaluations."""
-    return (m[0][3], m[1][3], m[2][3])
-
-
-def _tail(m, length):
-    """A bone's tail (the chain's middle joint for a chain's first bone): head + length * its Y axis."""
-    return (m[0][1] * length + m[0][3], m[1][1] * length + m[1][3], m[2][1] * length + m[2][3])
-
-
 def _pair_error(pose_bones, pair, desired, lengths):
-    return _error(_matrix(pose_bones[pair.bone]), pair, pose_bones, desired, lengths)
+    chain = chain_steps.chain_of(pose_bones, pair, lengths)
+    return _error(_matrix(pose_bones[pair.bone]), pair, chain, desired, lengths)
 
 
-def _bend_plane(pose_bones, pair, desired, lengths):
-    """(base, axis, now, want) of a bend pair: the chain's first joint, its unit axis (to the end bone's head)
-    and the evaluated and desired middle joints' offsets from that axis, or None when the axis or either offset
-    is degenerate (a straight chain has no bend plane to turn). Plain floats (numpy's per-call cost on
-    3-vectors made a bend step cost 0.15 ms)."""
-    length = lengths[pair.bone]
-    bone = _matrix(pose_bones[pair.bone]).tolist()
-    base = _head(bone)
-    axis = g.sub(_head(_matrix(pose_bones[pair.end]).tolist()), base)
-    size = g.norm(axis)
-    if size <= 1e-9 * length:
-        return None
-    axis = g.divided(axis, size)
-    now = g.sub(_tail(bone, length), base)
-    want = g.sub(_tail(desired[pair.bone].tolist(), length), base)
-    now = g.sub(now, g.scaled(axis, g.dot(now, axis)))
-    want = g.sub(want, g.scaled(axis, g.dot(want, axis)))
-    if min(g.norm(now), g.norm(want)) <= 1e-9 * length:
-        return None
-    return base, axis, now, want
-
-
-def _bend_angle(plane):
-    _base, axis, now, want = plane
-    return math.atan2(g.dot(g.cross(now, want), axis), g.dot(now, want))
-
-
-def _bend_error(pose_bones, pair, desired, lengths):
-    """How far a bend pair's middle joint is turned from the desired one about the chain's axis: the arc at the
-    desired joint's distance from the axis (what a bend step removes). Its distance from the axis and along
-    it are not the bend's: a stretchy IK (Rigify's) shares its stretch between its two bones as its solver
-    finds, and no control sets that share (the first bone's scale is the scale pair's)."""
-    plane = _bend_plane(pose_bones, pair, desired, lengths)
-    return 0.0 if plane is None else abs(_bend_angle(plane)) * g.norm(plane[3])
-
-
-def _bend_step(pose_bones, pair, desired, lengths):
-    """The rotation (4x4, about the chain's axis through its first joint) taking the evaluated middle joint
-    towards the desired one, or None when the axis is degenerate."""
-    plane = _bend_plane(pose_bones, pair, desired, lengths)
-    if plane is None:
-        return None
-    base, axis = plane[0], plane[1]
-    turn = g.rotation_about(axis, _bend_angle(plane))  # about the base: x -> R (x - base) + base
-    shift = [b - g.dot(row, base) for row, b in zip(turn, base)]
-    return np.array([[*turn[0], shift[0]], [*turn[1], shift[1]], [*turn[2], shift[2]], [0.0, 0.0, 0.0, 1.0]])
-
-
-def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, evaluated=False):
+def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, evaluated=False, stretch=None):
     """Place the controls of ``pairs`` so each pair's bone reaches ``desired[bone]`` (4x4 armature-space
     matrices). Evaluates the rig (``view_layer.update()``) first unless ``evaluated`` (the caller has just had it
     evaluated and changed nothing since), where the moves since the last evaluation leave a level's matrices
     unknown (module notes), and after each sweep. Returns the largest remaining bone error (armature units) of the
-    best sweep, whose channels the controls are left holding."""
+    best sweep, whose channels the controls are left holding. ``stretch``: the IK chains' stretch samples to step
+    their scales from and add to ({first bone: samples}; None: none kept)."""
     pose_bones = obj.pose.bones
     levels = sorted({p.level for p in pairs})
     by_level = [[p for p in pairs if p.level == level] for level in levels]
@@ -191,32 +140,44 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
     error = best_error = np.inf
     best = None
     scaled = {}  # scale pairs: (control's Y scale, chain length) at their last step (None: left as they are)
+    stretch = {} if stretch is None else stretch
+    samples = {p: stretch.setdefault(p.bone, []) for p in pairs if p.kind == "scale"}
     for sweep in range(max_sweeps):
         pending = []  # (pair, armature-space step) of the controls moved since the last evaluation
         corrections = set()  # pairs of ``pending`` that only corrected a chain's end (_carried_or_apart)
         for level_pairs in by_level:
             carries = [_carried_or_apart(pair, pending, above, corrections) if pending else None
                        for pair in level_pairs]
+            predictions = {}
+            if pending:
+                carries = [carry if carry is not None or pair.kind == "rigid"
+                           else _predicted(pair, pending, above, corrections, pose_bones, lengths, predictions)
+                           for pair, carry in zip(level_pairs, carries)]
             if pending and any(carry is None for carry in carries):
                 view_layer.update()
                 pending = []
                 corrections.clear()
+                predictions.clear()
                 carries = [None] * len(level_pairs)
             moves, scales = [], []
             for pair, carry in zip(level_pairs, carries):
                 bone = _matrix(pose_bones[pair.bone])
                 if carry is not None:
                     bone = carry @ bone
-                if _error(bone, pair, pose_bones, desired, lengths) <= _tolerance(pair, tolerance):
+                chain = chain_steps.chain_of(pose_bones, pair, lengths, predictions.get(pair))
+                if pair in samples and pair not in predictions:
+                    _record(pose_bones, pair, chain, lengths, samples)
+                if _error(bone, pair, chain, desired, lengths) <= _tolerance(pair, tolerance):
                     continue
                 control = pose_bones[pair.control]
                 if pair.kind == "scale":
-                    scale = _scale_step(pair, control, pose_bones, desired, lengths, scaled)
+                    scale = chain_steps.scale_step(pair, control, chain, desired, lengths, scaled, pair in predictions,
+                                                   samples[pair])
                     if scale is not None:
                         scales.append((control, scale))
                     continue
                 if pair.bends:
-                    step = _bend_step(pose_bones, pair, desired, lengths)
+                    step = chain_steps.bend_step(chain, pair, desired, lengths)
                     if step is None:
                         continue
                 else:
@@ -250,6 +211,8 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
         if pending:
             view_layer.update()
         errors = [_pair_error(pose_bones, p, desired, lengths) for p in pairs]
+        for pair in samples:
+            _record(pose_bones, pair, chain_steps.chain_of(pose_bones, pair, lengths), lengths, samples)
         previous, error = error, max(errors)
         if error < best_error:
             best_error, best = error, read_channels(obj, controls)
@@ -263,52 +226,16 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
     return best_error
 
 
-def _chain_length(bone, end, length):
-    """A two-bone chain's length from its first bone's matrix ``bone`` (its head, and its tail: the middle joint)
-    and its end bone's ``end`` (its head), as nested lists."""
-    middle = _tail(bone, length)
-    return math.dist(_head(bone), middle) + math.dist(middle, _head(end))
-
-
-def _scale_lengths(pose_bones, pair, desired, lengths):
-    """A scale pair's chain length (_chain_length) as evaluated and as desired."""
-    length = lengths[pair.bone]
-    now = _chain_length(_matrix(pose_bones[pair.bone]).tolist(), _matrix(pose_bones[pair.end]).tolist(), length)
-    return now, _chain_length(desired[pair.bone].tolist(), desired[pair.end].tolist(), length)
-
-
-def _scale_step(pair, control, pose_bones, desired, lengths, scaled):
-    """A scale pair's new control scale (3,): its current one times the chain's desired over its evaluated length,
-    that ratio raised to 1 / the slope the last step measured (how much of a control's scaling reached the chain,
-    in logs: a stretchy IK undoes part of it, on Rigify's limbs about two thirds, which left 0.65 of the error
-    after each step), at most 1. None once a step measured a slope under _SLOPE_MIN: near full stretch the IK
-    stretches the chain to its end whatever its base's scale (a straight arm's length stayed 0.1 mm long over
-    six sweeps, the control's scaling reaching it less each time), and the control is left as it is.
-    ``scaled`` keeps each pair's last step (None: left)."""
-    last = scaled.get(pair, ())
-    if last is None:
-        return None
-    now, want = _scale_lengths(pose_bones, pair, desired, lengths)
-    current = np.array(control.scale, dtype=np.float64)
-    ratio = math.log(want / now)
-    scaled[pair] = (current[1], now)
-    if last:
-        moved = math.log(current[1] / last[0])
-        if abs(moved) > _SLOPE_STEP:
-            slope = math.log(now / last[1]) / moved
-            if slope < _SLOPE_MIN:
-                scaled[pair] = None
-                return None
-            ratio /= min(slope, 1.0)
-    return current * math.exp(ratio)
-
-
 def _set_channels(obj, channels):
     """Put back channels as read_channels read them (RNA sets: Blender evaluates the rig again)."""
     for name, props in channels.items():
         pose_bone = obj.pose.bones[name]
         for prop, value in props.items():
             setattr(pose_bone, prop, value.tolist())
+
+
+def _record(pose_bones, pair, chain, lengths, samples):
+    chain_steps.record_stretch(samples[pair], chain, pose_bones[pair.control].scale[1], lengths[pair.bone])
 
 
 def _tolerance(pair, tolerance):
@@ -342,22 +269,53 @@ def _carried_or_apart(pair, pending, above, corrections=()):
     return carry
 
 
+def _predicted(pair, pending, above, corrections, pose_bones, lengths, predictions):
+    """The carry of a bend or scale pair's control after the moves ``pending`` when its chain can be predicted
+    (chain_prediction: the moves of its limb are its end control's and those of what its base hangs below), the
+    prediction kept in ``predictions``; else None (the rig is evaluated first)."""
+    carry, end_step = np.eye(4), None
+    for moved, step in pending:
+        groups = (moved.group, pair.group)
+        if None in groups:
+            return None
+        if moved.group not in (pair.group, TRUNK_GROUP) and pair.group not in moved.carries:
+            continue
+        if moved.group == pair.group and moved.follows_control and moved.bone == pair.end:
+            end_step = step  # its whole motion since the evaluation
+        elif {moved.control, moved.bone} & above[pair.control]:
+            carry = step
+        elif moved not in corrections or moved.group != pair.group:
+            return None
+    if end_step is None:  # its end control stays, and the chain's end with it (a limb in IK: follows_control)
+        end_step = np.eye(4)
+    swing = pose_bones.get(pair.swing) if pair.swing else None
+    if swing is None:
+        return None
+    parent = swing.parent  # its matrix before its constraints: from its parent's and its rest relation
+    relation = parent.bone.matrix_local.inverted() @ swing.bone.matrix_local @ swing.matrix_basis
+    swing = (_matrix(swing), _matrix(parent) @ np.array(relation, dtype=np.float64))
+    end = _matrix(pose_bones[pair.end])[:3, 3]
+    chain = chain_prediction.predicted_chain(_matrix(pose_bones[pair.bone]), end,
+                                             carry, end_step, swing)
+    if chain is None:
+        return None
+    predictions[pair] = chain
+    return chain[0]
+
+
 def _moved_by(step, pose_bone):
     """How far the armature-space motion ``step`` (4x4) moves ``pose_bone``'s evaluated head."""
     head = _matrix(pose_bone)[:3, 3]
     return float(np.linalg.norm(step[:3, :3] @ head + step[:3, 3] - head))
 
 
-def _error(bone, pair, pose_bones, desired, lengths):
-    """_pair_error from the bone's (possibly carried) matrix ``bone``: a scale pair's chain length error, a bend
-    pair's turn as _bend_error measures it (both from the evaluated rig: they are never carried), else the larger
-    of the head's and the tail's distances."""
-    if pair.bends:
-        return _bend_error(pose_bones, pair, desired, lengths)
+def _error(bone, pair, chain, desired, lengths):
+    """_pair_error from the bone's (possibly carried) matrix ``bone``; a bend or scale pair's from ``chain``
+    (chain_steps.chain_of: evaluated or predicted, never carried). A rigid pair's: the larger of its head's and
+    its tail's distances."""
+    if pair.kind != "rigid":
+        return chain_steps.chain_error(chain, pair, desired, lengths)
     b, d, length = bone.tolist(), desired[pair.bone].tolist(), lengths[pair.bone]
-    if pair.kind == "scale":
-        now, want = _scale_lengths(pose_bones, pair, desired, lengths)
-        return abs(now - want)
     return max(math.dist(_head(b), _head(d)), math.dist(_tail(b, length), _tail(d, length)))
 
 
@@ -371,12 +329,15 @@ def control_channels(obj, view_layer, pairs, bones, desired, tolerance, rows, st
     further move is still part of the pose it shows. ``evaluated``: the rig is evaluated as it stands for the first
     row (match_controls)."""
     controls = list(dict.fromkeys(pair.control for pair in pairs))
+    if len(_STRETCH) > _STRETCH_RIGS:
+        _STRETCH.clear()
+    stretch = _STRETCH.setdefault(obj.session_uid, {}) if evaluated else {}  # module notes at _STRETCH
     out, moved = [], np.zeros(len(controls), dtype=bool)
     start_bases = None if start is None else start.channels["matrix_basis"][:, start.indices(controls)]
     for row in rows:
         before = _bases(obj, controls) if start_bases is None else start_bases[row]
         match_controls(obj, view_layer, pairs, dict(zip(bones, desired[row])), tolerance,
-                       evaluated=evaluated and not out)
+                       evaluated=evaluated and not out, stretch=stretch)
         moved |= np.abs(_bases(obj, controls) - before).max(axis=(1, 2)) > _CONTROL_MOVED
         out.append(read_channels(obj, controls, previous=out[-1] if out else None))
     return {c: {prop: np.stack([row[c][prop] for row in out]) for prop in out[0][c]}

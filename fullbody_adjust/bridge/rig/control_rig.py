@@ -149,9 +149,10 @@ def control_pairs(obj, bone_map):
     mapped = {bone for _group, bone in bone_map.items()}
     pairs = []
 
-    def add(control, bone, level, end=None, kind="rigid", group=None, follows_control=False, carries=()):
+    def add(control, bone, level, end=None, kind="rigid", group=None, follows_control=False, carries=(), swing=None):
         if control in bones and bone in mapped:
-            pairs.append(ControlPair(control, bone, level, end, kind, group, follows_control, carries))
+            swing = swing if swing and swing in bones and bones[swing].parent is not None else None
+            pairs.append(ControlPair(control, bone, level, end, kind, group, follows_control, carries, swing))
 
     for name, (control, level, group, carries) in _TRUNK.items():
         add(control, ORG + name, level, group=group, carries=carries)
@@ -170,7 +171,11 @@ def control_pairs(obj, bone_map):
             # In IK alone, the end bone is where its control is, whatever the clavicle or the trunk do.
             add(f"{ik_end}.{side}", org[2], _CLAVICLE_LEVEL + 1, group=group, follows_control=mode.ik_fk == 0.0)
             bend_control = f"{pole}.{side}" if mode.pole else f"{ik_base}.{side}"
-            add(bend_control, org[0], _CLAVICLE_LEVEL + 2, end=org[2], kind="bend", group=group)
+            # The IK swing damped-tracks the IK target and the IK base hangs below it: the chain's IK solution rides in
+            # its frame (chain_prediction), but for a pole's, which sets the bend plane itself (not predicted).
+            swing = None if mode.pole else f"MCH-{chain[0]}_ik_swing.{side}"
+            add(bend_control, org[0], _CLAVICLE_LEVEL + 2, end=org[2], kind="bend", group=group, swing=swing)
             # Scaled from the same evaluation as the bend: turning the chain about its axis leaves its scale.
-            add(f"{ik_base}.{side}", org[0], _CLAVICLE_LEVEL + 2, end=org[2], kind="scale", group=group)
+            add(f"{ik_base}.{side}", org[0], _CLAVICLE_LEVEL + 2, end=org[2], kind="scale", group=group,
+                swing=swing)
     return pairs
