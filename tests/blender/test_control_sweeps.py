@@ -17,6 +17,17 @@ from .test_rigify import generated_rig, world_head
 ELBOW = 1e-4
 
 
+class CountingViewLayer:
+    """A view layer whose updates (evaluations of the rig) are counted in ``counts[-1]``."""
+
+    def __init__(self, view_layer, counts):
+        self.view_layer, self.counts = view_layer, counts
+
+    def update(self):
+        self.counts[-1] += 1
+        self.view_layer.update()
+
+
 def test_a_chain_end_correction_leaves_its_bend_and_scale_to_the_last_evaluation(extension_module_name):
     # _carried_or_apart: a move of an arm's IK end control marked as a correction leaves that arm's bend and scale
     # pairs placed from the last evaluation (the identity); the same move unmarked asks for an evaluation (None),
@@ -59,18 +70,10 @@ def test_live_places_controls_as_exactly_with_fewer_evaluations(extension_module
     match = control_match.match_controls
     counts, placed = [], []
 
-    class CountingViewLayer:
-        def __init__(self, view_layer):
-            self.view_layer = view_layer
-
-        def update(self):
-            counts[-1] += 1
-            self.view_layer.update()
-
     def counted(obj, view_layer, pairs, desired, tolerance, **options):
         counts.append(0)
         placed.append((pairs, desired, tolerance))
-        return match(obj, CountingViewLayer(view_layer), pairs, desired, tolerance, **options)
+        return match(obj, CountingViewLayer(view_layer, counts), pairs, desired, tolerance, **options)
 
     monkeypatch.setattr(control_match, "match_controls", counted)
     totals = {}
@@ -111,17 +114,9 @@ def test_an_ik_chain_predicted_after_its_end_moves_saves_evaluations(extension_m
     match, predicted = control_match.match_controls, control_match._predicted
     counts = []
 
-    class CountingViewLayer:
-        def __init__(self, view_layer):
-            self.view_layer = view_layer
-
-        def update(self):
-            counts[-1] += 1
-            self.view_layer.update()
-
     def counted(obj, view_layer, pairs, desired, tolerance, **options):
         counts.append(0)
-        error = match(obj, CountingViewLayer(view_layer), pairs, desired, tolerance, **options)
+        error = match(obj, CountingViewLayer(view_layer, counts), pairs, desired, tolerance, **options)
         for bone in {p.bone for p in pairs} | {p.end for p in pairs if p.end}:
             assert np.linalg.norm(np.array(obj.pose.bones[bone].matrix)[:3, 3] - desired[bone][:3, 3]) <= ELBOW
         return error
