@@ -5,14 +5,13 @@ target's own F-Curves as they were, key for key. The groups' bones are solver.re
 
 The object's own keys are kept too (an earlier 'object' root motion's travel, or the user's): where they move it,
 the carried bones are keyed so that they end in the world where the solve put them, the object moving under them
-(``under_moving_object``), not with its travel added to the solve's."""
+(``own_motion``), not with its travel added to the solve's."""
 
 import re
 
 import bpy
 import numpy as np
 
-from ...solver.retarget.root_motion import residual
 from ..errors import AdjustError
 from ..reading import pose
 from ..rig import control_rig
@@ -31,22 +30,19 @@ def check_partial(target_obj):
 
 def own_motion(obj, rig, frames):
     """The target's own motion at ``frames``, read before a partial retarget replaces its action: (pose matrices
-    (F,J,4,4) in its armature space, its world matrix on each frame (F,4,4), or None where the object stands still
-    over the frames)."""
+    (F,J,4,4) in its armature space, and where its object moves over the frames, how: (F,4,4) left factors taking
+    the armature space of ``rig``'s world matrix, which the solve works in, to the object's on each frame; else
+    None). A pose solved in ``rig``'s space keyed as solver.retarget.root_motion.residual of it ends in the world
+    where solved, the object moving under it: only the topmost bones' keys change (a common left factor leaves
+    every bone's local transform under its parent as it was)."""
     moved = obj.parent is not None or any(c.enabled for c in obj.constraints) or any(
         not fc.data_path.startswith("pose.bones[") for fc in keyframes.animating_fcurves(obj))
     if not moved:
         return read_motion(obj, rig, frames)[0], None
     snapshot = pose.read_pose_frames(obj, frames)
     worlds = np.asarray(snapshot.matrix_world, dtype=np.float64)
-    return snapshot.pose_matrices, (None if np.all(worlds == worlds[:1]) else worlds)
-
-
-def under_moving_object(posed, world, worlds):
-    """A partial retarget's pose ``posed`` (F,J,4,4), solved in the armature space of ``world`` (4,4), as keyed
-    on an object at ``worlds`` (F,4,4) on each frame: the same world matrices. (Only the topmost carried bones'
-    keys change: a common left factor leaves every bone's local transform under its parent as it was.)"""
-    return residual(np.linalg.inv(world) @ worlds, posed)
+    still = np.all(worlds == worlds[:1])
+    return snapshot.pose_matrices, (None if still else np.linalg.inv(rig.matrix_world) @ worlds)
 
 
 def action_without(obj, name, bone_names):

@@ -40,6 +40,7 @@ from .write import write_pose
 from . import partial
 from . import root_motion as root_travel
 from ...solver.retarget import mirror as mirroring, partial as partial_groups
+from ...solver.retarget.root_motion import residual
 
 _REFITS = 2  # solves after the first, at most, with the feet held as the solve shaped them
 
@@ -181,16 +182,16 @@ def retarget(context, source_obj, target_obj, frame_start=None, frame_end=None, 
         action, keyed = root_travel.write(context, root_request, target_obj, target, posed, prepared.frames, name,
                                           plan.carried, plan.ground)
     else:
-        own, worlds = partial.own_motion(target_obj, target, prepared.frames)  # before it is replaced
+        own, moving = partial.own_motion(target_obj, target, prepared.frames)  # before it is replaced
         standing = root_travel.standing_basis(target_obj)
-        if worlds is not None:  # its object's own keys move it: the carried bones keyed to end where solved
-            posed = partial.under_moving_object(posed, target.matrix_world, worlds)
+        if moving is not None:  # its object's own keys move it: the carried bones keyed to end where solved
+            posed = residual(moving, posed)
         action, keyed = write_pose(context, target_obj, target, posed, prepared.frames, name, plan.carried, only)
         root_travel.record_standing(target_obj, action, standing)  # the copy keeps the object's keys
         # contacts measured on the motion written: the groups carried on the target's own
         posed = partial_groups.combined_pose(target, posed, own, only)
-        if worlds is not None:
-            posed = (np.linalg.inv(target.matrix_world) @ worlds)[:, None] @ posed
+        if moving is not None:
+            posed = moving[:, None] @ posed
     progress("done", 1.0)
 
     wrists = np.stack([model.limbs[LIMB_OF_EFFECTOR[e]].end_point(result.heads, result.tails) for e in rt.EFFECTORS],

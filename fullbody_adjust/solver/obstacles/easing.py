@@ -53,12 +53,9 @@ class ClearanceEasing:
             rows = rows[self._swivels(t, rows)]
             if not rows.size:
                 continue
-            boxes = self._margin_boxes(t.rows[rows])
-            now = depth_in_boxes(self._surface_points(t, rows, r.positions[rows][:, None]), boxes)[:, 0]
-            rows, now = rows[now > 0], now[now > 0]
-            if rows.size:  # how deep in the obstacles themselves, then in the margin round them
-                now = np.stack([depth_in_boxes(self._surface_points(t, rows, r.positions[rows][:, None]),
-                                               self.p.obstacles.select(t.rows[rows]))[:, 0], now], axis=-1)
+            now = self._depths(t, rows, r.positions[rows][:, None])[:, 0]
+            inside = now[:, 1] > 0  # in the margin round a box (its surface in the box itself too, if there)
+            rows, now = rows[inside], now[inside]
             if rows.size:
                 every = np.repeat(rows, len(ANGLES))
                 starts = swivel_starts(t.start[rows], t.targets[rows]).reshape(-1, *t.start.shape[1:])
@@ -79,9 +76,7 @@ class ClearanceEasing:
             clear = (redo.status == "reached").reshape(len(rows), k) \
                 & ~points_inside(joints, boxes).any(axis=(2, 3)) \
                 & ~segments_cross(joints[:, :, :-1], joints[:, :, 1:], boxes).any(axis=(2, 3))
-            points = self._surface_points(t, rows, joints)
-            depth = np.where(clear[..., None], np.stack([depth_in_boxes(points, self.p.obstacles.select(t.rows[rows])),
-                                                         depth_in_boxes(points, boxes)], axis=-1), np.inf)
+            depth = np.where(clear[..., None], self._depths(t, rows, joints), np.inf)
             moved = norm(joints - r.positions[rows][:, None]).sum(axis=-1)
             best = _first_least(depth, moved)
             chosen = depth[np.arange(len(rows)), best]
@@ -97,6 +92,14 @@ class ClearanceEasing:
         """The obstacle boxes of `frames` grown by the margin (per problem)."""
         boxes = self.p.obstacles.select(frames)
         return boxes.grown(np.full((len(frames), len(boxes)), self.p.settings.chain.margin))
+
+    def _depths(self, task, rows, chains):
+        """(b,k,2): how deep the surface of `task`'s rows `rows` on chains (b,k,n,3) lies in the obstacles
+        themselves, and in them grown by the margin (surface.depth_in_boxes)."""
+        frames = task.rows[rows]
+        points = self._surface_points(task, rows, chains)
+        return np.stack([depth_in_boxes(points, self.p.obstacles.select(frames)),
+                         depth_in_boxes(points, self._margin_boxes(frames))], axis=-1)
 
     def _surface_points(self, task, rows, chains):
         """surface.posed_points of `task`'s rows `rows` on chains (b,k,n,3), turned as the bones are written
