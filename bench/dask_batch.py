@@ -3,8 +3,9 @@
 Clips: 12 cuts of 50-300 frames from the CMU clips in tests/data/mocap (bench/batch_many.py's character: the
 Rigify basic human metarig in a .blend at 120 fps, so a clip's frames are its own; contacts on the ground).
 Cluster: `python -m distributed.cli.dask_scheduler` and N `python -m distributed.cli.dask_worker ADDRESS
---nthreads 1` of this Python on 127.0.0.1 (tests/helpers/dask_cluster.py), started before the batch is timed
-(a cluster runs on; its workers start their clip workers within the timed batch, as --jobs does).
+--nthreads 1` of this Python on 127.0.0.1 (tests/helpers/dask_cluster.py), started, with every worker joined,
+before the batch is timed (a cluster runs on; its workers start their clip workers within the timed batch, as
+--jobs does).
 
   each run   `python -m fullbody_adjust retarget hero.blend --target Hero --source-file CLIPS --output-dir D
              (--jobs J | --scheduler ADDRESS)` in a subprocess, timed end to end (worker start, import, retarget,
@@ -85,6 +86,7 @@ def measure(args):
             folder.mkdir()
             cluster = Cluster(folder, workers)
             try:
+                cluster.ready()
                 load = os.getloadavg()[0]
                 seconds, report = run_batch(character, work / "clips", work / f"dask{workers}",
                                             work / f"dask{workers}.json", ["--scheduler", cluster.address])

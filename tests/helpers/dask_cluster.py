@@ -27,6 +27,14 @@ class Cluster:
                                     "--nworkers", "1", *common) for _ in range(workers)]
         self.processes += self.workers
 
+    def ready(self, timeout=60.0):
+        """Wait until every worker has joined the scheduler (a cluster that runs on has them all before a batch)."""
+        import distributed
+
+        with distributed.Client(self.address, timeout=timeout, set_as_default=False) as client:
+            client.wait_for_workers(len(self.workers), timeout=timeout)
+        return self
+
     def _address(self, deadline):
         """The scheduler's address, from its file once written whole."""
         while time.monotonic() < deadline:
