@@ -8,7 +8,7 @@ from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, St
 
 from .bridge import adjustment, live
 from .bridge import files as batch
-from .bridge.rig import mapping
+from .bridge.rig import mapping, target_empties
 from .bridge.retarget import run as retarget
 from .bridge.retarget.mirror import mirror_armature_pose
 from .solver.retarget.root_motion import DEFAULT_SMOOTHING
@@ -137,7 +137,7 @@ class FULLBODY_ADJUST_OT_create_targets(ArmatureOperator, bpy.types.Operator):
                         description="Move existing target empties back to the current wrists and ankles")
 
     def execute(self, context):
-        created = self.run(context, lambda: adjustment.create_targets(context, context.active_object,
+        created = self.run(context, lambda: target_empties.create_targets(context, context.active_object,
                                                                         reset=self.reset))
         if created is None:
             return {'CANCELLED'}

@@ -11,29 +11,21 @@ outcome.py's.
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 
-import bpy
 import numpy as np
 
 from ..solver import ChainSettings, SolverInputError
 from ..solver.fullbody.adjust import AdjustSettings, adjust_frames as solve_frames
 from ..solver.fullbody.settings import UNCONSTRAINED
-from ..solver.body.model import LIMB_OF_EFFECTOR
 from ..solver.maths.geometry import affine_inverse, norm
-from ..solver.body.joint_ends import end_points
 from ..solver.obstacles.reach import body_reach, skeleton_reach
-from ..solver.obstacles.boxes import penetrations
 from .rig import control_rig, rig_cache, targets
-from .reading import frames as frames_module, ik_limits, limb_thickness, obstacles, pose, solve_space, start_checks
-from .writing import keyframes
+from .reading import effectors, frames as frames_module, goals as goals_of, ik_limits, limb_thickness, obstacles, pose
+from .reading import solve_space, start_checks
+from .writing import keyframes, solved_pose
 from .writing.channels import apply_channels, armature_rotations_to_channels
 from .rig.control_match import control_channels
 from .errors import AdjustError
 from .outcome import Outcome
-
-
-# A bone counts as moved when its rotation changed by more than this (radians, about) or its head moved by
-# more than this fraction of the rig's size: below it, a key would only record float noise.
-_MOVED = 1e-9
 
 
 @dataclass(frozen=True)
@@ -96,7 +88,7 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
     if apply_pose:
         # The current frame as the user sees it. Stepping to it with frame_set would evaluate the animation
         # again and throw away pose changes not keyed yet, even when the run then fails.
-        goals = _current_targets(obj, context, options.skip_missing_targets)
+        goals = goals_of.current_targets(obj, context, options.skip_missing_targets)
         corners = (obstacles.obstacle_boxes(obj, context) if corners is None else corners)[None]
         snapshot = pose.as_batch(pose.read_pose(obj, rig.static(obj)) if start is None else start)
     else:
@@ -124,13 +116,13 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
     # snapshot until its frame or base pose changes).
     snapshot.derived("checked", lambda: start_checks.check_start(obj, model, snapshot), of=model)
     start_checks.check_target_distances(obj, world_targets, snapshot)
-    priorities = _priorities(obj)
+    priorities = goals_of.priorities(obj)
     progress("solving", 0.3)
 
     to_solve, heads, tails, unit = snapshot.derived("solve space", lambda: solve_space.solve_space(snapshot, rig.ends),
                                                     of=rig)
     arm_targets = solve_space.transform(to_solve, world_targets)
-    end_turns, poles = _end_goals(obj, model, snapshot, goals, to_solve)
+    end_turns, poles = goals_of.end_goals(obj, model, snapshot, goals, to_solve)
     scales = snapshot.derived("object scales", lambda: solve_space.object_scales(snapshot))
     solve_settings = solve_space.in_solve_units(settings, scales, unit)
     boxes = None
@@ -151,20 +143,21 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
             model, snapshot.rest_matrices, snapshot.pose_matrices, rig.rest_hinges), of=model)
         limits = ik_limits.joint_limits(obj, model, heads, tails, snapshot.pose_matrices, settings,
                                         controls=rig.fk_controls, hinge_axes=hinges)
-        served = _served(obj, model, world_targets)
-        result = solve_frames(model, heads, tails, arm_targets[:, served], _columns(targets.EFFECTORS, served),
+        served = goals_of.served(obj, model, world_targets)
+        result = solve_frames(model, heads, tails, arm_targets[:, served],
+                              goals_of.columns(targets.EFFECTORS, served),
                               priorities[served], obstacles=boxes, settings=solve_settings,
                               bone_x_axes=hinges, limits=limits,
                               end_turns=None if end_turns is None else end_turns[:, served],
                               poles=None if poles is None else poles[:, served])
     except SolverInputError as ex:
         raise AdjustError(f"Cannot adjust '{obj.name}': {ex}") from None
-    status, reasons = (_widened(values, served, fill) for values, fill in
+    status, reasons = (goals_of.widened(values, served, fill) for values, fill in
                        ((result.status, UNCONSTRAINED), (result.reasons, "no target on this frame")))
     progress("writing", 0.8)
 
     oriented = goals.oriented.any(axis=0)  # (E,) effectors that take their target's orientation
-    written = _bones_to_write(model, snapshot, result, unit, keep_hands, oriented)
+    written = solved_pose.bones_to_write(model, snapshot, result, unit, keep_hands, oriented)
     names = tuple(snapshot.names[j] for j in written)
     action = None
     if controlled and names:
@@ -177,7 +170,7 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
         # Both writers check all their input before writing any of it; the channels come from the snapshot
         # just read, so once keying has started the pose write cannot fail.
         channels = armature_rotations_to_channels(obj, snapshot,
-                                                  _new_pose_matrices(snapshot, result, unit, written), names)
+                                                  solved_pose.new_pose_matrices(snapshot, result, unit, written), names)
         if options.insert_keys:
             action = keyframes.key_bones_frames(obj, None, frames, channels, action_name=options.new_action)
         if apply_pose:
@@ -195,25 +188,16 @@ def _run(context, obj, frames, options, *, apply_pose, progress=None, start=None
         heads[0, ends] = pose.evaluated_heads(obj, [model.names[j] for j in ends])
         wrists = [limb.bones[-1] for limb in limbs if limb.end_bone is None]
         if wrists:
-            tails[0, wrists] = _evaluated_ends(obj, rig, wrists)
-        world_effectors = _effector_positions(model, heads, tails, np.eye(4)[None])
+            tails[0, wrists] = effectors.evaluated_ends(obj, rig, wrists)
+        world_effectors = effectors.effector_positions(model, heads, tails, np.eye(4)[None])
     else:
-        world_effectors = _effector_positions(model, solve_space.armature_units(result.heads, unit),
+        world_effectors = effectors.effector_positions(model, solve_space.armature_units(result.heads, unit),
                                               solve_space.armature_units(result.tails, unit), snapshot.matrix_world)
     residuals = norm(world_effectors - world_targets)
     return Outcome(frames=np.asarray(frames, dtype=np.float64), effectors=tuple(targets.EFFECTORS),
                    residuals=residuals, status=status, reasons=reasons, moved_bones=names,
-                   count_penetrations=lambda: _penetrations(model, result.heads, result.tails, boxes), action=action)
-
-
-def _new_pose_matrices(snapshot, result, unit, bones):
-    """Armature-space matrices (F,k,4,4) of ``bones`` in the solved pose (their scale kept); ``unit`` (F,): the
-    solve space's length of one armature unit (solve_space.solve_space)."""
-    new_pose = np.zeros(snapshot.pose_matrices[:, bones].shape)
-    new_pose[..., :3, :3] = result.rotations[:, bones] @ snapshot.pose_matrices[:, bones, :3, :3]
-    new_pose[..., :3, 3] = solve_space.armature_units(result.heads[:, bones], unit)
-    new_pose[..., 3, 3] = 1.0
-    return new_pose
+                   count_penetrations=lambda: effectors.penetrations(model, result.heads, result.tails, boxes),
+                   action=action)
 
 
 def _control_channels(context, obj, frames, snapshot, result, unit, bone_map, keep_hands, oriented, tolerance,
@@ -224,7 +208,7 @@ def _control_channels(context, obj, frames, snapshot, result, unit, bone_map, ke
     every frame is stepped to and the pose is put back afterwards."""
     names = [bone for _group, bone in bone_map.items()]
     mapped = snapshot.indices(names)
-    desired = _new_pose_matrices(snapshot, result, unit, mapped)
+    desired = solved_pose.new_pose_matrices(snapshot, result, unit, mapped)
     if not keep_hands:  # the hands and feet keep their pose relative to the forearm and shin (as _bones_to_write)
         old = snapshot.pose_matrices[:, mapped]
         position = {name: k for k, name in enumerate(names)}
@@ -236,7 +220,7 @@ def _control_channels(context, obj, frames, snapshot, result, unit, bone_map, ke
     pairs = control_rig.control_pairs(obj, bone_map)
     if apply_pose:
         return control_channels(obj, context.view_layer, pairs, names, desired, tolerance, [0], start=snapshot,
-                                evaluated=True)  # _current_targets had the scene evaluated; nothing changed since
+                                evaluated=True)  # current_targets had the scene evaluated; nothing changed since
     with _pose_kept(obj):
         rows = (row for row, _frame in frames_module.step_frames(context.scene, frames))
         return control_channels(obj, context.view_layer, pairs, names, desired, tolerance, rows, start=snapshot)
@@ -261,142 +245,3 @@ def _channel_values(bones, prop, size):
     values = np.empty(len(bones) * size, dtype=np.float32)
     bones.foreach_get(prop, values)
     return values.reshape(-1, size)
-
-
-def _current_targets(obj, context, skip_missing=False):
-    """FrameTargets (one frame: (1,E,...) each) of the enabled targets at the current frame as evaluated."""
-    specs = targets.read_targets(obj, context.evaluated_depsgraph_get(), skip_missing=skip_missing)
-    return targets.FrameTargets(*(field[None] for field in targets.frame_targets(specs)))
-
-
-def _end_goals(obj, model, snapshot, goals, to_arm):
-    """The solver's end_turns (F,E,3,3) and poles (F,E,3) in armature space from the FrameTargets (None where
-    no slot asks for them): a hand or foot with use_rotation turns from its pose orientation to its target's."""
-    end_turns = None
-    if goals.oriented.any():
-        end_turns = np.full(goals.rotations.shape, np.nan)
-        for limb in model.limbs.values():
-            if limb.effector not in targets.EFFECTORS:
-                continue
-            column = targets.EFFECTORS.index(limb.effector)
-            rows = goals.oriented[:, column] & np.isfinite(goals.positions[:, column, 0])
-            if rows.any() and limb.end_bone is None:
-                raise AdjustError(f"The {limb.effector} target of '{obj.name}' asks for its rotation, but the arm has "
-                                  f"no hand bone to turn (the wrist is the end of '{model.names[limb.bones[-1]]}'): "
-                                  f"switch Rotation off in that slot")
-            if rows.any():
-                wanted = _orthonormal(to_arm[rows, :3, :3] @ goals.rotations[rows, column])
-                now = _orthonormal(snapshot.pose_matrices[rows, limb.end_bone, :3, :3])
-                end_turns[rows, column] = wanted @ np.swapaxes(now, -1, -2)
-    poles = solve_space.transform(to_arm, goals.poles) if np.isfinite(goals.poles).any() else None
-    return end_turns, poles
-
-
-def _orthonormal(matrices):
-    """The rotations (...,3,3) nearest ``matrices`` (their polar factor): a rotation carried through a scaled
-    armature transform, or a bone's pose matrix without its scale."""
-    u, _s, vt = np.linalg.svd(matrices)
-    return u @ vt
-
-
-def _served(obj, model, world_targets):
-    """Columns of the EFFECTORS the model can serve (the head only with neck bones mapped); AdjustError naming the
-    slot when an enabled target asks for one it cannot."""
-    served = [k for k, effector in enumerate(targets.EFFECTORS) if effector in model.effectors]
-    for k, effector in enumerate(targets.EFFECTORS):
-        if k not in served and np.isfinite(world_targets[:, k]).any():
-            raise AdjustError(f"The {effector} target of '{obj.name}' needs neck bones mapped below the head: "
-                              f"map them in Bone Mapping, or switch the {effector} slot off")
-    return served
-
-
-def _columns(values, served):
-    return tuple(values[k] for k in served)
-
-
-def _widened(values, served, fill):
-    """(F,k) values of the served effectors as (F,E), ``fill`` for the others."""
-    out = np.full(values.shape[:1] + (len(targets.EFFECTORS),), fill, dtype=object)
-    out[:, served] = values
-    return out.astype(str)
-
-
-def _priorities(obj):
-    by_effector = {slot.effector: int(slot.priority) for slot in obj.fullbody_adjust.targets}
-    return np.array([by_effector.get(e, targets.DEFAULT_PRIORITY[e]) for e in targets.EFFECTORS], dtype=np.float64)
-
-
-def _bones_to_write(model, snapshot, result, unit, keep_hands, oriented):
-    """Indices of the bones the solver drives whose transform changed on some frame, or below one that did (a
-    foot that keeps its world orientation while its shin turns changes its local rotation), parents first.
-    ``oriented`` (E,) bool: effectors whose end bone takes its target's orientation, written even without
-    ``keep_hands``."""
-    driven = start_checks.driven_bones(model.roles, with_ends=keep_hands)
-    for limb in model.limbs.values():
-        if limb.effector in targets.EFFECTORS and oriented[targets.EFFECTORS.index(limb.effector)] \
-                and limb.end_bone is not None:
-            driven[limb.end_bone] = True
-    driven = np.nonzero(driven)[0]  # only these are measured (a fraction of a full rig's bones)
-    turn = np.abs(result.rotations[:, driven] - np.eye(3)).max(axis=(-1, -2))  # (F,k)
-    old_heads = snapshot.pose_matrices[..., :3, 3]
-    shift = norm(solve_space.armature_units(result.heads[:, driven], unit) - old_heads[:, driven])
-    shift = shift / snapshot.derived("armature size", lambda: solve_space.size_of(old_heads))
-    changed = set(driven[((turn > _MOVED) | (shift > _MOVED)).any(axis=0)].tolist())
-    below = set()  # bones some ancestor of which changed
-    parents = model.parents.tolist()
-    for bone in model.order.tolist():
-        parent = parents[bone]
-        if parent in changed or parent in below:
-            below.add(bone)
-    return np.array([bone for bone in driven.tolist() if bone in changed or bone in below], dtype=driven.dtype)
-
-
-def _effector_positions(model, heads, tails, matrix_world):
-    """World positions (F,E,3) of the effector joints (the heads of the hand, foot and head bones; a hand-less
-    arm's wrist: its last bone's end, from ``tails``, the joint ends)."""
-    out = np.full(heads.shape[:1] + (len(targets.EFFECTORS), 3), np.nan)
-    for limb in model.limbs.values():
-        if limb.effector in targets.EFFECTORS:
-            out[:, targets.EFFECTORS.index(limb.effector)] = limb.end_point(heads, tails)
-    return solve_space.transform(matrix_world, out)
-
-
-def _evaluated_ends(obj, rig, bones):
-    """World joint ends (k,3) (rig_cache.Rig.ends) of ``bones`` (indices) in the evaluated pose."""
-    evaluated = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
-    matrices = np.array([evaluated.pose.bones[rig.model.names[j]].matrix for j in bones], dtype=np.float64)
-    return end_points(np.array(evaluated.matrix_world, dtype=np.float64) @ matrices, rig.ends[bones])
-
-
-def _penetrations(model, heads, tails, boxes):
-    """Chain joints inside, and chain segments crossing, an obstacle box: (F,) counts each. Every limb's chain in
-    one test (the counts add up over joints and segments, so they are the sums of the limbs' own)."""
-    if boxes is None:
-        none = np.zeros(heads.shape[0], dtype=np.int64)
-        return none, none
-    chains = [limb.joints(heads, tails) for limb in model.limbs.values()]
-    segments, at = [], 0
-    for chain in chains:
-        n = chain.shape[1]
-        segments.append(np.c_[np.arange(at, at + n - 1), np.arange(at + 1, at + n)])
-        at += n
-    return penetrations(np.concatenate(chains, axis=1), np.concatenate(segments), boxes)
-
-
-def create_targets(context, obj, *, reset=False):
-    """Empties at the current wrists and ankles (and head, when mapped), linked in the armature's target slots.
-    Returns {effector: empty}."""
-    start_checks.check_armature(obj)
-    rig = rig_cache.rig_of(obj)
-    snapshot = pose.read_pose(obj, rig.static(obj))
-    positions = {}
-    for effector in targets.EFFECTORS:
-        bones = rig.bone_map.bones(effector)  # the hand, foot and head groups are named after their effectors
-        if bones:
-            positions[effector] = snapshot.heads[snapshot.index(bones[-1])]
-        elif effector in rig.model.effectors:  # a hand-less arm: its wrist is its last bone's end
-            last = rig.model.limbs[LIMB_OF_EFFECTOR[effector]].bones[-1]
-            positions[effector] = end_points(snapshot.matrices[last], rig.ends[last])
-    size = 0.04 * max(float(np.ptp(snapshot.heads, axis=0).max()), 1e-3)
-    targets.ensure_slots(obj)
-    return targets.create_targets(context, obj, positions, size, reset=reset)
