@@ -1,12 +1,12 @@
 """One frame or many: the only module that knows which.
 
-A calculation is written once, on components: a 3-vector is a tuple (x, y, z) whose components are each a Python
-float (one frame) or a float64 array of shape (F,) (F frames, one lane each). `+ - * /`, abs, comparisons and
-sqrt round the same on a float and on an array's element, and the trigonometry calls numpy's routine on the one
-value as on the many, so a frame solved alone equals its row of a batch by construction. What differs between the
-two lives here: choosing per lane (where, pick), asking about all lanes (any_, all_), a division that never raises,
+A calculation is written once: a number is a Python float (one frame) or a float64 array (F,) (F frames, one lane
+each), a 3-vector a tuple of floats or an array (F,3) (maths/vectors.py). `+ - * /`, abs, comparisons and sqrt
+round the same on a float and on an array's element, and the trigonometry calls numpy's routine on the one value
+as on the many, so a frame solved alone equals its row of a batch by construction. What differs between the two
+lives here: choosing per lane (where, pick), asking about all lanes (any_, all_), a division that never raises,
 and `run`, which decides how a kernel meets its (F,3) arrays: up to FEW frames one frame at a time in plain
-floats (numpy's per-call cost is most of a one-frame solve), beyond that on component arrays."""
+floats (numpy's per-call cost is most of a one-frame solve), beyond that on the arrays."""
 
 import math
 
@@ -37,11 +37,9 @@ def where(cond, a, b):
 
 
 def pick(cond, u, v):
-    """The vector u where cond, else v (per lane; vectors as components, or whole arrays (...,3))."""
+    """The vector u where cond, else v (per lane; vectors as maths/vectors.py has them)."""
     if isinstance(cond, _ARRAY):
-        if u.__class__ is _ARRAY or v.__class__ is _ARRAY:
-            return np.where(cond[..., None], u, v)
-        return (np.where(cond, u[0], v[0]), np.where(cond, u[1], v[1]), np.where(cond, u[2], v[2]))
+        return np.where(cond[..., None], u, v)
     return u if cond else v
 
 
@@ -158,30 +156,31 @@ def by_rows(kernel, P, rows, *per_row, kinds=(), floats=True):
 def run(kernel, arrays, *rest, values=(), outputs=1):
     """kernel(*vectors, *values, *rest) on `arrays` (F,3) (a vector each), (F,n,3) (a list of n vectors) or None
     (passed as None) and `values` (F,) (a number each) or (F,m) (a list of m numbers). Returns its vector, list of
-    vectors or number as (F,3), (F,n,3) or (F,) (with outputs > 1, the kernel returns that many, each so).
-    Up to FEW frames each frame alone in floats, else every frame at once on component arrays."""
+    vectors, matrix or number as (F,3), (F,n,3), (F,3,3) or (F,) (with outputs > 1, the kernel returns that many,
+    each so). Up to FEW frames each frame alone in floats, else every frame at once on arrays (...,3), dividing
+    as numpy does without a warning."""
     frames = next(a for a in arrays if a is not None).shape[0]
     if 0 < frames <= FEW:
         out = [kernel(*[_row(a, f) for a in arrays], *[a[f].tolist() for a in values], *rest) for f in range(frames)]
         if outputs == 1:
             return np.array(out, dtype=np.float64)
         return tuple(np.array([o[k] for o in out]) for k in range(outputs))
-    out = kernel(*[_lanes(a) for a in arrays], *[a if a.ndim == 1 else list(a.T) for a in values], *rest)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        out = kernel(*[a if a is None or a.ndim == 2 else list(a.transpose(1, 0, 2)) for a in arrays],
+                     *[a if a.ndim == 1 else list(a.T) for a in values], *rest)
     if outputs == 1:
         return _gathered(out, frames)
     return tuple(_gathered(o, frames) for o in out)
 
 
 def _gathered(out, frames):
-    """A kernel's output on component arrays as one array (F,3), (F,n,3) or (F,)."""
-    if isinstance(out, tuple):
-        return _joined(out, (frames, 3))
-    if not isinstance(out, list):
-        return np.broadcast_to(np.asarray(out), (frames,)).copy()
-    joined = np.empty((frames, len(out), 3))
-    for j, v in enumerate(out):
-        joined[:, j, 0], joined[:, j, 1], joined[:, j, 2] = v
-    return joined
+    """A kernel's output on many frames as one array (F,...): a list's items side by side, constants repeated."""
+    if isinstance(out, list):
+        return np.stack([_gathered(v, frames) for v in out], axis=1)
+    if isinstance(out, _ARRAY):
+        return out.copy()
+    out = np.asarray(out)
+    return np.broadcast_to(out, (frames,) + out.shape).copy()
 
 
 def _row(a, f):
@@ -189,17 +188,3 @@ def _row(a, f):
         return None
     r = a[f].tolist()
     return tuple(r) if a.ndim == 2 else [tuple(p) for p in r]
-
-
-def _lanes(a):
-    if a is None:
-        return None
-    if a.ndim == 2:
-        return (a[:, 0], a[:, 1], a[:, 2])
-    return [(a[:, j, 0], a[:, j, 1], a[:, j, 2]) for j in range(a.shape[1])]
-
-
-def _joined(v, shape):
-    out = np.empty(shape)
-    out[..., 0], out[..., 1], out[..., 2] = v
-    return out
