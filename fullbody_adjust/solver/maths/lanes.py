@@ -31,14 +31,14 @@ def many(x):
 
 def where(cond, a, b):
     """a where cond, else b (per lane)."""
-    if isinstance(cond, _ARRAY):
+    if cond.__class__ is _ARRAY:
         return np.where(cond, a, b)
     return a if cond else b
 
 
 def pick(cond, u, v):
     """The vector u where cond, else v (per lane; vectors as maths/vectors.py has them)."""
-    if isinstance(cond, _ARRAY):
+    if cond.__class__ is _ARRAY:
         return np.where(cond[..., None], u, v)
     return u if cond else v
 
@@ -56,11 +56,11 @@ def all_(cond):
 
 
 def not_(cond):
-    return ~cond if isinstance(cond, _ARRAY) else not cond
+    return ~cond if cond.__class__ is _ARRAY else not cond
 
 
 def isnan(x):
-    return np.isnan(x) if many(x) else x != x
+    return np.isnan(x) if x.__class__ is _ARRAY else x != x
 
 
 def sqrt(x):
@@ -99,23 +99,23 @@ def minimum(x, c):
 
 def clip(x, lo, hi):
     """x within [lo, hi] (NaN stays NaN)."""
-    return np.clip(x, lo, hi) if many(x) or many(lo) or many(hi) else min(max(x, lo), hi)
+    return np.clip(x, lo, hi) if _ARRAY in (x.__class__, lo.__class__, hi.__class__) else min(max(x, lo), hi)
 
 
 def isfinite(x):
-    return np.isfinite(x) if many(x) else math.isfinite(x)
+    return np.isfinite(x) if x.__class__ is _ARRAY else math.isfinite(x)
 
 
 def arccos(x):
-    return np.arccos(x) if many(x) else float(np.arccos(x))
+    return np.arccos(x) if x.__class__ is _ARRAY else float(np.arccos(x))
 
 
 def hypot(x, y):
-    return np.hypot(x, y) if many(x) or many(y) else float(np.hypot(x, y))
+    return np.hypot(x, y) if x.__class__ is _ARRAY or y.__class__ is _ARRAY else float(np.hypot(x, y))
 
 
 def remainder(x, y):
-    return np.remainder(x, y) if many(x) or many(y) else float(np.remainder(x, y))
+    return np.remainder(x, y) if x.__class__ is _ARRAY or y.__class__ is _ARRAY else float(np.remainder(x, y))
 
 
 def arctan2(y, x):
