@@ -26,7 +26,7 @@ def few(frames):
 
 def many(x):
     """True when x holds a lane per frame (an array), False for one frame's float or bool."""
-    return isinstance(x, _ARRAY)
+    return x.__class__ is _ARRAY
 
 
 def where(cond, a, b):
@@ -47,12 +47,12 @@ def any_(cond):
     """Whether cond holds in some lane."""
     if cond.__class__ is bool:
         return cond
-    return np.count_nonzero(cond) != 0 if isinstance(cond, _ARRAY) else bool(cond)
+    return np.count_nonzero(cond) != 0 if cond.__class__ is _ARRAY else bool(cond)
 
 
 def all_(cond):
     """Whether cond holds in every lane."""
-    return np.count_nonzero(cond) == cond.size if isinstance(cond, _ARRAY) else bool(cond)
+    return np.count_nonzero(cond) == cond.size if cond.__class__ is _ARRAY else bool(cond)
 
 
 def not_(cond):
@@ -64,7 +64,7 @@ def isnan(x):
 
 
 def sqrt(x):
-    if isinstance(x, _ARRAY):
+    if x.__class__ is _ARRAY:
         return np.sqrt(x)
     if not x < 0.0:
         return math.sqrt(x)
@@ -74,7 +74,7 @@ def sqrt(x):
 
 def divide(a, b):
     """a / b, as numpy divides (inf or NaN where b is zero or the quotient overflows, never an exception)."""
-    if isinstance(a, _ARRAY) or isinstance(b, _ARRAY):
+    if a.__class__ is _ARRAY or b.__class__ is _ARRAY:
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             return np.divide(a, b)
     if b != 0.0:
@@ -85,14 +85,14 @@ def divide(a, b):
 
 def maximum(x, c):
     """The larger of x and c per lane, NaN where either is NaN (as numpy's)."""
-    if isinstance(x, _ARRAY) or isinstance(c, _ARRAY):
+    if x.__class__ is _ARRAY or c.__class__ is _ARRAY:
         return np.maximum(x, c)
     return x if x >= c or x != x else c
 
 
 def minimum(x, c):
     """The smaller of x and c per lane, NaN where either is NaN (as numpy's)."""
-    if isinstance(x, _ARRAY) or isinstance(c, _ARRAY):
+    if x.__class__ is _ARRAY or c.__class__ is _ARRAY:
         return np.minimum(x, c)
     return x if x <= c or x != x else c
 
@@ -119,17 +119,17 @@ def remainder(x, y):
 
 
 def arctan2(y, x):
-    if isinstance(y, _ARRAY) or isinstance(x, _ARRAY):
+    if y.__class__ is _ARRAY or x.__class__ is _ARRAY:
         return np.arctan2(y, x)
     return float(np.arctan2(y, x))
 
 
 def cos(x):
-    return np.cos(x) if isinstance(x, _ARRAY) else float(np.cos(x))
+    return np.cos(x) if x.__class__ is _ARRAY else float(np.cos(x))
 
 
 def sin(x):
-    return np.sin(x) if isinstance(x, _ARRAY) else float(np.sin(x))
+    return np.sin(x) if x.__class__ is _ARRAY else float(np.sin(x))
 
 
 def by_rows(kernel, P, rows, *per_row, kinds=(), floats=True):
@@ -177,7 +177,7 @@ def _gathered(out, frames):
     """A kernel's output on many frames as one array (F,...): a list's items side by side, constants repeated."""
     if isinstance(out, list):
         return np.stack([_gathered(v, frames) for v in out], axis=1)
-    if isinstance(out, _ARRAY):
+    if out.__class__ is _ARRAY:
         return out.copy()
     out = np.asarray(out)
     return np.broadcast_to(out, (frames,) + out.shape).copy()
