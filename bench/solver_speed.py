@@ -14,8 +14,8 @@ beyond any reach), 'obstacle' (a box where the left forearm would go). For each 
     and ratio_single_to_batch_frame = single_pose_us / batch_per_frame_us (the price of one frame alone);
   - max_difference: largest |single - batch row| over heads, tails, rotations and residuals, for the case's
     pose and every jittered frame solved alone.
-Timings are process CPU time (time.process_time), medians of --repeats runs taken in turn with the figure they
-are compared to, so other processes on a shared machine disturb them less; compare figures only within one run.
+Timings are process CPU time (time.process_time), medians of --repeats runs (the batch of many frames: a third
+as many, at least 5) taken in turn with the figure they are compared to, so other processes on a shared machine disturb them less; compare figures only within one run.
 
 With --reference REV (a git revision of this repository, e.g. main), the same figures of that revision's solver
 are taken in the same run, each reference call alternated with the call it is compared to, and reported under
@@ -161,7 +161,7 @@ def main():
             times = median_us(args.repeats, *pairs)
             single_us, batch1_us, cold_us, new_us = times[0::2]
             ref_times = times[1::2]
-            many_pair = median_us(max(3, args.repeats // 10), batch_many, reference[4])
+            many_pair = median_us(max(5, args.repeats // 3), batch_many, reference[4])
             many_us, ref_many = many_pair[0] / n, many_pair[1] / n
             names = ("single_pose_us", "batch_one_frame_us", "single_pose_cold_us", "single_pose_new_start_us",
                      "batch_per_frame_us")
@@ -175,7 +175,7 @@ def main():
                 for name, a, b, m, mr in zip(names, new_all, ref_all, mins, ref_mins)}
         else:
             single_us, batch1_us, cold_us, new_us = median_us(args.repeats, single, batch_one, cold, new_start)
-            many_us = median_us(max(3, args.repeats // 10), batch_many)[0] / n
+            many_us = median_us(max(5, args.repeats // 3), batch_many)[0] / n
         many = batch_many()
         diff = max_difference(single(), batch_one()[0])
         for f in range(n):

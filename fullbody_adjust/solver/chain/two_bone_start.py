@@ -33,7 +33,7 @@ def _two_bone_start(chain, target, axis, pole):
     dist = vec.norm(to_target)
     d = lanes.clip(dist, abs(a - c), a + c)
     dt = vec.divided(to_target, lanes.maximum(dist, 1e-300))
-    given = False if pole is None else lanes.isfinite(pole[0])
+    given = False if pole is None else lanes.isfinite(pole[..., 0] if lanes.many(pole) else pole[0])
     if lanes.any_(given):
         # The elbow lands at cos(alpha) dt + sin(alpha) (dt x n): toward the pole's side when n = w x dt.
         toward = vec.cross(lanes.pick(given, vec.sub(pole, pivot), (0.0, 0.0, 0.0)), dt)

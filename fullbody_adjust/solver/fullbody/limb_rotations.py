@@ -103,7 +103,7 @@ def _segment_rotations(start, joints, kind, axes):
 
 
 def _rotations(start, joints, axes, kind):
-    """_segment_rotations on components (maths/lanes.py): the rows of each segment's rotation, in turn."""
+    """_segment_rotations written once (maths/lanes.py): each segment's rotation, in turn."""
     old = [vec.sub(start[i + 1], start[i]) for i in range(len(start) - 1)]
     new = [vec.sub(joints[i + 1], joints[i]) for i in range(len(joints) - 1)]
     rot = [vec.swing_rotation(o, n) for o, n in zip(old, new)]
@@ -115,7 +115,7 @@ def _rotations(start, joints, axes, kind):
         rot[i - 1] = vec.matmul(vec.rotation_about(parent, tau), rot[i - 1])
         if i + 1 >= len(kind) or kind[i + 1] != HINGE:  # a hinge parent itself keeps the solver's frame
             rot[i] = vec.matmul(vec.swing_rotation(vec.apply_matrix(rot[i - 1], old[i]), new[i]), rot[i - 1])
-    return [row for m in rot for row in m]
+    return rot
 
 
 def end_rotation(wanted, carried, direction, max_swing=END_SWING):
@@ -146,4 +146,4 @@ def end_rotation(wanted, carried, direction, max_swing=END_SWING):
 def chest_rotation(trunk0, trunk_new):
     """(F,3,3) swing of the last trunk segment: the chest's world rotation delta."""
     old, new = trunk0[:, -1] - trunk0[:, -2], trunk_new[:, -1] - trunk_new[:, -2]
-    return lanes.run(lambda o, n: list(vec.swing_rotation(o, n)), (old, new))
+    return lanes.run(vec.swing_rotation, (old, new))

@@ -22,9 +22,8 @@ _INF = float("inf")
 
 def project_onto_balls(points, centres, radii):
     """Nearest point of each ball to each point: (F,3), (F,K,3), (F,K) -> (F,K,3). Inside points stay exactly."""
-    p, c = np.broadcast_arrays(points[:, None, :], centres)
-    x = _projection((p[..., 0], p[..., 1], p[..., 2]), (c[..., 0], c[..., 1], c[..., 2]), np.asarray(radii))
-    return np.stack(np.broadcast_arrays(*x), axis=-1)
+    p = np.broadcast_to(points[:, None, :], np.shape(centres))
+    return _projection(p, np.asarray(centres), np.asarray(radii))
 
 
 def nearest_in_balls(points, centres, radii, active):

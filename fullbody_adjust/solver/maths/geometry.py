@@ -10,9 +10,6 @@ from ..errors import SolverInputError
 # only need to tell "no direction at all" from "a direction".
 TINY = 1e-300
 _EYE = np.eye(3)
-_ADD_REDUCE = np.add.reduce
-# Above this many products dot sums its three columns as slices (measured: from a few hundred rows on).
-_SUMMED_BY_SLICES = 600
 # Up to this many rotations swing_rotation builds them from outer products (fewer numpy calls); beyond, entry
 # by entry (less memory traffic on large batches).
 _FEW_ROTATIONS = 256
@@ -31,12 +28,10 @@ def all_set(flags):
 
 def dot(a, b):
     """Row-wise dot product (...,3)·(...,3) -> (...). Summed in order, (x0 + x1) + x2, so batched and single
-    calls round the same (numpy adds a three-element last axis in order; einsum does not always). On many rows
-    the sum is written out: a reduction over a last axis of 3 costs several times more there."""
+    calls round the same, signed zeros included (numpy's add.reduce starts from +0.0, and einsum does not always
+    add in order)."""
     p = np.multiply(a, b)
-    if p.size > _SUMMED_BY_SLICES:
-        return (p[..., 0] + p[..., 1]) + p[..., 2]
-    return _ADD_REDUCE(p, axis=-1)
+    return (p[..., 0] + p[..., 1]) + p[..., 2]
 
 
 def norm(v):

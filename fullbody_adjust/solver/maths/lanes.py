@@ -1,12 +1,12 @@
 """One frame or many: the only module that knows which.
 
-A calculation is written once, on components: a 3-vector is a tuple (x, y, z) whose components are each a Python
-float (one frame) or a float64 array of shape (F,) (F frames, one lane each). `+ - * /`, abs, comparisons and
-sqrt round the same on a float and on an array's element, and the trigonometry calls numpy's routine on the one
-value as on the many, so a frame solved alone equals its row of a batch by construction. What differs between the
-two lives here: choosing per lane (where, pick), asking about all lanes (any_, all_), a division that never raises,
+A calculation is written once: a number is a Python float (one frame) or a float64 array (F,) (F frames, one lane
+each), a 3-vector a tuple of floats or an array (F,3) (maths/vectors.py). `+ - * /`, abs, comparisons and sqrt
+round the same on a float and on an array's element, and the trigonometry calls numpy's routine on the one value
+as on the many, so a frame solved alone equals its row of a batch by construction. What differs between the two
+lives here: choosing per lane (where, pick), asking about all lanes (any_, all_), a division that never raises,
 and `run`, which decides how a kernel meets its (F,3) arrays: up to FEW frames one frame at a time in plain
-floats (numpy's per-call cost is most of a one-frame solve), beyond that on component arrays."""
+floats (numpy's per-call cost is most of a one-frame solve), beyond that on the arrays."""
 
 import math
 
@@ -26,22 +26,20 @@ def few(frames):
 
 def many(x):
     """True when x holds a lane per frame (an array), False for one frame's float or bool."""
-    return isinstance(x, _ARRAY)
+    return x.__class__ is _ARRAY
 
 
 def where(cond, a, b):
     """a where cond, else b (per lane)."""
-    if isinstance(cond, _ARRAY):
+    if cond.__class__ is _ARRAY:
         return np.where(cond, a, b)
     return a if cond else b
 
 
 def pick(cond, u, v):
-    """The vector u where cond, else v (per lane; vectors as components, or whole arrays (...,3))."""
-    if isinstance(cond, _ARRAY):
-        if u.__class__ is _ARRAY or v.__class__ is _ARRAY:
-            return np.where(cond[..., None], u, v)
-        return (np.where(cond, u[0], v[0]), np.where(cond, u[1], v[1]), np.where(cond, u[2], v[2]))
+    """The vector u where cond, else v (per lane; vectors as maths/vectors.py has them)."""
+    if cond.__class__ is _ARRAY:
+        return np.where(cond[..., None], u, v)
     return u if cond else v
 
 
@@ -49,24 +47,24 @@ def any_(cond):
     """Whether cond holds in some lane."""
     if cond.__class__ is bool:
         return cond
-    return np.count_nonzero(cond) != 0 if isinstance(cond, _ARRAY) else bool(cond)
+    return np.count_nonzero(cond) != 0 if cond.__class__ is _ARRAY else bool(cond)
 
 
 def all_(cond):
     """Whether cond holds in every lane."""
-    return np.count_nonzero(cond) == cond.size if isinstance(cond, _ARRAY) else bool(cond)
+    return np.count_nonzero(cond) == cond.size if cond.__class__ is _ARRAY else bool(cond)
 
 
 def not_(cond):
-    return ~cond if isinstance(cond, _ARRAY) else not cond
+    return ~cond if cond.__class__ is _ARRAY else not cond
 
 
 def isnan(x):
-    return np.isnan(x) if many(x) else x != x
+    return np.isnan(x) if x.__class__ is _ARRAY else x != x
 
 
 def sqrt(x):
-    if isinstance(x, _ARRAY):
+    if x.__class__ is _ARRAY:
         return np.sqrt(x)
     if not x < 0.0:
         return math.sqrt(x)
@@ -76,7 +74,7 @@ def sqrt(x):
 
 def divide(a, b):
     """a / b, as numpy divides (inf or NaN where b is zero or the quotient overflows, never an exception)."""
-    if isinstance(a, _ARRAY) or isinstance(b, _ARRAY):
+    if a.__class__ is _ARRAY or b.__class__ is _ARRAY:
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             return np.divide(a, b)
     if b != 0.0:
@@ -87,51 +85,51 @@ def divide(a, b):
 
 def maximum(x, c):
     """The larger of x and c per lane, NaN where either is NaN (as numpy's)."""
-    if isinstance(x, _ARRAY) or isinstance(c, _ARRAY):
+    if x.__class__ is _ARRAY or c.__class__ is _ARRAY:
         return np.maximum(x, c)
     return x if x >= c or x != x else c
 
 
 def minimum(x, c):
     """The smaller of x and c per lane, NaN where either is NaN (as numpy's)."""
-    if isinstance(x, _ARRAY) or isinstance(c, _ARRAY):
+    if x.__class__ is _ARRAY or c.__class__ is _ARRAY:
         return np.minimum(x, c)
     return x if x <= c or x != x else c
 
 
 def clip(x, lo, hi):
     """x within [lo, hi] (NaN stays NaN)."""
-    return np.clip(x, lo, hi) if many(x) or many(lo) or many(hi) else min(max(x, lo), hi)
+    return np.clip(x, lo, hi) if _ARRAY in (x.__class__, lo.__class__, hi.__class__) else min(max(x, lo), hi)
 
 
 def isfinite(x):
-    return np.isfinite(x) if many(x) else math.isfinite(x)
+    return np.isfinite(x) if x.__class__ is _ARRAY else math.isfinite(x)
 
 
 def arccos(x):
-    return np.arccos(x) if many(x) else float(np.arccos(x))
+    return np.arccos(x) if x.__class__ is _ARRAY else float(np.arccos(x))
 
 
 def hypot(x, y):
-    return np.hypot(x, y) if many(x) or many(y) else float(np.hypot(x, y))
+    return np.hypot(x, y) if x.__class__ is _ARRAY or y.__class__ is _ARRAY else float(np.hypot(x, y))
 
 
 def remainder(x, y):
-    return np.remainder(x, y) if many(x) or many(y) else float(np.remainder(x, y))
+    return np.remainder(x, y) if x.__class__ is _ARRAY or y.__class__ is _ARRAY else float(np.remainder(x, y))
 
 
 def arctan2(y, x):
-    if isinstance(y, _ARRAY) or isinstance(x, _ARRAY):
+    if y.__class__ is _ARRAY or x.__class__ is _ARRAY:
         return np.arctan2(y, x)
     return float(np.arctan2(y, x))
 
 
 def cos(x):
-    return np.cos(x) if isinstance(x, _ARRAY) else float(np.cos(x))
+    return np.cos(x) if x.__class__ is _ARRAY else float(np.cos(x))
 
 
 def sin(x):
-    return np.sin(x) if isinstance(x, _ARRAY) else float(np.sin(x))
+    return np.sin(x) if x.__class__ is _ARRAY else float(np.sin(x))
 
 
 def by_rows(kernel, P, rows, *per_row, kinds=(), floats=True):
@@ -158,30 +156,31 @@ def by_rows(kernel, P, rows, *per_row, kinds=(), floats=True):
 def run(kernel, arrays, *rest, values=(), outputs=1):
     """kernel(*vectors, *values, *rest) on `arrays` (F,3) (a vector each), (F,n,3) (a list of n vectors) or None
     (passed as None) and `values` (F,) (a number each) or (F,m) (a list of m numbers). Returns its vector, list of
-    vectors or number as (F,3), (F,n,3) or (F,) (with outputs > 1, the kernel returns that many, each so).
-    Up to FEW frames each frame alone in floats, else every frame at once on component arrays."""
+    vectors, matrix or number as (F,3), (F,n,3), (F,3,3) or (F,) (with outputs > 1, the kernel returns that many,
+    each so). Up to FEW frames each frame alone in floats, else every frame at once on arrays (...,3), dividing
+    as numpy does without a warning."""
     frames = next(a for a in arrays if a is not None).shape[0]
     if 0 < frames <= FEW:
         out = [kernel(*[_row(a, f) for a in arrays], *[a[f].tolist() for a in values], *rest) for f in range(frames)]
         if outputs == 1:
             return np.array(out, dtype=np.float64)
         return tuple(np.array([o[k] for o in out]) for k in range(outputs))
-    out = kernel(*[_lanes(a) for a in arrays], *[a if a.ndim == 1 else list(a.T) for a in values], *rest)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        out = kernel(*[a if a is None or a.ndim == 2 else list(a.transpose(1, 0, 2)) for a in arrays],
+                     *[a if a.ndim == 1 else list(a.T) for a in values], *rest)
     if outputs == 1:
         return _gathered(out, frames)
     return tuple(_gathered(o, frames) for o in out)
 
 
 def _gathered(out, frames):
-    """A kernel's output on component arrays as one array (F,3), (F,n,3) or (F,)."""
-    if isinstance(out, tuple):
-        return _joined(out, (frames, 3))
-    if not isinstance(out, list):
-        return np.broadcast_to(np.asarray(out), (frames,)).copy()
-    joined = np.empty((frames, len(out), 3))
-    for j, v in enumerate(out):
-        joined[:, j, 0], joined[:, j, 1], joined[:, j, 2] = v
-    return joined
+    """A kernel's output on many frames as one array (F,...): a list's items side by side, constants repeated."""
+    if isinstance(out, list):
+        return np.stack([_gathered(v, frames) for v in out], axis=1)
+    if out.__class__ is _ARRAY:
+        return out.copy()
+    out = np.asarray(out)
+    return np.broadcast_to(out, (frames,) + out.shape).copy()
 
 
 def _row(a, f):
@@ -189,17 +188,3 @@ def _row(a, f):
         return None
     r = a[f].tolist()
     return tuple(r) if a.ndim == 2 else [tuple(p) for p in r]
-
-
-def _lanes(a):
-    if a is None:
-        return None
-    if a.ndim == 2:
-        return (a[:, 0], a[:, 1], a[:, 2])
-    return [(a[:, j, 0], a[:, j, 1], a[:, j, 2]) for j in range(a.shape[1])]
-
-
-def _joined(v, shape):
-    out = np.empty(shape)
-    out[..., 0], out[..., 1], out[..., 2] = v
-    return out

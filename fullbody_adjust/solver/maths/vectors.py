@@ -1,9 +1,8 @@
-"""3-vectors on components (x, y, z), each a float for one frame or an (F,) array for F frames (maths/lanes.py): the
-helpers of maths/geometry.py written once for both. Sums run in order, (x0 + x1) + x2, as geometry.dot adds.
-
-The helpers a kernel of many vectors calls most (sub, add, scaled, divided, dot, norm, cross, any_perpendicular)
-also take whole arrays (...,3) (numbers then (...) arrays): the same operations in the same order on a third of the
-numpy calls, for the kernels run on many rows at once (the joint limits in FABRIK's passes)."""
+"""3-vectors written once for one frame and for many (maths/lanes.py): a tuple (x, y, z) of Python floats for one
+frame, an array (...,3) (components on the last axis: one numpy call per operation) for many; a constant tuple
+meets an array by numpy's broadcasting. A matrix is three rows, or an array (...,3,3). The arrays go through
+maths/geometry.py, which does the same operations in the same order (sums run (x0 + x1) + x2), so a frame alone
+equals its row of a batch."""
 
 import math
 
@@ -14,19 +13,20 @@ from ..errors import SolverInputError
 from .geometry import TINY
 
 _ARRAY = np.ndarray
+_IDENTITY = np.eye(3)
 
 EYE = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
 
 def sub(a, b):
-    if a.__class__ is _ARRAY:
-        return a - b
+    if a.__class__ is _ARRAY or b.__class__ is _ARRAY:
+        return np.subtract(a, b)
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
 
 
 def add(a, b):
-    if a.__class__ is _ARRAY:
-        return a + b
+    if a.__class__ is _ARRAY or b.__class__ is _ARRAY:
+        return np.add(a, b)
     return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
 
 
@@ -37,24 +37,26 @@ def neg(a):
 
 
 def scaled(v, s):
+    if s.__class__ is _ARRAY:
+        return np.multiply(v, s[..., None])
     if v.__class__ is _ARRAY:
-        return v * s[..., None] if s.__class__ is _ARRAY else v * s
+        return v * s
     return (v[0] * s, v[1] * s, v[2] * s)
 
 
 def divided(v, s):
-    """v / s, inf or NaN where s is zero (as numpy divides)."""
-    if s.__class__ is float and s != 0.0 and v.__class__ is not _ARRAY:
-        return (v[0] / s, v[1] / s, v[2] / s)
+    """v / s, inf or NaN where s is zero (as numpy divides; lanes.run's many frames divide under np.errstate)."""
+    if s.__class__ is _ARRAY:
+        return np.divide(v, s[..., None])
     if v.__class__ is _ARRAY:
-        return v / s[..., None] if s.__class__ is _ARRAY else v / s  # as geometry's callers divide
-    if not lanes.many(s) and s != 0.0:
+        return v / s
+    if s != 0.0:
         return (v[0] / s, v[1] / s, v[2] / s)
     return (lanes.divide(v[0], s), lanes.divide(v[1], s), lanes.divide(v[2], s))
 
 
 def dot(a, b):
-    if a.__class__ is _ARRAY:
+    if a.__class__ is _ARRAY or b.__class__ is _ARRAY:
         return geometry.dot(a, b)
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
@@ -67,7 +69,7 @@ def norm(v):
 
 
 def cross(a, b):
-    if a.__class__ is _ARRAY:
+    if a.__class__ is _ARRAY or b.__class__ is _ARRAY:
         return geometry.cross(a, b)
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
@@ -75,6 +77,8 @@ def cross(a, b):
 def normalize(v, fallback=None):
     """geometry.normalize: unit v; where v has no length the fallback (normalised itself); SolverInputError
     where there is neither."""
+    if v.__class__ is _ARRAY:
+        return geometry.normalize(v, fallback)
     n = norm(v)
     zero = lanes.not_(n > TINY)
     if not lanes.any_(zero):
@@ -85,7 +89,7 @@ def normalize(v, fallback=None):
     n = norm(safe)
     if not lanes.all_(n > TINY):
         raise SolverInputError("cannot normalise a zero-length vector (fallback is zero too)")
-    return (safe[0] / n, safe[1] / n, safe[2] / n)
+    return divided(safe, n)
 
 
 def any_perpendicular(v):
@@ -94,17 +98,17 @@ def any_perpendicular(v):
     if v.__class__ is _ARRAY:
         return geometry.any_perpendicular(v)
     ax, ay, az = abs(v[0]), abs(v[1]), abs(v[2])
-    nx, ny, nz = lanes.isnan(ax), lanes.isnan(ay), lanes.isnan(az)
-    first = nx | (lanes.not_(ny | nz) & (ax <= ay) & (ax <= az))
-    second = lanes.not_(first) & (ny | (lanes.not_(nz) & (ay <= az)))
-    third = lanes.not_(first | second)
-    e = (lanes.where(first, 1.0, 0.0), lanes.where(second, 1.0, 0.0), lanes.where(third, 1.0, 0.0))
+    nx, ny, nz = ax != ax, ay != ay, az != az
+    first = nx or (not (ny or nz) and ax <= ay and ax <= az)
+    e = EYE[0] if first else EYE[1] if ny or (not nz and ay <= az) else EYE[2]
     p = cross(v, e)
     return divided(p, norm(p))
 
 
 def rotate_about_axis(v, axis, angle):
     """geometry.rotate_about_axis: v turned about axis (need not be unit) by angle (Rodrigues)."""
+    if v.__class__ is _ARRAY or axis.__class__ is _ARRAY or angle.__class__ is _ARRAY:
+        return geometry.rotate_about_axis(v, axis, angle)
     k = normalize(axis)
     cos_a, sin_a = lanes.cos(angle), lanes.sin(angle)
     kv, along = cross(k, v), dot(k, v) * (1.0 - cos_a)
@@ -114,6 +118,8 @@ def rotate_about_axis(v, axis, angle):
 
 def swing_rotation(old, new):
     """geometry.swing_rotation: the minimal rotation taking direction old to new, as its three rows."""
+    if old.__class__ is _ARRAY or new.__class__ is _ARRAY:
+        return geometry.swing_rotation(old, new)
     a, b = normalize(old), normalize(new)
     c = dot(a, b)
     w = sub(b, scaled(a, c))
@@ -135,11 +141,16 @@ def swing_rotation(old, new):
 
 def apply_matrix(m, v):
     """The matrix m (three rows) times v."""
+    if m.__class__ is _ARRAY or v.__class__ is _ARRAY:
+        return geometry.apply_matrix(m, v)
     return (dot(m[0], v), dot(m[1], v), dot(m[2], v))
 
 
 def matmul(a, b):
-    """The matrix product a b (matrices as their three rows)."""
+    """The matrix product a b (matrices as their three rows): entry (i, j) summed in order over k."""
+    if a.__class__ is _ARRAY or b.__class__ is _ARRAY:
+        a, b = np.asarray(a)[..., :, :, None], np.asarray(b)[..., None, :, :]
+        return a[..., 0, :] * b[..., 0, :] + a[..., 1, :] * b[..., 1, :] + a[..., 2, :] * b[..., 2, :]
     b0, b1, b2 = b
     return tuple((r[0] * b0[0] + r[1] * b1[0] + r[2] * b2[0], r[0] * b0[1] + r[1] * b1[1] + r[2] * b2[1],
                   r[0] * b0[2] + r[1] * b1[2] + r[2] * b2[2]) for r in a)
@@ -148,6 +159,12 @@ def matmul(a, b):
 def rotation_about(k, angle):
     """The rotation about the unit axis k by angle (Rodrigues): the rows of c I + s [k]x + (1 - c) k k'."""
     c, s = lanes.cos(angle), lanes.sin(angle)
+    if k.__class__ is _ARRAY or c.__class__ is _ARRAY:
+        k, (c, s) = np.asarray(k), (np.asarray(c)[..., None, None], np.asarray(s)[..., None, None])
+        x, y, z = k[..., 0], k[..., 1], k[..., 2]
+        zero = np.zeros_like(x)
+        skew = np.stack((zero, -z, y, z, zero, -x, -y, x, zero), -1).reshape(x.shape + (3, 3))
+        return c * _IDENTITY + s * skew + (1.0 - c) * (k[..., :, None] * k[..., None, :])
     x, y, z = k
     t = 1.0 - c
     return ((c * 1.0 + s * 0.0 + t * (x * x), c * 0.0 + s * -z + t * (x * y), c * 0.0 + s * y + t * (x * z)),

@@ -275,12 +275,15 @@ def inside(lo, hi, p):
 
 def crosses(lo, hi, a, b):
     """Whether the closed segment a -> b (3-vectors' floats) meets the closed box [lo, hi]: segments_cross's test
-    of one segment and one box, axis by axis (a NaN fraction makes it False, as there)."""
+    of one segment and one box, axis by axis (a NaN fraction makes it False, as there), up to the first axis that
+    leaves no part of it (the others could only take more)."""
     enter, leave = 0.0, 1.0
     for j in range(3):
         near, far = _slab(lo[j], hi[j], a[j], b[j])
         enter, leave = lanes.maximum(enter, near), lanes.minimum(leave, far)
-    return enter <= leave
+        if not enter <= leave:
+            return False
+    return True
 
 
 def hits(lo, hi, anchor, point, skip_point=None, skip_segment=None):
