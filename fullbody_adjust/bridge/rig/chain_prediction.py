@@ -5,11 +5,11 @@ evaluation shows all three.
 A chain whose end control moved (and whatever carries its base: the trunk, a clavicle) is predicted from the last
 evaluation: its base carried with the control it hangs below, then turned about its first joint as its IK swing
 turns to the new end (Rigify's swing bone damped-tracks the IK target, and the IK base hangs below it: the chain's
-IK solution rides in that frame); its length is stepped from its stretch samples (chain_steps.scale_step). A
-chain with a pole (which sets its bend plane) is not predicted. Where that is wrong, the sweep's closing
-evaluation finds the error and the next sweep steps the chain from that evaluation:
-- the chain's length after the move: a stretchy IK (Rigify's ik_stretch 0.1) sets it by the target's distance
-  (chain_steps.scale_step models it from the chain's last samples, which a move far from them leaves wrong);
+IK solution rides in that frame); its length is the one its stretch samples give at the new distance
+(chain_steps.modelled_length). A chain with a pole (which sets its bend plane) is not predicted. Where that is
+wrong, the sweep's closing evaluation finds the error and the next sweep steps the chain from that evaluation:
+- the chain's length after the move: a stretchy IK (Rigify's ik_stretch 0.1) sets it by the target's distance,
+  modelled from the samples nearest it (chain_steps.modelled_length), which a move far from them leaves wrong;
 - the swing's frame before its damped track is carried with what the chain hangs below: a limb parent that copies
   another bone's rotation (Rigify's FK Limb Follow above 0: a Copy Rotation of the root) turns less;
 - an IK without a pole starts from its base control's channels each evaluation, and the plane it ends in follows

@@ -37,9 +37,11 @@ which control drives which bone.
 Where a prediction is wrong, so that the rig is evaluated more than once: an IK chain whose end or base moved.
 Its bend plane and its length after the move are predicted (chain_prediction, whose notes say where that is
 wrong), and its bend and scale are stepped from the prediction in the sweep that moves its end. Blender's IK is
-iterative and path dependent: Rigify's stretch (ik_stretch 0.1 on both bones) shares a stretch between the bones
-that changes with the target's distance and the base's scale (the chain length's slope against that scale measured
-from 0.02 to 1.8 over one drag), and the chain's end stops off its target (0.1 mm after a 3 cm move of the basic
+iterative: Rigify's stretch (ik_stretch 0.1 on both bones) shares a stretch between the bones as its solver finds.
+It starts each evaluation from its base control's channels, which a bend step turns about the chain's axis (a
+symmetry of the solve), so the chain's length over its base's scale is a function of the target's distance over
+that scale alone (chain_steps.record_stretch), learnt from the evaluations of the current frame's placements and
+the updates before it; and the chain's end stops off its target (0.1 mm after a 3 cm move of the basic
 rig's hand). A chain that cannot be predicted (beyond reach, a limb between IK and FK) has its bend and scale stepped
 from an evaluation that shows its end where it goes; each further sweep (one evaluation) steps its scale again and
 corrects its end control by the chain's miss. An FK rig, and the trunk, clavicles and IK end controls of any rig,
@@ -78,11 +80,12 @@ _CORRECTION = 1e-3
 # evaluation of the rig) on about every update: Rigify's stretchy IK answers a scaling by a share that keeps changing.
 _MIDDLE_JOINT = 10.0
 
-# Each rig's IK chains' stretch samples (chain_steps.record_stretch), {rig's session_uid: {chain's first bone: the
-# last two}}, kept across the current frame's placements (a Live update's, a click's: control_channels): a Live
-# drag's updates stand close to each other. Only which scale is tried first depends on them (every sweep's closing
-# evaluation checks), but where it lands within the tolerances does: frames keyed in a row (a retarget, Adjust
-# Frames) start from none, so their keys do not depend on what ran before. _STRETCH_RIGS bounds how many rigs.
+# Each rig's IK chains' stretch samples (chain_steps.record_stretch), {rig's session_uid: {chain's first bone: up to
+# chain_steps._SAMPLES}}, kept across the current frame's placements (a Live update's, a click's: control_channels):
+# a chain's stretch is a function of its target's distance, and a Live drag's updates stand close to each other.
+# Only which scale is tried first depends on them (every sweep's closing evaluation checks), but where it lands
+# within the tolerances does: frames keyed in a row (a retarget, Adjust Frames) start from none, so their keys do
+# not depend on what ran before. _STRETCH_RIGS bounds how many rigs.
 _STRETCH = {}
 _STRETCH_RIGS = 16
 
@@ -169,7 +172,8 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
                 bone = _matrix(pose_bones[pair.bone])
                 if carry is not None:
                     bone = carry @ bone
-                chain = chain_steps.chain_of(pose_bones, pair, lengths, predictions.get(pair))
+                chain = chain_steps.chain_of(pose_bones, pair, lengths, predictions.get(pair),
+                                             stretch.get(pair.bone, ()))
                 if pair in samples and pair not in predictions:
                     _record(pose_bones, pair, chain, lengths, samples)
                 if _error(bone, pair, chain, desired, lengths) <= _tolerance(pair, tolerance):
@@ -187,12 +191,17 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
                         continue
                 else:
                     step = desired[pair.bone] @ affine_inverse(bone)
+                # An IK base control (a swing's chain) is turned from where its channels put it, not from where its
+                # IK left it: the IK then starts every evaluation from the same pose turned about the chain's axis,
+                # a symmetry of its solve, and its stretch stays a function of the target's distance alone
+                # (chain_steps.record_stretch); turned from the IK's result, each solve started from the last one's.
+                placed = _unconstrained(control) if pair.swing else _matrix(control)
                 if carry is None:
-                    moves.append((pair, control, step, step @ _matrix(control)))
+                    moves.append((pair, control, step, step @ placed))
                 else:
                     # Blender turns an armature-space matrix into channels against the parent's evaluated
                     # matrix, which the carry has not reached yet: hand it the matrix relative to that.
-                    new = step @ carry @ _matrix(control)
+                    new = step @ carry @ placed
                     moves.append((pair, control, step @ carry, affine_inverse(carry) @ new))
             if not moves and not scales:
                 continue
@@ -296,9 +305,7 @@ def _predicted(pair, pending, above, corrections, pose_bones, lengths, predictio
     swing = pose_bones.get(pair.swing) if pair.swing else None
     if swing is None:
         return None
-    parent = swing.parent  # its matrix before its constraints: from its parent's and its rest relation
-    relation = parent.bone.matrix_local.inverted() @ swing.bone.matrix_local @ swing.matrix_basis
-    swing = (_matrix(swing), _matrix(parent) @ np.array(relation, dtype=np.float64))
+    swing = (_matrix(swing), _unconstrained(swing))
     end = _matrix(pose_bones[pair.end])[:3, 3]
     chain = chain_prediction.predicted_chain(_matrix(pose_bones[pair.bone]), end,
                                              carry, end_step, swing)
@@ -306,6 +313,15 @@ def _predicted(pair, pending, above, corrections, pose_bones, lengths, predictio
         return None
     predictions[pair] = chain
     return chain[0]
+
+
+def _unconstrained(pose_bone):
+    """``pose_bone``'s armature-space matrix before its constraints (an IK's, a damped track's): its parent's
+    evaluated matrix, its rest relation to it and its channels (a plain parent: what Rigify's IK swing and IK base
+    have)."""
+    parent = pose_bone.parent
+    relation = parent.bone.matrix_local.inverted() @ pose_bone.bone.matrix_local @ pose_bone.matrix_basis
+    return _matrix(parent) @ np.array(relation, dtype=np.float64)
 
 
 def _moved_by(step, pose_bone):
