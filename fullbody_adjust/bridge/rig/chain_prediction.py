@@ -22,6 +22,7 @@ import numpy as np
 
 from ...solver.maths import vectors as g
 from ...solver.maths.geometry import affine_inverse
+from . import chain_steps
 
 def turn_about(point, a, b):
     """4x4 rotation about ``point`` taking direction ``a`` to direction ``b`` by the least turn (a damped track),
@@ -64,3 +65,23 @@ def predicted_chain(bone, end_head, carry, end_step, swing):
         return None
     motion = tracked @ affine_inverse(swing[0])
     return motion, motion @ bone, new_end
+
+
+def end_correction(chain, end_step, control_head, end_head, samples, scale, length):
+    """The armature-space move (3,) of a chain's end control, moved by ``end_step`` (4x4) since the evaluation
+    that put it at ``control_head`` and the chain's end at ``end_head``, that puts the end of the predicted
+    ``chain`` (predicted_chain, through chain_steps.chain_of) where the step put the end rather than the control:
+    the IK's miss at the chain's new stretch (chain_steps.modelled_miss, with its base control's ``scale`` and
+    its first bone's rest ``length``) replacing the evaluated one. None without samples, or where the change is
+    not a miss's (over a thousandth of ``length``)."""
+    bone, end, _length = chain
+    base = np.array(chain_steps.head(bone))
+    new_end = np.array(end)
+    axis = new_end - base
+    distance = float(np.linalg.norm(axis))
+    miss = chain_steps.modelled_miss(samples, distance, scale, length)
+    if miss is None or distance <= 0.0:
+        return None
+    carried = end_step[:3, :3] @ (end_head - control_head)  # the evaluated miss, as the step carries it
+    delta = carried - miss * axis / distance
+    return delta if float(np.linalg.norm(delta)) <= 1e-3 * length else None

@@ -19,6 +19,15 @@ def matrix(pose_bone):
     return np.array(pose_bone.matrix, dtype=np.float64)
 
 
+def unconstrained(pose_bone):
+    """``pose_bone``'s armature-space matrix before its constraints (an IK's, a damped track's): its parent's
+    evaluated matrix, its rest relation to it and its channels (a plain parent: what Rigify's IK swing and IK base
+    have)."""
+    parent = pose_bone.parent
+    relation = parent.bone.matrix_local.inverted() @ pose_bone.bone.matrix_local @ pose_bone.matrix_basis
+    return matrix(parent) @ np.array(relation, dtype=np.float64)
+
+
 def head(m):
     """A bone's head from its 4x4 matrix ``m`` as nested lists. Plain floats: with numpy's per-call cost on each
     4x4 matrix, these errors took half the matching's time outside Blender's evaluations."""
@@ -113,19 +122,21 @@ _SAMPLE_APART = 1e-3
 _SAMPLES = 64
 
 
-def record_stretch(samples, chain, scale, length):
-    """Keep in ``samples`` (a list sorted by x, at most _SAMPLES) where the evaluated ``chain`` stands: (x, l), its
-    end's distance from its base and its length over ``scale`` (its base control's) times ``length`` (its first
-    bone's), replacing a sample within _SAMPLE_APART of it. A stretchy IK's l is a function of x alone
-    (scale_step): measured on the generated basic rig, the same to 1e-4 (0.03 mm on its arm) across target
-    directions, base scales and bends (Blender's legacy IK starts each evaluation from the base control's channels,
-    which control_match only turns about the chain's axis, a symmetry of the solve), from a 2.7 % shrink at half
-    reach to 0.2 % stretch at 0.99; smooth but curved (its slope in x from 0.09 to 0.2 between 0.75 and 0.95 of full
-    reach), so that a step is modelled from the samples about it, not the last two."""
+def record_stretch(samples, chain, scale, length, miss=0.0):
+    """Keep in ``samples`` (a list sorted by x, at most _SAMPLES) where the evaluated ``chain`` stands: (x, l, m), its
+    end's distance from its base, its length and ``miss`` (how far its end lies beyond its end control, along the
+    chain's axis) over ``scale`` (its base control's) times ``length`` (its first bone's), replacing a sample within
+    _SAMPLE_APART of it. A stretchy IK's l is a function of x alone (scale_step): measured on the generated basic
+    rig, the same to 1e-4 (0.03 mm on its arm) across target directions, base scales and bends (Blender's legacy IK
+    starts each evaluation from the base control's channels, which control_match only turns about the chain's axis,
+    a symmetry of the solve), from a 2.7 % shrink at half reach to 0.2 % stretch at 0.99; smooth but curved (its
+    slope in x from 0.09 to 0.2 between 0.75 and 0.95 of full reach), so that a step is modelled from the samples
+    about it, not the last two. So is m (the IK's own miss: 0.003 mm at 0.75 of full reach, 0.033 mm at 0.95, 0.12
+    mm straight, the same to 0.0004 mm across directions and bends; off the axis under 0.001 mm)."""
     bone, end, now = chain
     x = math.dist(head(bone), end) / (scale * length)
-    sample = (x, now / (scale * length))
-    near = [i for i, (xi, _li) in enumerate(samples) if abs(xi - x) < _SAMPLE_APART]
+    sample = (x, now / (scale * length), miss / (scale * length))
+    near = [i for i, other in enumerate(samples) if abs(other[0] - x) < _SAMPLE_APART]
     for i in reversed(near):
         del samples[i]
     samples.append(sample)
@@ -134,23 +145,52 @@ def record_stretch(samples, chain, scale, length):
         samples.remove(max(samples, key=lambda s: abs(s[0] - x)))
 
 
-def modelled_length(samples, distance, scale, length):
-    """The chain length a stretchy IK gives with its end ``distance`` from its base and its base control's
-    ``scale`` (the first bone's rest ``length``): s c l(d / (s c)), l from the ``samples`` nearest that x (a
-    parabola through three, a line through two, a constant with one); None without samples."""
-    if not samples or scale <= 0.0:
-        return None
-    x = distance / (scale * length)
+def record(pose_bones, pair, chain, lengths, samples, end=None):
+    """record_stretch of scale pair ``pair``'s evaluated ``chain``, its miss measured from its end control's pair
+    ``end`` (None: 0)."""
+    miss = 0.0 if end is None else axial_miss(chain, head(matrix(pose_bones[end.control]).tolist()))
+    record_stretch(samples, chain, pose_bones[pair.control].scale[1], lengths[pair.bone], miss)
+
+
+def axial_miss(chain, control_head):
+    """How far the evaluated ``chain``'s end (chain_of) lies beyond its end control's head ``control_head``
+    along the chain's axis (its IK's own miss; negative: short of it)."""
+    bone, end, _length = chain
+    base = head(bone)
+    axis = g.sub(end, base)
+    size = g.norm(axis)
+    return 0.0 if size <= 0.0 else g.dot(g.sub(end, control_head), axis) / size
+
+
+def _at(samples, x, k):
+    """Component ``k`` of the ``samples`` (record_stretch) at ``x``: a parabola through the three nearest, a line
+    through two, a constant with one."""
     near = sorted(samples, key=lambda s: abs(s[0] - x))[:3]
     xs = [s[0] for s in near]
-    apart = all(abs(a - b) >= _SAMPLE_APART for k, a in enumerate(xs) for b in xs[k + 1:])
+    apart = all(abs(a - b) >= _SAMPLE_APART for i, a in enumerate(xs) for b in xs[i + 1:])
     if len(near) == 1 or not apart:
-        return scale * length * near[0][1]
-    coefficients = np.polyfit(xs, [s[1] for s in near], len(near) - 1).tolist()
-    l = 0.0
-    for c in coefficients:
-        l = l * x + c
-    return scale * length * l
+        return near[0][k]
+    value = 0.0
+    for c in np.polyfit(xs, [s[k] for s in near], len(near) - 1).tolist():
+        value = value * x + c
+    return value
+
+
+def modelled_length(samples, distance, scale, length):
+    """The chain length a stretchy IK gives with its end ``distance`` from its base and its base control's
+    ``scale`` (the first bone's rest ``length``): s c l(d / (s c)), l from the ``samples`` nearest that x (_at);
+    None without samples."""
+    if not samples or scale <= 0.0:
+        return None
+    return scale * length * _at(samples, distance / (scale * length), 1)
+
+
+def modelled_miss(samples, distance, scale, length):
+    """How far the chain's end lies beyond its end control along its axis (record_stretch's m), as
+    modelled_length; None without samples."""
+    if not samples or scale <= 0.0:
+        return None
+    return scale * length * _at(samples, distance / (scale * length), 2)
 
 
 def _about(samples, ratio):
@@ -177,7 +217,7 @@ def _modelled_scale(samples, chain, want, length):
     if distance <= 0.0:
         return None
     pair = _about(samples, want / distance)
-    x1, l1 = pair[-1]
+    x1, l1 = pair[-1][:2]
     slope = 0.0
     if len(pair) > 1 and abs(x1 - pair[0][0]) >= _SAMPLE_APART:
         slope = (l1 - pair[0][1]) / (x1 - pair[0][0])

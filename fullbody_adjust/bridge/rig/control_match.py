@@ -150,8 +150,11 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
     scaled = {}  # scale pairs: (control's Y scale, chain length) at their last step (None: left as they are)
     stretch = {} if stretch is None else stretch
     samples = {p: stretch.setdefault(p.bone, []) for p in pairs if p.kind == "scale"}
+    # A scale pair's chain's end control (an IK hand or foot control: the pair its chain's end follows).
+    ends = {p: q for p in samples for q in pairs if q.follows_control and q.bone == p.end}
     for sweep in range(max_sweeps):
         pending = []  # (pair, armature-space step) of the controls moved since the last evaluation
+        written = {}  # pair: (the carry its control's move was written against or None, the matrix written)
         corrections = set()  # pairs of ``pending`` that only corrected a chain's end (_carried_or_apart)
         for level_pairs in by_level:
             carries = [_carried_or_apart(pair, pending, above, corrections) if pending else None
@@ -167,15 +170,16 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
                 corrections.clear()
                 predictions.clear()
                 carries = [None] * len(level_pairs)
-            moves, scales = [], []
+            moves, scales, chains = [], [], {}
             for pair, carry in zip(level_pairs, carries):
                 bone = _matrix(pose_bones[pair.bone])
                 if carry is not None:
                     bone = carry @ bone
                 chain = chain_steps.chain_of(pose_bones, pair, lengths, predictions.get(pair),
                                              stretch.get(pair.bone, ()))
+                chains[pair] = chain
                 if pair in samples and pair not in predictions:
-                    _record(pose_bones, pair, chain, lengths, samples)
+                    chain_steps.record(pose_bones, pair, chain, lengths, samples[pair], ends.get(pair))
                 if _error(bone, pair, chain, desired, lengths) <= _tolerance(pair, tolerance):
                     continue
                 control = pose_bones[pair.control]
@@ -195,7 +199,7 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
                 # IK left it: the IK then starts every evaluation from the same pose turned about the chain's axis,
                 # a symmetry of its solve, and its stretch stays a function of the target's distance alone
                 # (chain_steps.record_stretch); turned from the IK's result, each solve started from the last one's.
-                placed = _unconstrained(control) if pair.swing else _matrix(control)
+                placed = chain_steps.unconstrained(control) if pair.swing else _matrix(control)
                 if carry is None:
                     moves.append((pair, control, step, step @ placed))
                 else:
@@ -203,9 +207,10 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
                     # matrix, which the carry has not reached yet: hand it the matrix relative to that.
                     new = step @ carry @ placed
                     moves.append((pair, control, step @ carry, affine_inverse(carry) @ new))
-            if not moves and not scales:
+            if not moves and not scales and not predictions:
                 continue
             for pair, control, step, new in moves:
+                written[pair] = (carries[level_pairs.index(pair)], new)
                 # A bend step only turns its control, but Blender re-derives every channel from the matrix
                 # written, which lost an IK base's scale (a stretchy chain's length): that is kept as it was.
                 kept = tuple(control.scale) if pair.bends else None
@@ -218,6 +223,9 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
                     corrections.add(pair)
             for control, scale in scales:
                 control.scale = scale.tolist()
+            for pair in predictions:
+                if pair in ends and pair in samples:
+                    _correct_end(pair, ends[pair], chains[pair], pose_bones, lengths, samples[pair], pending, written)
             if scales:
                 view_layer.update()
                 pending = []
@@ -226,7 +234,8 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
             view_layer.update()
         errors = [_pair_error(pose_bones, p, desired, lengths) for p in pairs]
         for pair in samples:
-            _record(pose_bones, pair, chain_steps.chain_of(pose_bones, pair, lengths), lengths, samples)
+            chain_steps.record(pose_bones, pair, chain_steps.chain_of(pose_bones, pair, lengths), lengths,
+                               samples[pair], ends.get(pair))
         previous, error = error, max(errors)
         if error < best_error:
             best_error, best = error, read_channels(obj, controls)
@@ -248,8 +257,27 @@ def _set_channels(obj, channels):
             setattr(pose_bone, prop, value.tolist())
 
 
-def _record(pose_bones, pair, chain, lengths, samples):
-    chain_steps.record_stretch(samples[pair], chain, pose_bones[pair.control].scale[1], lengths[pair.bone])
+def _correct_end(pair, end, chain, pose_bones, lengths, samples, pending, written):
+    """Move the end control ``end`` of the predicted chain ``chain`` of scale pair ``pair`` (moved since the last
+    evaluation) by the change of its IK's miss (chain_prediction.end_correction) at the chain's new stretch, so that
+    the chain's end, not the control, lands where the control's step put the end; its step in ``pending`` takes
+    the move (``written[end]``: the carry its control's matrix was written against, or None, and that matrix)."""
+    k = next((i for i, (moved, _step) in enumerate(pending) if moved == end), None)
+    if k is None:
+        return
+    control = pose_bones[end.control]
+    carry, new = written[end]
+    delta = chain_prediction.end_correction(chain, pending[k][1], _matrix(control)[:3, 3],
+                                            _matrix(pose_bones[end.bone])[:3, 3], samples,
+                                            pose_bones[pair.control].scale[1], lengths[pair.bone])
+    if delta is None:
+        return
+    move = np.eye(4)
+    move[:3, 3] = delta
+    pending[k] = (end, move @ pending[k][1])
+    relative = move if carry is None else affine_inverse(carry) @ move @ carry
+    written[end] = (carry, relative @ new)
+    control.matrix = Matrix((relative @ new).tolist())
 
 
 def _tolerance(pair, tolerance):
@@ -305,7 +333,7 @@ def _predicted(pair, pending, above, corrections, pose_bones, lengths, predictio
     swing = pose_bones.get(pair.swing) if pair.swing else None
     if swing is None:
         return None
-    swing = (_matrix(swing), _unconstrained(swing))
+    swing = (_matrix(swing), chain_steps.unconstrained(swing))
     end = _matrix(pose_bones[pair.end])[:3, 3]
     chain = chain_prediction.predicted_chain(_matrix(pose_bones[pair.bone]), end,
                                              carry, end_step, swing)
@@ -313,15 +341,6 @@ def _predicted(pair, pending, above, corrections, pose_bones, lengths, predictio
         return None
     predictions[pair] = chain
     return chain[0]
-
-
-def _unconstrained(pose_bone):
-    """``pose_bone``'s armature-space matrix before its constraints (an IK's, a damped track's): its parent's
-    evaluated matrix, its rest relation to it and its channels (a plain parent: what Rigify's IK swing and IK base
-    have)."""
-    parent = pose_bone.parent
-    relation = parent.bone.matrix_local.inverted() @ pose_bone.bone.matrix_local @ pose_bone.matrix_basis
-    return _matrix(parent) @ np.array(relation, dtype=np.float64)
 
 
 def _moved_by(step, pose_bone):
