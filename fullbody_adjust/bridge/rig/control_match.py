@@ -225,7 +225,8 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
                 control.scale = scale.tolist()
             for pair in predictions:
                 if pair in ends and pair in samples:
-                    _correct_end(pair, ends[pair], chains[pair], pose_bones, lengths, samples[pair], pending, written)
+                    _correct_end(pair, ends[pair], chains[pair], pose_bones, lengths, samples[pair], pending, written,
+                                 above)
             if scales:
                 view_layer.update()
                 pending = []
@@ -257,24 +258,28 @@ def _set_channels(obj, channels):
             setattr(pose_bone, prop, value.tolist())
 
 
-def _correct_end(pair, end, chain, pose_bones, lengths, samples, pending, written):
-    """Move the end control ``end`` of the predicted chain ``chain`` of scale pair ``pair`` (moved since the last
-    evaluation) by the change of its IK's miss (chain_prediction.end_correction) at the chain's new stretch, so that
-    the chain's end, not the control, lands where the control's step put the end; its step in ``pending`` takes
-    the move (``written[end]``: the carry its control's matrix was written against, or None, and that matrix)."""
-    k = next((i for i, (moved, _step) in enumerate(pending) if moved == end), None)
-    if k is None:
-        return
+def _correct_end(pair, end, chain, pose_bones, lengths, samples, pending, written, above):
+    """Move the end control ``end`` of the predicted chain ``chain`` of scale pair ``pair`` by the change of its
+    IK's miss (chain_prediction.end_correction) at the chain's new stretch, so that the chain's end, not the control,
+    lands where the control's step put the end (or where it was, the control unmoved and below no moved control:
+    the trunk carried the chain's base); its step in ``pending`` takes the move (``written[end]``: the carry its
+    control's matrix was written against, or None, and that matrix)."""
     control = pose_bones[end.control]
-    carry, new = written[end]
-    delta = chain_prediction.end_correction(chain, pending[k][1], _matrix(control)[:3, 3],
-                                            _matrix(pose_bones[end.bone])[:3, 3], samples,
+    k = next((i for i, (moved, _step) in enumerate(pending) if moved == end), None)
+    if k is None and any({moved.control, moved.bone} & above[end.control] for moved, _step in pending):
+        return
+    carry, new = written[end] if k is not None else (None, _matrix(control))
+    delta = chain_prediction.end_correction(chain, np.eye(4) if k is None else pending[k][1],
+                                            _matrix(control)[:3, 3], _matrix(pose_bones[end.bone])[:3, 3], samples,
                                             pose_bones[pair.control].scale[1], lengths[pair.bone])
     if delta is None:
         return
     move = np.eye(4)
     move[:3, 3] = delta
-    pending[k] = (end, move @ pending[k][1])
+    if k is None:
+        pending.append((end, move))
+    else:
+        pending[k] = (end, move @ pending[k][1])
     relative = move if carry is None else affine_inverse(carry) @ move @ carry
     written[end] = (carry, relative @ new)
     control.matrix = Matrix((relative @ new).tolist())
