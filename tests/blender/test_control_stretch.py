@@ -4,6 +4,8 @@ samples of chain_steps), the length and the IK's miss modelled from the samples 
 control moved by the change of that miss (chain_prediction.end_correction)."""
 
 import importlib
+import math
+from types import SimpleNamespace
 
 import bpy
 import numpy as np
@@ -114,3 +116,35 @@ def test_an_end_control_takes_the_change_of_its_chains_miss(extension_module_nam
     assert np.allclose(delta, [0.0, 0.0, 2e-5 - modelled], atol=1e-15)
     far = np.array([0.1, 0.0, 0.01])  # 1 cm: not a miss
     assert prediction.end_correction(chain, step, control, far, samples, scale, length) is None
+
+
+def test_a_first_scale_step_near_full_reach_takes_the_samples_slope(extension_module_name):
+    # chain_steps.scale_step: where the samples' model gives up (a chain whose length follows its base's scale by
+    # less than _SLOPE_MIN in logs: near full reach), the first step of a placement divides the length's log ratio
+    # by the slope the two samples nearest show; on a chain whose l(x) is that line, it lands ten times nearer the
+    # wanted length than the plain ratio's step.
+    steps = importlib.import_module(f"{extension_module_name}.bridge.rig.chain_steps")
+    length, a, b = 0.3, 0.3, 0.85  # l(x) = a + b x: 1 - x l' / l = a / l, 0.16 at x = 1.9
+
+    def chain_at(scale, distance):
+        x = distance / (scale * length)
+        return (np.eye(4).tolist(), (0.0, 0.0, distance), scale * length * (a + b * x))
+
+    samples = []
+    for x in (1.88, 1.92):
+        steps.record_stretch(samples, chain_at(1.0, x * length), 1.0, length)
+    distance, want = 1.9 * length, 0.5735
+    chain = chain_at(1.0, distance)
+    assert steps._modelled_scale(samples, chain, want, length) is None  # the model gives up
+    control_match = importlib.import_module(f"{extension_module_name}.bridge.rig.control_match")
+    pair = control_match.ControlPair("upper_arm_ik.L", "ORG-upper_arm.L", 4, end="ORG-hand.L", kind="scale")
+    lengths = {pair.bone: length}
+    end = np.eye(4)
+    end[:3, 3] = (0.0, 0.0, distance)
+    upper = np.eye(4)  # its tail, the elbow, halfway up and off the axis: the chain's length is want
+    upper[:3, 1] = (math.sqrt((want / 2) ** 2 - (distance / 2) ** 2), 0.0, distance / 2) / np.float64(length)
+    desired = {pair.bone: upper, pair.end: end}
+    control = SimpleNamespace(scale=(1.0, 1.0, 1.0))
+    stepped = steps.scale_step(pair, control, chain, desired, lengths, {}, samples=samples)[1]
+    plain = math.exp(math.log(want / chain[2]))
+    assert abs(chain_at(stepped, distance)[2] - want) < 0.1 * abs(chain_at(plain, distance)[2] - want)
