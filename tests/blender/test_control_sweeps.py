@@ -147,7 +147,7 @@ def test_an_ik_chain_predicted_after_its_end_moves_saves_evaluations(extension_m
 
 
 def test_a_chain_scale_solves_its_stretch_samples(extension_module_name):
-    # chain_steps: samples (x, l) of a chain whose length over its base's scale follows a line in x give the scale
+    # chain_steps: samples (x, l, m) of a chain whose length over its base's scale follows a line in x give the scale
     # at which the modelled chain has the wanted length with its end where it is; where the chain's length no
     # longer follows the scale (a slope in logs under _SLOPE_MIN: near full stretch) there is none.
     steps = importlib.import_module(f"{extension_module_name}.bridge.rig.chain_steps")
@@ -164,7 +164,7 @@ def test_a_chain_scale_solves_its_stretch_samples(extension_module_name):
         # a chain standing at x with that scale: its end at x s c, its length s c l(x)
         chain = (bone.tolist(), (0.0, 0.0, x * scale * length), scale * length * stretch(x))
         steps.record_stretch(samples, chain, scale, length)
-    assert np.allclose(samples, [(1.45, stretch(1.45)), (1.55, stretch(1.55))])
+    assert np.allclose(samples, [(1.45, stretch(1.45), 0.0), (1.55, stretch(1.55), 0.0)])  # (x, l, miss)
     want = 0.5651
     scale = steps._modelled_scale(samples, (bone.tolist(), end, 0.0), want, length)
     assert scale is not None

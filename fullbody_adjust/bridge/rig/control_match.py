@@ -37,15 +37,19 @@ which control drives which bone.
 Where a prediction is wrong, so that the rig is evaluated more than once: an IK chain whose end or base moved.
 Its bend plane and its length after the move are predicted (chain_prediction, whose notes say where that is
 wrong), and its bend and scale are stepped from the prediction in the sweep that moves its end. Blender's IK is
-iterative and path dependent: Rigify's stretch (ik_stretch 0.1 on both bones) shares a stretch between the bones
-that changes with the target's distance and the base's scale (the chain length's slope against that scale measured
-from 0.02 to 1.8 over one drag), and the chain's end stops off its target (0.1 mm after a 3 cm move of the basic
-rig's hand). A chain that cannot be predicted (beyond reach, a limb between IK and FK) has its bend and scale stepped
-from an evaluation that shows its end where it goes; each further sweep (one evaluation) steps its scale again and
-corrects its end control by the chain's miss. An FK rig, and the trunk, clavicles and IK end controls of any rig,
-are placed from the rest relations and carried matrices in one go, shown by the sweep's closing evaluation. A
-caller that has just had the rig evaluated (a click, a Live update) says so, and the matching does not evaluate it
-first.
+iterative: Rigify's stretch (ik_stretch 0.1 on both bones) shares a stretch between the bones as its solver finds.
+It starts each evaluation from its base control's channels, which a bend step turns about the chain's axis (a
+symmetry of the solve), so the chain's length over its base's scale is a function of the target's distance over
+that scale alone (chain_steps.record_stretch), learnt from the evaluations of the current frame's placements and
+the updates before it; and so is how far the chain's end stops off its target (0.003 mm at 0.75 of its reach,
+0.12 mm straight), by which its end control is moved in the same sweep (_correct_end). Near full reach (a straight
+arm beyond reach) the IK bends and stretches its chain from that start, and its length follows the base's scale
+less and less: each sweep there costs an evaluation for a smaller gain. A chain that cannot be predicted (beyond
+reach, a limb between IK and FK) has its bend and scale stepped from an evaluation that shows its end where it goes;
+each further sweep (one evaluation) steps its scale again and corrects its end control by the chain's miss. An FK
+rig, and the trunk, clavicles and IK end controls of any rig, are placed from the rest relations and carried
+matrices in one go, shown by the sweep's closing evaluation. A caller that has just had the rig evaluated (a click,
+a Live update) says so, and the matching does not evaluate it first.
 """
 
 import math
@@ -78,11 +82,12 @@ _CORRECTION = 1e-3
 # evaluation of the rig) on about every update: Rigify's stretchy IK answers a scaling by a share that keeps changing.
 _MIDDLE_JOINT = 10.0
 
-# Each rig's IK chains' stretch samples (chain_steps.record_stretch), {rig's session_uid: {chain's first bone: the
-# last two}}, kept across the current frame's placements (a Live update's, a click's: control_channels): a Live
-# drag's updates stand close to each other. Only which scale is tried first depends on them (every sweep's closing
-# evaluation checks), but where it lands within the tolerances does: frames keyed in a row (a retarget, Adjust
-# Frames) start from none, so their keys do not depend on what ran before. _STRETCH_RIGS bounds how many rigs.
+# Each rig's IK chains' stretch samples (chain_steps.record_stretch), {rig's session_uid: {chain's first bone: up to
+# chain_steps._SAMPLES}}, kept across the current frame's placements (a Live update's, a click's: control_channels):
+# a chain's stretch is a function of its target's distance, and a Live drag's updates stand close to each other.
+# Only which scale is tried first depends on them (every sweep's closing evaluation checks), but where it lands
+# within the tolerances does: frames keyed in a row (a retarget, Adjust Frames) start from none, so their keys do
+# not depend on what ran before. _STRETCH_RIGS bounds how many rigs.
 _STRETCH = {}
 _STRETCH_RIGS = 16
 
@@ -147,8 +152,11 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
     scaled = {}  # scale pairs: (control's Y scale, chain length) at their last step (None: left as they are)
     stretch = {} if stretch is None else stretch
     samples = {p: stretch.setdefault(p.bone, []) for p in pairs if p.kind == "scale"}
+    # A scale pair's chain's end control (an IK hand or foot control: the pair its chain's end follows).
+    ends = {p: q for p in samples for q in pairs if q.follows_control and q.bone == p.end}
     for sweep in range(max_sweeps):
         pending = []  # (pair, armature-space step) of the controls moved since the last evaluation
+        written = {}  # pair: (the carry its control's move was written against or None, the matrix written)
         corrections = set()  # pairs of ``pending`` that only corrected a chain's end (_carried_or_apart)
         for level_pairs in by_level:
             carries = [_carried_or_apart(pair, pending, above, corrections) if pending else None
@@ -164,14 +172,16 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
                 corrections.clear()
                 predictions.clear()
                 carries = [None] * len(level_pairs)
-            moves, scales = [], []
+            moves, scales, chains = [], [], {}
             for pair, carry in zip(level_pairs, carries):
                 bone = _matrix(pose_bones[pair.bone])
                 if carry is not None:
                     bone = carry @ bone
-                chain = chain_steps.chain_of(pose_bones, pair, lengths, predictions.get(pair))
+                chain = chain_steps.chain_of(pose_bones, pair, lengths, predictions.get(pair),
+                                             stretch.get(pair.bone, ()))
+                chains[pair] = chain
                 if pair in samples and pair not in predictions:
-                    _record(pose_bones, pair, chain, lengths, samples)
+                    chain_steps.record(pose_bones, pair, chain, lengths, samples[pair], ends.get(pair))
                 if _error(bone, pair, chain, desired, lengths) <= _tolerance(pair, tolerance):
                     continue
                 control = pose_bones[pair.control]
@@ -187,16 +197,22 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
                         continue
                 else:
                     step = desired[pair.bone] @ affine_inverse(bone)
+                # An IK base control (a swing's chain) is turned from where its channels put it, not from where its
+                # IK left it: the IK then starts every evaluation from the same pose turned about the chain's axis,
+                # a symmetry of its solve, and its stretch stays a function of the target's distance alone
+                # (chain_steps.record_stretch); turned from the IK's result, each solve started from the last one's.
+                placed = chain_steps.unconstrained(control) if pair.swing else _matrix(control)
                 if carry is None:
-                    moves.append((pair, control, step, step @ _matrix(control)))
+                    moves.append((pair, control, step, step @ placed))
                 else:
                     # Blender turns an armature-space matrix into channels against the parent's evaluated
                     # matrix, which the carry has not reached yet: hand it the matrix relative to that.
-                    new = step @ carry @ _matrix(control)
+                    new = step @ carry @ placed
                     moves.append((pair, control, step @ carry, affine_inverse(carry) @ new))
-            if not moves and not scales:
+            if not moves and not scales and not predictions:
                 continue
             for pair, control, step, new in moves:
+                written[pair] = (carries[level_pairs.index(pair)], new)
                 # A bend step only turns its control, but Blender re-derives every channel from the matrix
                 # written, which lost an IK base's scale (a stretchy chain's length): that is kept as it was.
                 kept = tuple(control.scale) if pair.bends else None
@@ -209,6 +225,10 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
                     corrections.add(pair)
             for control, scale in scales:
                 control.scale = scale.tolist()
+            for pair in predictions:
+                if pair in ends and pair in samples:
+                    _correct_end(pair, ends[pair], chains[pair], pose_bones, lengths, samples[pair], pending, written,
+                                 above)
             if scales:
                 view_layer.update()
                 pending = []
@@ -217,7 +237,8 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
             view_layer.update()
         errors = [_pair_error(pose_bones, p, desired, lengths) for p in pairs]
         for pair in samples:
-            _record(pose_bones, pair, chain_steps.chain_of(pose_bones, pair, lengths), lengths, samples)
+            chain_steps.record(pose_bones, pair, chain_steps.chain_of(pose_bones, pair, lengths), lengths,
+                               samples[pair], ends.get(pair))
         previous, error = error, max(errors)
         if error < best_error:
             best_error, best = error, read_channels(obj, controls)
@@ -239,8 +260,31 @@ def _set_channels(obj, channels):
             setattr(pose_bone, prop, value.tolist())
 
 
-def _record(pose_bones, pair, chain, lengths, samples):
-    chain_steps.record_stretch(samples[pair], chain, pose_bones[pair.control].scale[1], lengths[pair.bone])
+def _correct_end(pair, end, chain, pose_bones, lengths, samples, pending, written, above):
+    """Move the end control ``end`` of the predicted chain ``chain`` of scale pair ``pair`` by the change of its
+    IK's miss (chain_prediction.end_correction) at the chain's new stretch, so that the chain's end, not the control,
+    lands where the control's step put the end (or where it was, the control unmoved and below no moved control:
+    the trunk carried the chain's base); its step in ``pending`` takes the move (``written[end]``: the carry its
+    control's matrix was written against, or None, and that matrix)."""
+    control = pose_bones[end.control]
+    k = next((i for i, (moved, _step) in enumerate(pending) if moved == end), None)
+    if k is None and any({moved.control, moved.bone} & above[end.control] for moved, _step in pending):
+        return
+    carry, new = written[end] if k is not None else (None, _matrix(control))
+    delta = chain_prediction.end_correction(chain, np.eye(4) if k is None else pending[k][1],
+                                            _matrix(control)[:3, 3], _matrix(pose_bones[end.bone])[:3, 3], samples,
+                                            pose_bones[pair.control].scale[1], lengths[pair.bone])
+    if delta is None:
+        return
+    move = np.eye(4)
+    move[:3, 3] = delta
+    if k is None:
+        pending.append((end, move))
+    else:
+        pending[k] = (end, move @ pending[k][1])
+    relative = move if carry is None else affine_inverse(carry) @ move @ carry
+    written[end] = (carry, relative @ new)
+    control.matrix = Matrix((relative @ new).tolist())
 
 
 def _tolerance(pair, tolerance):
@@ -296,9 +340,7 @@ def _predicted(pair, pending, above, corrections, pose_bones, lengths, predictio
     swing = pose_bones.get(pair.swing) if pair.swing else None
     if swing is None:
         return None
-    parent = swing.parent  # its matrix before its constraints: from its parent's and its rest relation
-    relation = parent.bone.matrix_local.inverted() @ swing.bone.matrix_local @ swing.matrix_basis
-    swing = (_matrix(swing), _matrix(parent) @ np.array(relation, dtype=np.float64))
+    swing = (_matrix(swing), chain_steps.unconstrained(swing))
     end = _matrix(pose_bones[pair.end])[:3, 3]
     chain = chain_prediction.predicted_chain(_matrix(pose_bones[pair.bone]), end,
                                              carry, end_step, swing)
