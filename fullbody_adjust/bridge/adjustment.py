@@ -23,7 +23,7 @@ from .reading import effectors, frames as frames_module, goals as goals_of, ik_l
 from .reading import solve_space, start_checks
 from .writing import keyframes, solved_pose
 from .writing.channels import apply_channels, armature_rotations_to_channels
-from .rig.control_match import control_channels
+from .rig.control_frames import control_channels
 from .errors import AdjustError
 from .outcome import Outcome
 

@@ -9,7 +9,7 @@ from .. import adjustment
 from ..rig import control_rig, mapping
 from ..writing import keyframes
 from ..reading import pose
-from ..rig.control_match import control_channels
+from ..rig.control_frames import control_channels
 from .read import pose_property
 from .partial import action_without
 

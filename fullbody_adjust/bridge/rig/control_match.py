@@ -65,10 +65,6 @@ from . import chain_prediction, chain_steps
 from .chain_steps import head as _head, matrix as _matrix, tail as _tail
 
 
-# A control counts as moved when an entry of its local matrix changed by more than this: its channels are
-# float32, so an untouched control reads back bit for bit.
-_CONTROL_MOVED = 1e-7
-
 # A sweep that leaves the largest error above this fraction of the previous sweep's is the last one.
 _STALLED = 0.7
 
@@ -81,15 +77,6 @@ _CORRECTION = 1e-3
 # solve's tolerance: 0.1 mm at the default 1e-5 m, what the deform bones are held to. Its last tenth cost a sweep (an
 # evaluation of the rig) on about every update: Rigify's stretchy IK answers a scaling by a share that keeps changing.
 _MIDDLE_JOINT = 10.0
-
-# Each rig's IK chains' stretch samples (chain_steps.record_stretch), {rig's session_uid: {chain's first bone: up to
-# chain_steps._SAMPLES}}, kept across the current frame's placements (a Live update's, a click's: control_channels):
-# a chain's stretch is a function of its target's distance, and a Live drag's updates stand close to each other.
-# Only which scale is tried first depends on them (every sweep's closing evaluation checks), but where it lands
-# within the tolerances does: frames keyed in a row (a retarget, Adjust Frames) start from none, so their keys do
-# not depend on what ran before. _STRETCH_RIGS bounds how many rigs.
-_STRETCH = {}
-_STRETCH_RIGS = 16
 
 # The group of the trunk's pairs that carry the whole body: a move of one carries every limb.
 TRUNK_GROUP = "trunk"
@@ -135,7 +122,7 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
     unknown (module notes), and after each sweep. Returns the largest remaining bone error (armature units) of the
     best sweep, whose channels the controls are left holding. ``stretch``: the IK chains' stretch samples to step
     their scales from and add to ({first bone: samples}; None: none kept). ``predict``: an IK chain whose end or
-    base moved is predicted (chain_prediction) rather than evaluated before its bend and scale steps; control_channels
+    base moved is predicted (chain_prediction) rather than evaluated before its bend and scale steps; control_frames.control_channels
     predicts for one pose Blender has just evaluated (Live, a click), not for frames in a row (a retarget, Adjust
     Frames), whose IK ends met then lie within 0.1 mm of the solve on every version (measured: with prediction a
     generated rig's retargeted toe ended 0.111 mm off on bpy 4.5 and 5.2)."""
@@ -364,35 +351,6 @@ def _error(bone, pair, chain, desired, lengths):
         return chain_steps.chain_error(chain, pair, desired, lengths)
     b, d, length = bone.tolist(), desired[pair.bone].tolist(), lengths[pair.bone]
     return max(math.dist(_head(b), _head(d)), math.dist(_tail(b, length), _tail(d, length)))
-
-
-def control_channels(obj, view_layer, pairs, bones, desired, tolerance, rows, start=None, evaluated=False):
-    """The controls' channels that pose ``bones`` at ``desired`` (F,k,4,4 armature space) on each frame:
-    {control: {property: (F,n)}} for the controls that moved on some frame, rotations continuous over frames.
-    ``rows`` yields the frame rows in order (the caller may step the scene to each frame as it yields); the
-    controls are left as placed for the last row. A control counts as moved when it ends a frame away from where
-    it was before that frame's matching or, given ``start`` (the PoseSnapshot the solve started from), from where
-    it was in that pose: Live matches from the controls it placed on the update before, and one that needs no
-    further move is still part of the pose it shows. ``evaluated``: the rig is evaluated as it stands for the first
-    row (match_controls)."""
-    controls = list(dict.fromkeys(pair.control for pair in pairs))
-    if len(_STRETCH) > _STRETCH_RIGS:
-        _STRETCH.clear()
-    stretch = _STRETCH.setdefault(obj.session_uid, {}) if evaluated else {}  # module notes at _STRETCH
-    out, moved = [], np.zeros(len(controls), dtype=bool)
-    start_bases = None if start is None else start.channels["matrix_basis"][:, start.indices(controls)]
-    for row in rows:
-        before = _bases(obj, controls) if start_bases is None else start_bases[row]
-        match_controls(obj, view_layer, pairs, dict(zip(bones, desired[row])), tolerance,
-                       evaluated=evaluated and not out, stretch=stretch, predict=evaluated)
-        moved |= np.abs(_bases(obj, controls) - before).max(axis=(1, 2)) > _CONTROL_MOVED
-        out.append(read_channels(obj, controls, previous=out[-1] if out else None))
-    return {c: {prop: np.stack([row[c][prop] for row in out]) for prop in out[0][c]}
-            for c, m in zip(controls, moved) if m}
-
-
-def _bases(obj, controls):
-    return np.array([obj.pose.bones[c].matrix_basis for c in controls], dtype=np.float64)
 
 
 def read_channels(obj, controls, previous=None):
