@@ -10,7 +10,7 @@ import numpy as np
 from ..fullbody.adjust import sub_base_point
 from .contacts import GROUND, RAISED, RetargetSettings, detect_contacts, hold, intervals
 from ..errors import SolverInputError
-from .foot_pivots import held_still, pivot_bone, pivot_held, roll
+from .foot_pivots import drifting_pieces, held_still, pivot_bone, pivot_held, roll
 from ..maths.geometry import all_set, norm
 from ..body.joint_ends import end_points
 from .feet import UNSEEN_FOOT, limit_toe_roll, raised_offsets, refit_step, resting_offsets
@@ -28,6 +28,9 @@ _OWN_FOOT = 0.05
 # Something raised (inferred from the source alone) whose world height lies more than this (target leg lengths)
 # from its height scaled with the motion is out of the target's scale: it is scaled (_at_world_height).
 _OUT_OF_SCALE = 0.5
+# How far (target leg lengths) a foot's held path may part from its free trajectory over one contact before it is
+# held in pieces (foot_pivots.drifting_pieces).
+_DRIFT = 0.5
 
 
 def moving_average(values, half_width):
@@ -187,6 +190,15 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     own = free.copy()  # where the transferred limbs put each wrist and ankle: within reach, moving with the body
     if ground:
         _stand_in_place(free, found, s_points, soles, floor, leg_s, settings, _OWN_FOOT * leg_t)
+        for k, e in ((EFFECTORS.index(e), e) for e in FEET):  # a hold drifting off the free trajectory: in pieces
+            found[e] = [replace(c, start=c.start + a, stop=c.start + b) for c in found[e] for a, b in drifting_pieces(
+                _foot_path(c, free[c.start:c.stop, k], effector_points(target, start[c.start:c.stop], e), 0.0,
+                           target.to_world(start[c.start:c.stop, pivots[e][1], :3, 3]), pinned[e][c.start:c.stop],
+                           ankles_pinned[e][c.start:c.stop])[:, :2], free[c.start:c.stop, k],
+                (pinned[e] | ankles_pinned[e])[c.start:c.stop], _DRIFT * leg_t)]
+            contacts[:, k] = False
+            for c in found[e]:
+                contacts[c.start:c.stop, k] = True
         # Each foot rolls onto its toes no further than lifts its ankle as the source's does, nor than takes its
         # sole below the floor where it is not held (feet): the leg, not the floor, moves the ankle.
         feet = [EFFECTORS.index(e) for e in FEET]
