@@ -27,8 +27,6 @@ REQUIRED = ("root", "trunk", "arm.L", "arm.R", "hand.L", "hand.R", "leg.L", "leg
 KNOWN = {
     ('obstacle', 'kaykit_manny'): "0 joints and 4 mesh vertices inside the box, the deepest 2.9 mm: no swivel "
                                   "within the shoulder's default limits keeps the chunky forearm out",
-    ('gltf_run', 'kenney'): '7 pop frames (the clip itself 6)',
-    ('gltf_run', 'matt_feet_parented'): '7 pop frames (the clip itself 6)',
 }
 
 

@@ -5,6 +5,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from fullbody_adjust.solver.retarget import foot_pivots as fp
+from fullbody_adjust.solver.retarget.contacts import intervals
 
 
 def _turned(points, angle, about):
@@ -137,3 +138,45 @@ def test_a_ball_is_held_as_the_foot_pitches_onto_its_toes_but_not_on_a_heel_stan
     assert not plain[16:].any()  # 5 cm up: over the plant's height
     np.testing.assert_array_equal(heel_stand, plain & (lift <= fp._HEEL_STAND * height))
     assert heel_stand[:11].all() and not heel_stand[11:].any()  # the toes 2.1 cm up from frame 11
+
+
+def _twist_steps(length, cycles=4, turn=30.0, frames_per_turn=4):
+    """A foot of ``length`` (ankle above its heel, the ball ahead) twist-stepping sideways as a dancer does: it
+    swivels by ``turn`` degrees about its ball (pinned), then back about its heel (its ball lifted, the heel its
+    lowest point), ``cycles`` times. Returns (ankle (F,3), sole (F,2,3): heel, ball; ball (F,3), pinned (F,))."""
+    angles, pinned = [0.0], [True]
+    for _ in range(cycles):
+        for k in range(1, frames_per_turn + 1):
+            angles.append(np.radians(turn) * k / frames_per_turn)
+            pinned.append(True)
+        for k in range(1, frames_per_turn + 1):
+            angles.append(np.radians(turn) * (1.0 - k / frames_per_turn))
+            pinned.append(False)
+    angles = np.array(angles)
+    ball = np.stack([length * np.cos(angles), length * np.sin(angles), np.where(pinned, 0.0, 0.01)], axis=1)
+    ankle = np.tile([0.0, 0.0, 0.05], (len(angles), 1))
+    heel = np.zeros((len(angles), 3))
+    return ankle, np.stack([heel, ball], axis=1), ball, np.array(pinned)
+
+
+def test_a_held_foot_drifting_off_its_free_trajectory_is_held_in_pieces():
+    # The free trajectory: the ankle of a source's foot a third as long, twist-stepping the same way (its ankle
+    # travels with its own foot's swivels); the target's longer foot, held, travels three times as far.
+    small = _twist_steps(0.05)
+    free = fp.roll(small[0], small[1], small[2], small[3], 1e-12)
+    ankle, sole, ball, pinned = _twist_steps(0.15)
+    travel = fp.roll(ankle, sole, ball, pinned, 1e-12)
+    apart = float(np.linalg.norm(np.ptp(travel - free, axis=0)))
+    assert apart > 0.12  # held whole, its ends lie this far from where the body's motion puts them
+    largest = 0.1
+    pieces = fp.drifting_pieces(travel, free, pinned, largest)
+    runs = intervals(pinned)
+    assert len(runs) > 2 and len(pieces) == len(runs)
+    assert pieces[0][0] == 0 and pieces[-1][1] == len(free)  # from the contact's start to its stop
+    assert [p[0] for p in pieces[1:]] == [r[0] for r in runs[1:]]  # each held stretch on its own
+    for a, b in pieces:  # each piece, centred on its free trajectory, stays near it
+        offset = travel[a:b] - free[a:b]
+        assert np.linalg.norm(np.ptp(offset, axis=0)) <= largest
+    # A target foot as long as the source's follows its free trajectory: held whole.
+    assert fp.drifting_pieces(free, free, pinned, largest) == [(0, len(free))]
+    assert fp.drifting_pieces(travel, free, pinned, 1.1 * apart) == [(0, len(free))]

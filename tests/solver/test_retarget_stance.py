@@ -7,7 +7,7 @@ other."""
 
 import numpy as np
 
-from fullbody_adjust.solver.retarget import motion as rt, plan, rise
+from fullbody_adjust.solver.retarget import feet, motion as rt, plan, rise
 
 FRAMES, STEP, INNER = 40, 0.02, 0.3
 
@@ -91,3 +91,33 @@ def test_a_foot_held_on_the_floor_stands_by_its_holds_and_the_other_by_its_own_s
     plan._stand_in_place(free, found, s_points, soles, 0.0, 0.9, rt.RetargetSettings(), 0.0)
     np.testing.assert_allclose(free[:, rt.EFFECTORS.index("foot.L"), 2], 0.05 + 0.03, atol=1e-12)
     np.testing.assert_array_equal(free[:, rt.EFFECTORS.index("foot.R"), 2], 0.05)
+
+
+def test_a_foot_lowered_to_stand_in_place_never_stretches_a_leg_further_than_its_own_or_the_reach_margin_in_the_air():
+    hip = np.array([0.0, 0.0, 1.0])
+    heights = np.array([0.05, 0.115, 0.2, 0.3])  # the leg nearly straight down to well bent
+    ankles = np.stack([np.full(4, 0.1), np.zeros(4), heights], axis=1)
+    hips = np.broadcast_to(hip, (4, 3))
+    longest = 0.9
+    moved = feet.lowered_within_reach(ankles, hips, -0.02, longest)
+    own = np.linalg.norm(ankles - hip, axis=1)
+    after = np.linalg.norm(ankles + np.outer(moved, [0.0, 0.0, 1.0]) - hip, axis=1)
+    assert own[0] > longest and own[-1] < longest - 0.02
+    np.testing.assert_allclose(moved[0], 0.0, atol=1e-12)  # already beyond the margin: it stays
+    np.testing.assert_allclose(after[1], longest, atol=1e-12)  # lowered as far as the margin lets it
+    assert -0.02 < moved[1] < 0.0
+    np.testing.assert_allclose(moved[3], -0.02, atol=1e-12)  # room to spare: the whole way
+    assert (after <= np.maximum(own, longest) + 1e-12).all()
+    np.testing.assert_array_equal(feet.lowered_within_reach(ankles, hips, 0.02, longest), 0.02)  # raised freely
+    # Through _stand_in_place: with the hips given, a foot standing in place is lowered only where its leg has room.
+    free, s_points, soles = _in_place()
+    left, right = (rt.EFFECTORS.index(e) for e in rt.FEET)
+    free[:, [left, right], 2] = 0.3  # both feet 0.2 m too high for their soles: lowered 0.2 (spread 0)
+    hips = np.broadcast_to([[0.0, 0.0, 0.6], [0.0, 0.0, 0.3 + longest]], (len(free), 2, 3))
+    plan._stand_in_place(free, {e: [] for e in rt.EFFECTORS}, s_points, soles, 0.0, 0.9, rt.RetargetSettings(),
+                         0.0, hips, [longest, longest])
+    np.testing.assert_allclose(free[:, left, 2], 0.1, atol=1e-12)  # room to spare
+    resting = plan.resting_frames(s_points)[:, 1]
+    assert resting.any() and not resting.all()
+    # where the source's sole is lowest, on the floor; elsewhere its leg is already at the margin: not lowered
+    np.testing.assert_allclose(free[:, right, 2], np.where(resting, 0.1, 0.3), atol=1e-12)

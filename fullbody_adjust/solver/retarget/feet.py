@@ -187,3 +187,19 @@ def refit_step(moved, before, tiny):
     ratio = np.where(np.abs(before) > tiny, moved / np.where(np.abs(before) > tiny, before, 1.0), 0.0)
     steady = (ratio >= -0.95) & (ratio <= 0.5)
     return moved / (1.0 - np.where(steady, ratio, 0.0))
+
+
+def lowered_within_reach(ankles, hips, by, longest):
+    """(F,) how far to move a free foot's ankle (``ankles`` (F,3)) up or down to move it by ``by`` (world z) without
+    taking it farther from its hip joint (``hips`` (F,3)) than ``longest`` or than it already is, whichever is
+    farther: lowered onto the floor as a whole (plan._stand_in_place), a foot the source's leg nearly straightens
+    to would stretch it straight, and the knee snap back as it bends (KayKit's run onto Kenney: 12.7 degrees
+    bent in the clip, 4.3 with the foot 7 mm lower, the shin turning 30.6 degrees on the next frame, the clip's
+    26.5). Raised, or with room to spare, it moves by ``by``."""
+    ankles, hips = np.asarray(ankles, dtype=np.float64), np.asarray(hips, dtype=np.float64)
+    if by >= 0.0:
+        return np.full(len(ankles), float(by))
+    apart = hips - ankles
+    farthest = np.maximum(norm(apart), longest)
+    room = np.sqrt(np.maximum(farthest ** 2 - norm(apart[:, :2]) ** 2, 0.0)) - apart[:, 2]  # lower by at most
+    return -np.minimum(-by, np.maximum(room, 0.0))

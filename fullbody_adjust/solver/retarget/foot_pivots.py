@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .contacts import intervals
 from ..maths.geometry import norm
 
 # How much higher than a plant's height above its lowest place a ball held still may stand while the foot pitches
@@ -105,3 +106,21 @@ def roll(ankle, sole, pivot, pinned, tolerance, ankle_pinned=None):
     both = np.asarray(pinned[:-1], dtype=bool) & np.asarray(pinned[1:], dtype=bool)
     step[both] = (about[1:] - about[:-1])[both]
     return np.concatenate([np.zeros((1, 2)), np.cumsum(step, axis=0)])
+
+
+def drifting_pieces(travel, free, held, largest):
+    """[(start, stop)] half-open pieces of a foot contact of n frames to hold each on its own (the frames between
+    them blend to the free trajectory), or [(0, n)] to hold it whole: ``travel`` (n,2) its ankle's horizontal
+    travel as held (roll), ``free`` (n,2) its free trajectory, ``held`` (n,) the frames the source holds the foot's
+    pivot or ankle still. Held whole, the path is centred on the free trajectory, which the source's motion moves
+    as the source's own (smaller, or larger) foot turns: where the two part by more than ``largest`` (world) over the
+    contact (a dancer's twist steps, the foot turning on ball and heel by turns), the target's leg cannot reach its
+    held foot at the contact's ends (Godot's plush, its foot 0.4 of its leg long, its ankle 0.43 m from where the
+    dance's scaled ankle went, its arms pulled off their hands), so each stretch the source holds still is held on
+    its own: the first from the contact's start, the last to its stop."""
+    n = len(free)
+    offset = np.asarray(travel, dtype=np.float64) - np.asarray(free, dtype=np.float64)[:, :2]
+    runs = intervals(held)
+    if n == 0 or len(runs) < 2 or not float(norm(np.ptp(offset, axis=0))) > largest:
+        return [(0, n)]
+    return [(0 if i == 0 else a, n if i == len(runs) - 1 else b) for i, (a, b) in enumerate(runs)]

@@ -10,10 +10,11 @@ import numpy as np
 from ..fullbody.adjust import sub_base_point
 from .contacts import GROUND, RAISED, RetargetSettings, detect_contacts, hold, intervals
 from ..errors import SolverInputError
-from .foot_pivots import held_still, pivot_bone, pivot_held, roll
+from .foot_pivots import drifting_pieces, held_still, pivot_bone, pivot_held, roll
 from ..maths.geometry import all_set, norm
 from ..body.joint_ends import end_points
-from .feet import UNSEEN_FOOT, limit_toe_roll, raised_offsets, refit_step, resting_offsets
+from .feet import (UNSEEN_FOOT, limit_toe_roll, lowered_within_reach, raised_offsets, refit_step, resting_frames,
+                   resting_offsets)
 from .rig import (EFFECTOR_CHAIN, EFFECTORS, FEET, Rig, ankle_above_sole, chain_joints, effector_joint,
                   effector_points, facing_turn, hip_centres, leg_length, rest_points, sole_heights)
 from .rise import airborne_raise, fold_room, folded, let_go
@@ -28,6 +29,9 @@ _OWN_FOOT = 0.05
 # Something raised (inferred from the source alone) whose world height lies more than this (target leg lengths)
 # from its height scaled with the motion is out of the target's scale: it is scaled (_at_world_height).
 _OUT_OF_SCALE = 0.5
+# How far (target leg lengths) a foot's held path may part from its free trajectory over one contact before it is
+# held in pieces (foot_pivots.drifting_pieces).
+_DRIFT = 0.5
 
 
 def moving_average(values, half_width):
@@ -186,7 +190,19 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     free = np.stack([effector_joint(target, t_heads, t_ends, e) for e in EFFECTORS], axis=1)
     own = free.copy()  # where the transferred limbs put each wrist and ankle: within reach, moving with the body
     if ground:
-        _stand_in_place(free, found, s_points, soles, floor, leg_s, settings, _OWN_FOOT * leg_t)
+        legs = [EFFECTOR_CHAIN[e] for e in FEET]
+        _stand_in_place(free, found, s_points, soles, floor, leg_s, settings, _OWN_FOOT * leg_t,
+                        np.stack([target.to_world(start[:, target.groups[g][-2], :3, 3]) for g in legs], axis=1),
+                        [(1.0 - settings.reach_margin) * limb_reach(target, g) for g in legs])
+        for k, e in ((EFFECTORS.index(e), e) for e in FEET):  # a hold drifting off the free trajectory: in pieces
+            found[e] = [replace(c, start=c.start + a, stop=c.start + b) for c in found[e] for a, b in drifting_pieces(
+                _foot_path(c, free[c.start:c.stop, k], effector_points(target, start[c.start:c.stop], e), 0.0,
+                           target.to_world(start[c.start:c.stop, pivots[e][1], :3, 3]), pinned[e][c.start:c.stop],
+                           ankles_pinned[e][c.start:c.stop])[:, :2], free[c.start:c.stop, k],
+                (pinned[e] | ankles_pinned[e])[c.start:c.stop], _DRIFT * leg_t)]
+            contacts[:, k] = False
+            for c in found[e]:
+                contacts[c.start:c.stop, k] = True
         # Each foot rolls onto its toes no further than lifts its ankle as the source's does, nor than takes its
         # sole below the floor where it is not held (feet): the leg, not the floor, moves the ankle.
         feet = [EFFECTORS.index(e) for e in FEET]
@@ -225,7 +241,7 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
         chain = EFFECTOR_CHAIN[e]
         bases.append(target.to_world(start[:, target.groups[chain][-2], :3, 3]))  # shoulder, hip joint
         last_two = norm(np.diff(chain_joints(target, chain, rest_heads, rest_tails)[-3:], axis=0))
-        reach.append(float(last_two.sum()))  # upper arm + forearm, thigh + shin
+        reach.append(limb_reach(target, chain))
         inner.append(folded(*last_two))  # nearer than this, a leg cannot fold
     bases = np.stack(bases, axis=1)
     feet_first = [2.0 if e.startswith("hand") else 3.0 for e in EFFECTORS]
@@ -340,7 +356,7 @@ def _foot_path(contact, free, target_points, soles, pivot, pinned, ankle_pinned=
     return path
 
 
-def _stand_in_place(free, found, s_points, soles, floor, leg, settings, spread):
+def _stand_in_place(free, found, s_points, soles, floor, leg, settings, spread, hips=None, longest=np.inf):
     """Feet the source hardly ever holds still on the floor (planted on at most _HELD_STANCE of the frames: an
     in-place clip, whose stance slides under the body) but that come down to it: their free trajectories in
     ``free`` (F,E,3, changed in place) raised or lowered as a whole, so that their soles are on the floor on the
@@ -348,13 +364,22 @@ def _stand_in_place(free, found, s_points, soles, floor, leg, settings, spread):
     their mean: whatever each rig's ankle height and sole, the stance stands on the floor, one height per foot
     adds no jerk, and the legs keep the source's angles to each other where the feet differ by more than a rig's
     asymmetry (a dodge whose feet pitch differently, each sole put on the floor on its own, turned Godot's robot's
-    thighs 7 degrees off the source's). ``soles`` (F,2): the target's ankles above their soles."""
+    thighs 7 degrees off the source's). ``soles`` (F,2): the target's ankles above their soles; ``hips`` (F,2,3): the
+    hip joints; off the frames the source's sole is lowest, a foot is lowered no farther from its hip than
+    ``longest`` (2,) or its own leg puts it (feet.lowered_within_reach; None: no bound)."""
     ankles = free[:, [EFFECTORS.index(e) for e in FEET], 2]
     offsets = {i: offset for i, offset in resting_offsets(ankles, s_points, soles, floor, leg, settings).items()
                if sum(c.stop - c.start for c in found[FEET[i]] if c.kind == GROUND) <= _HELD_STANCE * len(free)}
     mean = np.mean(list(offsets.values())) if offsets else 0.0
     for i, offset in offsets.items():  # (feet whose stances are held on the floor stand on it by their holds)
-        free[:, EFFECTORS.index(FEET[i]), 2] += mean + np.clip(offset - mean, -spread, spread)
+        k, by = EFFECTORS.index(FEET[i]), mean + np.clip(offset - mean, -spread, spread)
+        free[:, k, 2] += by if hips is None else np.where(  # on the floor where the source's sole is lowest
+            resting_frames(s_points)[:, i], by, lowered_within_reach(free[:, k], hips[:, i], by, longest[i]))
+
+
+def limb_reach(rig, chain):
+    """Upper arm + forearm, thigh + shin of a limb ``chain`` (a group name) at rest: its reach from its base."""
+    return float(norm(np.diff(chain_joints(rig, chain, *rest_points(rig))[-3:], axis=0)).sum())
 
 
 def _held_offset(targets, free, contacts, half_width):
