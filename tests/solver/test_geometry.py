@@ -7,6 +7,7 @@ from hypothesis import strategies as st
 
 from fullbody_adjust.solver import SolverInputError
 from fullbody_adjust.solver.maths.geometry import normalize, rotate_about_axis, swing_rotation
+from fullbody_adjust.solver.maths import geometry
 from fullbody_adjust.solver.maths.geometry import affine_inverse, any_perpendicular, cross
 
 from .strategies import unit_vectors
@@ -102,3 +103,15 @@ def test_one_affine_inverse_equals_its_row_of_a_batch_bit_for_bit():
             np.testing.assert_array_equal(affine_inverse(matrices[k]), batch[k], err_msg=f"matrix {k}")
             np.testing.assert_array_equal(affine_inverse(matrices[k:k + 1]), batch[k:k + 1])
     assert not np.isfinite(batch[[7, 9]]).all()
+
+
+def test_dot_and_norm_take_horizontal_offsets_too():
+    """A horizontal (...,2) offset (a foot's drift off its path) has a length as a 3-vector does; the in-order sum of
+    three components, one row or many."""
+    rng = np.random.default_rng(7)
+    flat = rng.normal(size=(5, 2))
+    assert np.allclose(geometry.norm(flat), np.hypot(flat[:, 0], flat[:, 1]), rtol=0, atol=1e-15)
+    assert geometry.norm(np.array([3.0, 4.0])) == 5.0
+    rows = rng.normal(size=(7, 3))
+    assert np.array_equal(geometry.dot(rows, rows), (rows[:, 0] * rows[:, 0] + rows[:, 1] * rows[:, 1])
+                          + rows[:, 2] * rows[:, 2])

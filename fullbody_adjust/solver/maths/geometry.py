@@ -29,13 +29,15 @@ def all_set(flags):
 def dot(a, b):
     """Row-wise dot product (...,3)·(...,3) -> (...). Summed in order, (x0 + x1) + x2, so batched and single
     calls round the same, signed zeros included (numpy's add.reduce starts from +0.0, and einsum does not always
-    add in order)."""
+    add in order). Other lengths (a horizontal (...,2) offset) are summed by add.reduce."""
     p = np.multiply(a, b)
+    if p.shape[-1] != 3:
+        return np.add.reduce(p, axis=-1)
     return (p[..., 0] + p[..., 1]) + p[..., 2]
 
 
 def norm(v):
-    """Row-wise Euclidean length (...,3) -> (...)."""
+    """Row-wise Euclidean length (...,3) (or (...,2)) -> (...)."""
     return np.sqrt(dot(v, v))
 
 
