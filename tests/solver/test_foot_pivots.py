@@ -180,3 +180,29 @@ def test_a_held_foot_drifting_off_its_free_trajectory_is_held_in_pieces():
     # A target foot as long as the source's follows its free trajectory: held whole.
     assert fp.drifting_pieces(free, free, pinned, largest) == [(0, len(free))]
     assert fp.drifting_pieces(travel, free, pinned, 1.1 * apart) == [(0, len(free))]
+
+
+def test_a_foot_on_its_ball_whose_toes_twitch_about_a_still_ankle_keeps_its_ankle():
+    """The CMU dance's left foot: heel up (the ankle 10 cm above its lowest place in the clip), the ankle still, the
+    toes twitching 15 degrees about it every other frame. Its ball is not held on those frames, nor is its ankle
+    low; the target's ankle stays (ankle_held at any height) instead of swinging about its sole's lowest point as
+    the toes twitch."""
+    fps, speed, height, frames = 30.0, 0.25, 0.08, 24
+    yaw = np.zeros(frames)
+    yaw[6:18:2] = np.radians(15.0)  # the twitch: every other frame
+    c, s = np.cos(yaw), np.sin(yaw)
+    zero, up = np.zeros(frames), np.tile([0.0, 0.0, 1.0], (frames, 1))
+    turn = np.stack([np.stack([c, -s, zero], -1), np.stack([s, c, zero], -1), up], 1)
+    ankle = np.tile([0.0, 0.0, 0.17], (frames, 1))
+    foot = np.array([[0.0, -0.05, -0.1], [0.0, 0.2, -0.17], [0.0, 0.13, -0.115]])  # heel, toe tip, ball: from the ankle
+    sole = ankle[:, None] + np.einsum("fij,pj->fpi", turn, foot)
+    sole[:, 0, 2] += 0.06  # the heel up: the toe tip is the lowest point
+    ball = sole[:, 2]
+    ankle_z = np.concatenate([ankle, np.tile([0.0, 0.0, 0.07], (frames, 1))])  # flat elsewhere in the clip
+    pinned = fp.pivot_held(ball, ankle, fps, speed, height)
+    held = fp.ankle_held(ankle_z, fps, speed, 3)[:frames]
+    assert not pinned[6:17].any() and held.all()  # the ball held only from where its twitches end
+    travel = fp.roll(ankle, sole, ball, pinned, 1e-12, held)
+    assert np.abs(travel).max() < 1e-12
+    swinging = fp.roll(ankle, sole, ball, pinned, 1e-12)  # about the sole's lowest point: the ankle swings
+    assert np.abs(np.diff(swinging, axis=0)).max() > 0.03

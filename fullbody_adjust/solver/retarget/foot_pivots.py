@@ -4,7 +4,8 @@ A viewer sees a plant held when the joint the foot stands on does not slide: the
 lifts (the foot turns about the joint at the root of the toes, the toes flat on the ground), the ankle on a foot
 without toes. So on the frames where the SOURCE holds that joint still near the floor, the target's own joint is
 the pivot (it keeps its place on the floor, whatever its sole does); where the source holds its ankle still but
-not its ball (standing on the heel, the toes turning or raised: a dancer's swivel), the target's ankle stays;
+not its ball (standing on the heel, the toes turning or raised: a dancer's swivel; on the ball, the toes
+twitching), the target's ankle stays;
 elsewhere in a contact the foot rolls about the lowest point of its sole (heel strike, toes pushing off: the point
 on the ground)."""
 
@@ -84,6 +85,19 @@ def pivot_held(pivot, ankle, fps, speed, height):
     nearly = rise(pivot) <= rise(ankle) + _HEEL_STAND * height
     return (held_still(pivot, fps, speed, height) & nearly) | (held_still(pivot, fps, speed, _PIVOT_RISE * height)
                                                              & toes_down)
+
+
+def ankle_held(ankle, fps, speed, shortest):
+    """(F,) bool: the frames the source holds its ankle (F,3) still (held_still at any height), in runs of at least
+    ``shortest`` frames: where the ball is not held on both frames of a step (pivot_held), the target's ankle stays
+    (roll). At any height: on the ball, heel up, a dancer's toes twitching 3-4 cm a frame about a still ankle (the
+    CMU dance) turned the metarig's foot about its sole's lowest point, its ankle swinging 6-7 cm a frame (2 pop
+    frames at 30 fps). A frame or two between the heel strike and the ball coming down is a foot rolling about its
+    heel, not one standing on it."""
+    out = np.zeros(len(ankle), dtype=bool)
+    for a, b in intervals(held_still(ankle, fps, speed, np.inf), shortest):
+        out[a:b] = True
+    return out
 
 
 def roll(ankle, sole, pivot, pinned, tolerance, ankle_pinned=None):

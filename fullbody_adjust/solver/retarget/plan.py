@@ -8,9 +8,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..fullbody.adjust import sub_base_point
-from .contacts import GROUND, RAISED, RetargetSettings, detect_contacts, hold, intervals
+from .contacts import GROUND, RAISED, RetargetSettings, detect_contacts, hold
 from ..errors import SolverInputError
-from .foot_pivots import drifting_pieces, held_still, pivot_bone, pivot_held, roll
+from .foot_pivots import ankle_held, drifting_pieces, pivot_bone, pivot_held, roll
 from ..maths.geometry import all_set, norm
 from ..body.joint_ends import end_points
 from .feet import (UNSEEN_FOOT, limit_toe_roll, lowered_within_reach, raised_offsets, refit_step, resting_frames,
@@ -181,9 +181,8 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     pivots = {e: pivot_bone(source, target, e) for e in FEET}
     pinned = {e: pivot_held(s_heads[:, pivots[e][0]], s_heads[:, source.groups[e][0]], settings.fps,
                             rule.plant_speed * leg_s, rule.plant_height * leg_s) for e in FEET}
-    ankles_pinned = {e: _ankle_alone(held_still(s_heads[:, source.groups[e][0]], settings.fps,
-                                                rule.plant_speed * leg_s, rule.plant_height * leg_s) & ~pinned[e],
-                                     settings.frames(rule.raised_min_duration)) for e in FEET}
+    ankles_pinned = {e: ankle_held(s_heads[:, source.groups[e][0]], settings.fps, rule.plant_speed * leg_s,
+                                   settings.frames(rule.raised_min_duration)) for e in FEET}
 
     # Free of contacts, each wrist and ankle goes where the transferred pose puts it (its limb keeps the
     # source's angles); the holds are blended into that.
@@ -300,17 +299,6 @@ def source_floor(source, pose):
     if not source.skinned_soles and 0.0 < lowest <= UNSEEN_FOOT * leg_length(source):
         return 0.0
     return lowest
-
-
-def _ankle_alone(held, shortest):
-    """(F,) bool: the frames of ``held`` (the source's ankle still near the floor, its ball not) in runs of at
-    least ``shortest`` frames: standing on the heel, the toes raised or swivelling (a dancer's heel stand), where
-    the target's ankle stays (foot_pivots.roll). A frame or two between the heel strike and the ball coming
-    down is a foot rolling about its heel, not one standing on it."""
-    out = np.zeros(len(held), dtype=bool)
-    for a, b in intervals(held, shortest):
-        out[a:b] = True
-    return out
 
 
 def _at_world_height(contact, settings, raised_scaled):
