@@ -200,7 +200,7 @@ def test_a_foot_on_its_ball_whose_toes_twitch_about_a_still_ankle_keeps_its_ankl
     ball = sole[:, 2]
     ankle_z = np.concatenate([ankle, np.tile([0.0, 0.0, 0.07], (frames, 1))])  # flat elsewhere in the clip
     pinned = fp.pivot_held(ball, ankle, fps, speed, height)
-    held = fp.ankle_held(ankle_z, fps, speed, 3)[:frames]
+    held = fp.ankle_held(ankle_z, np.concatenate([pinned, np.ones(frames, dtype=bool)]), fps, speed, height, 3)[:frames]
     assert not pinned[6:17].any() and held.all()  # the ball held only from where its twitches end
     travel = fp.roll(ankle, sole, ball, pinned, 1e-12, held)
     assert np.abs(travel).max() < 1e-12

@@ -181,8 +181,8 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
     pivots = {e: pivot_bone(source, target, e) for e in FEET}
     pinned = {e: pivot_held(s_heads[:, pivots[e][0]], s_heads[:, source.groups[e][0]], settings.fps,
                             rule.plant_speed * leg_s, rule.plant_height * leg_s) for e in FEET}
-    ankles_pinned = {e: ankle_held(s_heads[:, source.groups[e][0]], settings.fps, rule.plant_speed * leg_s,
-                                   settings.frames(rule.raised_min_duration)) for e in FEET}
+    ankles_pinned = {e: ankle_held(s_heads[:, source.groups[e][0]], pinned[e], settings.fps, rule.plant_speed * leg_s,
+                                   rule.plant_height * leg_s, settings.frames(rule.raised_min_duration)) for e in FEET}
 
     # Free of contacts, each wrist and ankle goes where the transferred pose puts it (its limb keeps the
     # source's angles); the holds are blended into that.
