@@ -138,7 +138,9 @@ class Iteration:
             count += 1
             if constrained and count % _WINDOW == 0:
                 stalled = stalled | self._hopeless(best_res, check, best_pen, cap - count)
-                check = best_res
+            if count == 1 or count % _WINDOW == 0:  # the windows measure from the first iterate
+                # A window that starts with penetrations is not judged (inf: a rate of 0, some prospect left).
+                check = lanes.where(best_pen == 0, best_res, np.inf)
             done = (res <= tol) | stalled | (iterations >= cap)
             if one:
                 if done:
@@ -156,14 +158,16 @@ class Iteration:
                                   check))
 
     def _hopeless(self, best_res, check, best_pen, left):
-        """Whether a problem's best iterate, at the end of a _WINDOW of iterations in which its residual went from
-        `check` down to `best_res` without a penetration left, could not reach the tolerance in the `left`
-        iterations still allowed at that rate (a sufficient-decrease test: a limited arm near the edge of its reach
-        creeps by a fraction of a per cent an iteration until the cap). The rate is taken per whole window and
-        multiplied out, so one problem and many decide alike to the last bit. A window with no gain is left to
-        _PATIENCE."""
+        """Whether a problem's best iterate, at the end of a _WINDOW of iterations (the first measured from the first
+        iterate) in which its best residual went from `check` to `best_res` with no penetration left, has no worthwhile
+        prospect in the `left` iterations still allowed: shrinking at that window's rate it would still miss the
+        tolerance and gain less than _GAIN of its residual (a sufficient-decrease test: a limited arm near the edge
+        of its reach creeps by a fraction of a per cent an iteration until the cap). A window with no gain at all is
+        left to _PATIENCE: a chain started outside its limits can swing away from its target for ten iterations and
+        then converge (tests/solver/test_start_range.py). The rate is taken per whole window and multiplied out, so
+        one problem and many decide alike to the last bit."""
         tol = self.chain.settings.tolerance
-        ratio = lanes.minimum(lanes.divide(best_res, check), 1.0)  # no gain (or a start at 0): not hopeless here
+        ratio = lanes.minimum(lanes.divide(best_res, check), 1.0)  # no gain (or a start at 0): not judged
         projected = best_res
         for _ in range(-(-left // _WINDOW)):
             projected = projected * ratio
