@@ -9,7 +9,7 @@ import numpy as np
 
 from ..maths import lanes
 from ..maths import vectors as vec
-from .settings import _NUDGE, _NUDGES, _PATIENCE, _PROGRESS, _STALL
+from .settings import _NUDGE, _NUDGES, _GAIN, _PATIENCE, _PROGRESS, _STALL, _WINDOW
 
 _NO_PENETRATION_YET = np.iinfo(np.int64).max  # the best penetration count before the first iterate
 
@@ -102,6 +102,8 @@ class Iteration:
         iterations = nudges = marked = zero
         best, best_res, best_pen = pose, zero + np.inf, zero + (_NO_PENETRATION_YET if constrained else 0)
         mark = residual  # the best residual when progress was last marked (at first the start's)
+        check = residual  # the best residual at the last window's end (_WINDOW; at first the start's)
+        count = 0  # iterations so far: the same in every lane (they all start together)
         while True:
             prev = pose
             placed = list(prev) if one else prev.copy()
@@ -118,6 +120,7 @@ class Iteration:
             if lanes.any_(free):
                 pose = _chosen(free, self.nudged(placed, active, nudges), placed)
                 nudges = nudges + free
+                check = lanes.where(free, np.inf, check)  # a nudged chain's rate starts over
                 stalled = stalled & lanes.not_(free)
             # Progress: the kept iterate has fewer penetrations, or its residual's excess over the tolerance shrank
             # by _PROGRESS of what it was at the last mark (at least by `stall`).
@@ -132,6 +135,12 @@ class Iteration:
                 best, best_res, improved = placed, res, gained
             mark, marked = lanes.where(improved, res, mark), lanes.where(improved, iterations, marked)
             stalled = stalled | ((res > tol) & (iterations - marked >= _PATIENCE))
+            count += 1
+            if constrained and count % _WINDOW == 0:
+                stalled = stalled | self._hopeless(best_res, check, best_pen, cap - count)
+            if count == 1 or count % _WINDOW == 0:  # the windows measure from the first iterate
+                # A window that starts with penetrations is not judged (inf: a rate of 0, some prospect left).
+                check = lanes.where(best_pen == 0, best_res, np.inf)
             done = (res <= tol) | stalled | (iterations >= cap)
             if one:
                 if done:
@@ -144,8 +153,25 @@ class Iteration:
             keep = ~done
             if not lanes.any_(keep):
                 return tuple(out)
-            (lane, active, target, pose, iterations, nudges, best, best_res, best_pen, mark, marked) = (
-                x[keep] for x in (lane, active, target, pose, iterations, nudges, best, best_res, best_pen, mark, marked))
+            (lane, active, target, pose, iterations, nudges, best, best_res, best_pen, mark, marked, check) = (
+                x[keep] for x in (lane, active, target, pose, iterations, nudges, best, best_res, best_pen, mark, marked,
+                                  check))
+
+    def _hopeless(self, best_res, check, best_pen, left):
+        """Whether a problem's best iterate, at the end of a _WINDOW of iterations (the first measured from the first
+        iterate) in which its best residual went from `check` to `best_res` with no penetration left, has no worthwhile
+        prospect in the `left` iterations still allowed: shrinking at that window's rate it would still miss the
+        tolerance and gain less than _GAIN of its residual (a sufficient-decrease test: a limited arm near the edge
+        of its reach creeps by a fraction of a per cent an iteration until the cap). A window with no gain at all is
+        left to _PATIENCE: a chain started outside its limits can swing away from its target for ten iterations and
+        then converge (tests/solver/test_start_range.py). The rate is taken per whole window and multiplied out, so
+        one problem and many decide alike to the last bit."""
+        tol = self.chain.settings.tolerance
+        ratio = lanes.minimum(lanes.divide(best_res, check), 1.0)  # no gain (or a start at 0): not judged
+        projected = best_res
+        for _ in range(-(-left // _WINDOW)):
+            projected = projected * ratio
+        return (ratio < 1.0) & (projected > tol) & (projected > best_res * (1.0 - _GAIN)) & (best_pen == 0)
 
     def nudged(self, pose, rows, nudges):
         """The pose (as the passes take it) with its interior joints pushed sideways (see _NUDGES), by each problem's
