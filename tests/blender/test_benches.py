@@ -31,8 +31,8 @@ def test_interactive_bench_measures_every_rig_and_case(tmp_path):
             # The floor replays the poses Live showed without solving: below the real update by the solve's time.
             assert measures["live_floor_ms"]["median"] < measures["live_update_ms"]["median"], (kind, case)
             for name in ("adjust_pose_ms", "live_update_ms"):  # only a control rig is evaluated to place controls
-                evaluations = measures[name].get("rig_evaluations_per_update")
-                assert (evaluations >= 2) if kind == "generated" else (evaluations is None), (kind, case, name)
+                evaluations = measures[name].get("rig_evaluations_per_update")  # at least the one that shows it
+                assert (evaluations >= 1) if kind == "generated" else (evaluations is None), (kind, case, name)
             for name in ("adjust_pose_ms", "live_update_ms"):  # wrists from the evaluated pose, in arm lengths
                 if case == "far":
                     assert measures[name]["hand_residual"] > 0.1, (kind, name)  # 2.5 arm lengths away
