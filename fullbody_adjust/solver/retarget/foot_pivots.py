@@ -50,6 +50,12 @@ def pivot_bone(source, target, foot):
     return balls[0], target.groups[foot][0] if balls[1] is None else balls[1]
 
 
+def _rise(points):
+    """(F,) how high a joint's track (F,3) stands above its lowest place in the clip (the 2nd percentile of its
+    heights: a stumble below the floor is not where it stands)."""
+    return points[:, 2] - np.percentile(points[:, 2], 2)
+
+
 def held_still(points, fps, speed, height):
     """(F,) bool: the frames where a joint's world track ``points`` (F,3) moves slower than ``speed`` (world units
     a second) towards either neighbouring frame, within ``height`` of its lowest place in the clip (the 2nd
@@ -62,7 +68,7 @@ def held_still(points, fps, speed, height):
         return np.zeros(len(points), dtype=bool)
     steps = norm(np.diff(points, axis=0)) * fps
     moving = np.minimum(np.concatenate([steps[:1], steps]), np.concatenate([steps, steps[-1:]]))
-    low = points[:, 2] - np.percentile(points[:, 2], 2) <= height
+    low = _rise(points) <= height
     return (moving < speed) & low
 
 
@@ -75,14 +81,11 @@ def pivot_held(pivot, ankle, fps, speed, height):
     where a heel stand raising the toes (a dancer's swivel) lifts the ball more than the ankle, and the ankle is
     what stays (the CMU dance's right foot on its heel, toes 8 cm up: turned about its ball, Godot's plush's ankle
     slid 38 mm)."""
-    def rise(points):
-        return points[:, 2] - np.percentile(points[:, 2], 2)
-
     pivot, ankle = np.asarray(pivot, dtype=np.float64), np.asarray(ankle, dtype=np.float64)
     if not len(pivot):
         return np.zeros(0, dtype=bool)
-    toes_down = rise(pivot) <= rise(ankle)
-    nearly = rise(pivot) <= rise(ankle) + _HEEL_STAND * height
+    toes_down = _rise(pivot) <= _rise(ankle)
+    nearly = _rise(pivot) <= _rise(ankle) + _HEEL_STAND * height
     return (held_still(pivot, fps, speed, height) & nearly) | (held_still(pivot, fps, speed, _PIVOT_RISE * height)
                                                              & toes_down)
 
@@ -97,7 +100,7 @@ def ankle_held(ankle, pinned, fps, speed, height, shortest):
     sliding p95 0.4 -> 1.6 mm). A frame or two between the heel strike and the ball coming down is a foot rolling
     about its heel, not one standing on it."""
     ankle = np.asarray(ankle, dtype=np.float64)
-    low = ankle[:, 2] - np.percentile(ankle[:, 2], 2) <= height if len(ankle) else np.zeros(0, dtype=bool)
+    low = _rise(ankle) <= height if len(ankle) else np.zeros(0, dtype=bool)
     out = np.zeros(len(ankle), dtype=bool)
     for a, b in intervals(held_still(ankle, fps, speed, np.inf) & ~(low & np.asarray(pinned, dtype=bool)), shortest):
         out[a:b] = True
