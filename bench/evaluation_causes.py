@@ -1,5 +1,5 @@
-"""What each evaluation of a generated Rigify rig is spent on while its controls are placed (issue 29: rig
-evaluations per update), on bench/interactive.py's cases and drag, with Live on or by clicks.
+"""What each evaluation of a generated Rigify rig is spent on while its controls are placed (rig evaluations per
+update), on bench/interactive.py's cases and drag, with Live on or by clicks.
 
 Each placement (control_match.match_controls) is counted: its evaluations, the first of which shows the result
 (a click or a Live update has just evaluated the rig, and the matching does not evaluate it first); every further
