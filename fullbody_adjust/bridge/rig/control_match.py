@@ -122,10 +122,10 @@ def match_controls(obj, view_layer, pairs, desired, tolerance, max_sweeps=8, eva
     unknown (module notes), and after each sweep. Returns the largest remaining bone error (armature units) of the
     best sweep, whose channels the controls are left holding. ``stretch``: the IK chains' stretch samples to step
     their scales from and add to ({first bone: samples}; None: none kept). ``predict``: an IK chain whose end or
-    base moved is predicted (chain_prediction) rather than evaluated before its bend and scale steps; control_frames.control_channels
-    predicts for one pose Blender has just evaluated (Live, a click), not for frames in a row (a retarget, Adjust
-    Frames), whose IK ends met then lie within 0.1 mm of the solve on every version (measured: with prediction a
-    generated rig's retargeted toe ended 0.111 mm off on bpy 4.5 and 5.2)."""
+    base moved is predicted (chain_prediction) rather than evaluated before its bend and scale steps;
+    control_frames.control_channels predicts for one pose Blender has just evaluated (Live, a click), not for frames
+    in a row (a retarget, Adjust Frames), whose IK ends met then lie within 0.1 mm of the solve on every version
+    (measured: with prediction a generated rig's retargeted toe ended 0.111 mm off on bpy 4.5 and 5.2)."""
     pose_bones = obj.pose.bones
     levels = sorted({p.level for p in pairs})
     by_level = [[p for p in pairs if p.level == level] for level in levels]
