@@ -240,7 +240,7 @@ def plan_retarget(source, source_pose, target, target_basis, settings=RetargetSe
         chain = EFFECTOR_CHAIN[e]
         bases.append(target.to_world(start[:, target.groups[chain][-2], :3, 3]))  # shoulder, hip joint
         last_two = norm(np.diff(chain_joints(target, chain, rest_heads, rest_tails)[-3:], axis=0))
-        reach.append(limb_reach(target, chain))
+        reach.append(float(last_two.sum()))  # upper arm + forearm, thigh + shin (limb_reach)
         inner.append(folded(*last_two))  # nearer than this, a leg cannot fold
     bases = np.stack(bases, axis=1)
     feet_first = [2.0 if e.startswith("hand") else 3.0 for e in EFFECTORS]
@@ -359,10 +359,11 @@ def _stand_in_place(free, found, s_points, soles, floor, leg, settings, spread, 
     offsets = {i: offset for i, offset in resting_offsets(ankles, s_points, soles, floor, leg, settings).items()
                if sum(c.stop - c.start for c in found[FEET[i]] if c.kind == GROUND) <= _HELD_STANCE * len(free)}
     mean = np.mean(list(offsets.values())) if offsets else 0.0
+    resting = resting_frames(s_points) if offsets and hips is not None else None
     for i, offset in offsets.items():  # (feet whose stances are held on the floor stand on it by their holds)
         k, by = EFFECTORS.index(FEET[i]), mean + np.clip(offset - mean, -spread, spread)
         free[:, k, 2] += by if hips is None else np.where(  # on the floor where the source's sole is lowest
-            resting_frames(s_points)[:, i], by, lowered_within_reach(free[:, k], hips[:, i], by, longest[i]))
+            resting[:, i], by, lowered_within_reach(free[:, k], hips[:, i], by, longest[i]))
 
 
 def limb_reach(rig, chain):
